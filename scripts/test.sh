@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Run every hexcal test on a fresh Debian machine: install what the tests need, then
+# check formatting and lints and run the whole workspace's tests.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    # Debian packages of DESIGN.md §11 used by the tests (none yet beyond the toolchain).
+    apt_packages=(python3)
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${apt_packages[@]}" >/dev/null
+fi
+
+rustup component add rustfmt clippy >/dev/null 2>&1 || true
+cargo fmt --all --check
+cargo clippy --workspace --all-targets -- -D warnings
+cargo test --workspace

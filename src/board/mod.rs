@@ -1,0 +1,525 @@
+//! The calibration board (DESIGN.md §3): a double-sided planar target of white circles on
+//! black in a hexagonal lattice, with dark marker rings that encode the board centre and
+//! which side is seen.
+//!
+//! Takes a board description (the built-in [`Board::hex600`] or a TOML board file) and gives
+//! every circle of either side in that side's own lattice frame and in the board frame, the
+//! marker cells and their codes, and the rigid transform between the two sides.
+
+use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// One side of the double-sided board.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Side {
+    /// The face whose frame is the board frame.
+    Front,
+    /// The opposite face, with its own (x right, y up) frame as seen looking at it.
+    Back,
+}
+
+impl Side {
+    /// Both sides, front first.
+    pub const BOTH: [Side; 2] = [Side::Front, Side::Back];
+
+    /// The other side.
+    pub fn opposite(self) -> Side {
+        match self {
+            Side::Front => Side::Back,
+            Side::Back => Side::Front,
+        }
+    }
+
+    /// Lower-case name as used in files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Side::Front => "front",
+            Side::Back => "back",
+        }
+    }
+}
+
+impl std::fmt::Display for Side {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Side {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "front" => Ok(Side::Front),
+            "back" => Ok(Side::Back),
+            other => Err(format!("unknown board side {other:?} (expected front or back)")),
+        }
+    }
+}
+
+/// Axial lattice coordinates (q, r) of a circle on one side, in that side's own frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct Hex {
+    /// Axial coordinate along the first lattice direction (+1, 0).
+    pub q: i32,
+    /// Axial coordinate along the second lattice direction (0, +1).
+    pub r: i32,
+}
+
+impl Hex {
+    /// The six neighbour offsets k = 0…5, counter-clockwise in the side's own frame.
+    pub const DIRECTIONS: [Hex; 6] = [
+        Hex { q: 1, r: 0 },
+        Hex { q: 0, r: 1 },
+        Hex { q: -1, r: 1 },
+        Hex { q: -1, r: 0 },
+        Hex { q: 0, r: -1 },
+        Hex { q: 1, r: -1 },
+    ];
+
+    /// A lattice position.
+    pub const fn new(q: i32, r: i32) -> Hex {
+        Hex { q, r }
+    }
+
+    /// Neighbour in direction `k` (taken mod 6).
+    pub fn neighbour(self, k: usize) -> Hex {
+        self + Hex::DIRECTIONS[k % 6]
+    }
+
+    /// The six neighbours in direction order.
+    pub fn neighbours(self) -> [Hex; 6] {
+        std::array::from_fn(|k| self.neighbour(k))
+    }
+
+    /// This offset rotated by `k` steps of 60° counter-clockwise about the origin.
+    pub fn rotate(self, k: usize) -> Hex {
+        let (mut q, mut r) = (self.q, self.r);
+        for _ in 0..k % 6 {
+            // (q, r) -> (-r, q + r): one 60° step in axial coordinates.
+            (q, r) = (-r, q + r);
+        }
+        Hex { q, r }
+    }
+
+    /// Lattice (hex) distance between two positions.
+    pub fn distance(self, other: Hex) -> i32 {
+        let d = self - other;
+        (d.q.abs() + d.r.abs() + (d.q + d.r).abs()) / 2
+    }
+}
+
+impl std::ops::Add for Hex {
+    type Output = Hex;
+    fn add(self, o: Hex) -> Hex {
+        Hex::new(self.q + o.q, self.r + o.r)
+    }
+}
+
+impl std::ops::Sub for Hex {
+    type Output = Hex;
+    fn sub(self, o: Hex) -> Hex {
+        Hex::new(self.q - o.q, self.r - o.r)
+    }
+}
+
+impl std::ops::Neg for Hex {
+    type Output = Hex;
+    fn neg(self) -> Hex {
+        Hex::new(-self.q, -self.r)
+    }
+}
+
+/// A six-bit ring code: bit k set means neighbour k of the cell centre is ringed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub struct Code(pub u8);
+
+impl Code {
+    /// Parse a code written bit 0 first, e.g. `"011111"`.
+    pub fn parse(s: &str) -> Result<Code, String> {
+        if s.len() != 6 || !s.bytes().all(|b| b == b'0' || b == b'1') {
+            return Err(format!("ring code {s:?} must be six characters 0 or 1"));
+        }
+        Ok(Code(
+            s.bytes()
+                .enumerate()
+                .map(|(k, b)| u8::from(b == b'1') << k)
+                .sum(),
+        ))
+    }
+
+    /// Whether neighbour `k` is ringed.
+    pub fn bit(self, k: usize) -> bool {
+        self.0 >> (k % 6) & 1 == 1
+    }
+
+    /// Number of ringed neighbours.
+    pub fn weight(self) -> u32 {
+        self.0.count_ones()
+    }
+
+    /// The code read after turning the cell by `k` steps: bit j of the result is bit
+    /// (j + k) mod 6 of `self`. A cell seen rotated by `k` steps reads `self.rotated(k)`.
+    pub fn rotated(self, k: usize) -> Code {
+        Code((0..6).map(|j| u8::from(self.bit(j + k)) << j).sum())
+    }
+}
+
+impl std::fmt::Display for Code {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for k in 0..6 {
+            f.write_str(if self.bit(k) { "1" } else { "0" })?;
+        }
+        Ok(())
+    }
+}
+
+impl TryFrom<String> for Code {
+    type Error = String;
+    fn try_from(s: String) -> Result<Self, String> {
+        Code::parse(&s)
+    }
+}
+
+impl From<Code> for String {
+    fn from(c: Code) -> String {
+        c.to_string()
+    }
+}
+
+/// What a marker cell tells the grid builder.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MarkerKind {
+    /// The centre cell of the front side.
+    FrontCenter,
+    /// The centre cell of the back side.
+    BackCenter,
+    /// A side mark on the front.
+    FrontSide,
+    /// A side mark on the back.
+    BackSide,
+}
+
+impl MarkerKind {
+    /// All kinds.
+    pub const ALL: [MarkerKind; 4] = [
+        MarkerKind::FrontCenter,
+        MarkerKind::BackCenter,
+        MarkerKind::FrontSide,
+        MarkerKind::BackSide,
+    ];
+
+    /// The side this kind of marker is printed on.
+    pub fn side(self) -> Side {
+        match self {
+            MarkerKind::FrontCenter | MarkerKind::FrontSide => Side::Front,
+            MarkerKind::BackCenter | MarkerKind::BackSide => Side::Back,
+        }
+    }
+
+    /// Whether this is a centre cell (it fixes the lattice origin, not only the side).
+    pub fn is_center(self) -> bool {
+        matches!(self, MarkerKind::FrontCenter | MarkerKind::BackCenter)
+    }
+}
+
+/// The four ring codes of a board.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Codes {
+    /// Centre cell of the front.
+    pub front_center: Code,
+    /// Centre cell of the back.
+    pub back_center: Code,
+    /// Side marks on the front.
+    pub front_side: Code,
+    /// Side marks on the back.
+    pub back_side: Code,
+}
+
+impl Codes {
+    /// The code of a marker kind.
+    pub fn get(&self, kind: MarkerKind) -> Code {
+        match kind {
+            MarkerKind::FrontCenter => self.front_center,
+            MarkerKind::BackCenter => self.back_center,
+            MarkerKind::FrontSide => self.front_side,
+            MarkerKind::BackSide => self.back_side,
+        }
+    }
+
+    /// The marker kind and rotation `k` whose rotated code equals `read`, if any: a cell
+    /// whose neighbour j (in image order) reads bit j of `read` is the marker turned by `k`
+    /// steps, i.e. image neighbour j is board neighbour (j + k) mod 6.
+    pub fn decode(&self, read: Code) -> Option<(MarkerKind, usize)> {
+        MarkerKind::ALL.iter().find_map(|&kind| {
+            (0..6)
+                .find(|&k| self.get(kind).rotated(k) == read)
+                .map(|k| (kind, k))
+        })
+    }
+}
+
+/// One circle of one side.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BoardCircle {
+    /// Lattice position in the side's own frame.
+    pub hex: Hex,
+    /// Which side it is printed on.
+    pub side: Side,
+    /// Centre in the side's own 2D frame (mm).
+    pub center_2d: Point2<f64>,
+    /// Whether the circle carries a marker ring.
+    pub ringed: bool,
+}
+
+/// One marker cell of one side.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MarkerCell {
+    /// Lattice position of the (never ringed) cell centre.
+    pub center: Hex,
+    /// Which marker this is.
+    pub kind: MarkerKind,
+}
+
+/// A board: geometry of the lattice, circles, rings, codes and the side transform.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Board {
+    /// Name printed on the target and written into outputs.
+    pub name: String,
+    /// Lattice pitch d (mm).
+    pub pitch: f64,
+    /// Circle radius R (mm).
+    pub radius: f64,
+    /// Half extents of the circle area: a circle centre lies at |x| ≤ half_width,
+    /// |y| ≤ half_height (mm).
+    pub half_width: f64,
+    /// See `half_width`.
+    pub half_height: f64,
+    /// Physical board size (width, height) in mm (the black area).
+    pub size: [f64; 2],
+    /// Marker ring radii (inner, outer) as fractions of the circle radius.
+    pub ring: [f64; 2],
+    /// Board thickness t (mm), used by the nominal side transform.
+    pub thickness: f64,
+    /// Ring codes.
+    pub codes: Codes,
+    /// Side marks sit at (q, r) = (s·i, s·j) for this spacing s.
+    pub marker_spacing: i32,
+    /// Measured transform of back-side points into the board (front) frame; when absent the
+    /// nominal (x, y) → (−x, y, −t) is used.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub front_back: Option<SideTransform>,
+}
+
+/// A measured rigid transform, stored as axis-angle (rad) and translation (mm).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SideTransform {
+    /// Rotation vector (axis · angle, rad).
+    pub rotation: [f64; 3],
+    /// Translation (mm).
+    pub translation: [f64; 3],
+}
+
+impl SideTransform {
+    /// As an isometry.
+    pub fn isometry(&self) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::from(Vector3::from(self.translation)),
+            UnitQuaternion::from_scaled_axis(Vector3::from(self.rotation)),
+        )
+    }
+}
+
+impl Board {
+    /// The default board "hex600" (DESIGN.md §3).
+    pub fn hex600() -> Board {
+        let code = |s| Code::parse(s).expect("built-in code");
+        Board {
+            name: "hex600".into(),
+            pitch: 20.0,
+            radius: 6.0,
+            half_width: 290.0,
+            half_height: 230.0,
+            size: [600.0, 500.0],
+            ring: [0.45, 0.75],
+            thickness: 10.0,
+            codes: Codes {
+                front_center: code("011111"),
+                back_center: code("000111"),
+                front_side: code("001011"),
+                back_side: code("001101"),
+            },
+            marker_spacing: 6,
+            front_back: None,
+        }
+    }
+
+    /// Position of a lattice point in its side's own 2D frame (mm):
+    /// (x, y) = d·(q + r/2, (√3/2)·r).
+    pub fn position(&self, h: Hex) -> Point2<f64> {
+        let (q, r) = (f64::from(h.q), f64::from(h.r));
+        Point2::new(self.pitch * (q + 0.5 * r), self.pitch * 0.75f64.sqrt() * r)
+    }
+
+    /// Whether a lattice point carries a circle.
+    pub fn contains(&self, h: Hex) -> bool {
+        let p = self.position(h);
+        const EPS: f64 = 1e-9;
+        p.x.abs() <= self.half_width + EPS && p.y.abs() <= self.half_height + EPS
+    }
+
+    /// Every lattice point with a circle, row by row (r ascending, then q ascending).
+    pub fn lattice(&self) -> Vec<Hex> {
+        let row_step = self.pitch * 0.75f64.sqrt();
+        let r_max = (self.half_height / row_step + 1e-9).floor() as i32;
+        let mut out = Vec::new();
+        for r in -r_max..=r_max {
+            let q_span = (self.half_width / self.pitch).ceil() as i32 + r.abs();
+            out.extend(
+                (-q_span..=q_span)
+                    .map(|q| Hex::new(q, r))
+                    .filter(|&h| self.contains(h)),
+            );
+        }
+        out
+    }
+
+    /// The marker cells of one side: the centre cell, then the side marks.
+    pub fn marker_cells(&self, side: Side) -> Vec<MarkerCell> {
+        let (center, mark) = match side {
+            Side::Front => (MarkerKind::FrontCenter, MarkerKind::FrontSide),
+            Side::Back => (MarkerKind::BackCenter, MarkerKind::BackSide),
+        };
+        let mut cells = vec![MarkerCell {
+            center: Hex::new(0, 0),
+            kind: center,
+        }];
+        let s = self.marker_spacing;
+        if s > 0 {
+            let reach = 2 * (self.half_width.max(self.half_height) / self.pitch).ceil() as i32 + 2;
+            let n = reach / s + 1;
+            for j in -n..=n {
+                for i in -n..=n {
+                    let c = Hex::new(s * i, s * j);
+                    if (i, j) != (0, 0)
+                        && self.contains(c)
+                        && c.neighbours().iter().all(|&h| self.contains(h))
+                    {
+                        cells.push(MarkerCell {
+                            center: c,
+                            kind: mark,
+                        });
+                    }
+                }
+            }
+        }
+        cells.sort_by_key(|m| (!m.kind.is_center(), m.center.r, m.center.q));
+        cells
+    }
+
+    /// The ringed lattice points of one side.
+    pub fn ringed(&self, side: Side) -> std::collections::HashSet<Hex> {
+        let mut set = std::collections::HashSet::new();
+        for cell in self.marker_cells(side) {
+            let code = self.codes.get(cell.kind);
+            for k in 0..6 {
+                if code.bit(k) {
+                    set.insert(cell.center.neighbour(k));
+                }
+            }
+        }
+        set
+    }
+
+    /// Every circle of one side.
+    pub fn circles(&self, side: Side) -> Vec<BoardCircle> {
+        let ringed = self.ringed(side);
+        self.lattice()
+            .into_iter()
+            .map(|hex| BoardCircle {
+                hex,
+                side,
+                center_2d: self.position(hex),
+                ringed: ringed.contains(&hex),
+            })
+            .collect()
+    }
+
+    /// `T_board_side`: maps a point (x, y, 0) of a side's own frame into the board frame
+    /// (origin at the front centre, z out of the front).
+    pub fn side_transform(&self, side: Side) -> Isometry3<f64> {
+        match side {
+            Side::Front => Isometry3::identity(),
+            Side::Back => self.front_back.map_or_else(
+                || {
+                    // Nominal: X = −x_b, Y = y_b, Z = −t (a half turn about y, then −t).
+                    Isometry3::from_parts(
+                        Translation3::new(0.0, 0.0, -self.thickness),
+                        UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI),
+                    )
+                },
+                |t| t.isometry(),
+            ),
+        }
+    }
+
+    /// A lattice point of a side as a 3D point in the board frame.
+    pub fn point(&self, side: Side, h: Hex) -> Point3<f64> {
+        let p = self.position(h);
+        self.side_transform(side) * Point3::new(p.x, p.y, 0.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hex600_counts_match_design() {
+        let b = Board::hex600();
+        assert_eq!(b.lattice().len(), 797);
+        for side in Side::BOTH {
+            assert_eq!(b.circles(side).len(), 797);
+            assert_eq!(b.marker_cells(side).len(), 23);
+        }
+        assert_eq!(b.ringed(Side::Front).len(), 71);
+        assert_eq!(b.ringed(Side::Back).len(), 69);
+        let rows: std::collections::BTreeSet<i32> = b.lattice().iter().map(|h| h.r).collect();
+        assert_eq!(rows.first(), Some(&-13));
+        assert_eq!(rows.last(), Some(&13));
+    }
+
+    #[test]
+    fn rotation_of_directions_is_cyclic() {
+        for k in 0..6 {
+            for s in 0..6 {
+                assert_eq!(Hex::DIRECTIONS[k].rotate(s), Hex::DIRECTIONS[(k + s) % 6]);
+            }
+        }
+    }
+
+    #[test]
+    fn codes_decode_with_rotation() {
+        let codes = Board::hex600().codes;
+        for kind in MarkerKind::ALL {
+            for k in 0..6 {
+                assert_eq!(codes.decode(codes.get(kind).rotated(k)), Some((kind, k)));
+            }
+        }
+        assert_eq!(Code::parse("011111").unwrap().to_string(), "011111");
+        assert!(!Code::parse("011111").unwrap().bit(0));
+    }
+
+    #[test]
+    fn nominal_back_transform() {
+        let b = Board::hex600();
+        let p = b.point(Side::Back, Hex::new(2, 1));
+        let xy = b.position(Hex::new(2, 1));
+        assert!((p.x + xy.x).abs() < 1e-9 && (p.y - xy.y).abs() < 1e-9);
+        assert!((p.z + 10.0).abs() < 1e-9);
+    }
+}

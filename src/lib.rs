@@ -1,0 +1,12 @@
+//! hexcal: joint geometric calibration of structured-light rigs with many cameras and many
+//! projectors, from a double-sided hexagonal circle board.
+//!
+//! The stages, in the order data flows through them:
+//! [`board`] and [`camera`] (the models every stage shares) → [`detect`] (circles) →
+//! [`grid`] (labelled lattice points).
+#![warn(missing_docs)]
+
+pub mod board;
+pub mod camera;
+pub mod detect;
+pub mod grid;
