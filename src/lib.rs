@@ -7,6 +7,7 @@
 #![warn(missing_docs)]
 
 pub mod board;
+pub mod calib;
 pub mod camera;
 pub mod detect;
 pub mod grid;

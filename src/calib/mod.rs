@@ -1,0 +1,43 @@
+//! Calibration (DESIGN.md §8): Zhang's planar initialisation per device, then (in later
+//! steps) the pose graph and one bundle adjustment over all devices and board poses.
+//!
+//! Takes labelled observations (board point ↔ device pixel) and gives device models and poses.
+
+pub mod zhang;
+
+use nalgebra::Point2;
+
+/// One board-plane point and where a device observed it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlaneCorrespondence {
+    /// Point on the board plane of the side seen (mm), z = 0 in that side's frame.
+    pub board: Point2<f64>,
+    /// Observed pixel.
+    pub image: Point2<f64>,
+}
+
+/// All correspondences of one device in one board pose, on one side's plane.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PlanarView {
+    /// The correspondences.
+    pub points: Vec<PlaneCorrespondence>,
+}
+
+/// Why a calibration step failed.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibError {
+    /// Not enough views for the step.
+    #[error("too few views: {got} given, at least {needed} needed")]
+    TooFewViews {
+        /// Minimum number of views.
+        needed: usize,
+        /// Views given.
+        got: usize,
+    },
+    /// The data do not determine the quantity (e.g. parallel views, collinear points).
+    #[error("degenerate data: {0}")]
+    Degenerate(&'static str),
+}
+
+#[cfg(test)]
+mod tests;
