@@ -3,6 +3,7 @@
 //!
 //! Takes labelled observations (board point ↔ device pixel) and gives device models and poses.
 
+pub mod posegraph;
 pub mod zhang;
 
 use nalgebra::Point2;
