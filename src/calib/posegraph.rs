@@ -100,7 +100,7 @@ mod tests {
     #[test]
     fn chains_exact_estimates_and_reports_unreachable() {
         let devs = [
-            iso(0.0, 0.0, [0.0; 3]),
+            Isometry3::identity(),
             iso(0.1, 1.2, [500.0, 0.0, 100.0]),
             iso(-0.2, 3.0, [0.0, 50.0, 2000.0]),
         ];
