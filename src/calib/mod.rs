@@ -3,7 +3,10 @@
 //!
 //! Takes labelled observations (board point ↔ device pixel) and gives device models and poses.
 
+pub mod bundle;
 pub mod posegraph;
+#[cfg(test)]
+pub(crate) mod synthetic;
 pub mod zhang;
 
 use nalgebra::Point2;

@@ -1,0 +1,656 @@
+//! Bundle adjustment over all devices, board poses and both board sides (DESIGN.md §8).
+//!
+//! Model (§8): x = π(K_d, D_d, T_d · S_k · F_s · X), with T_d = T_device_ref (the reference
+//! device is the gauge), S_k = T_ref_board of board pose k, F_s the side transform
+//! (identity for the front, T_front_back for the back) and X a lattice point on side s.
+//! Camera observations are image-ellipse centres, so the prediction adds the perspective
+//! bias of a circle of radius R (bias-free circle model); projector observations are the
+//! projector pixels of the board point a camera saw at its ellipse centre.
+//!
+//! Solver: Levenberg–Marquardt on the normal equations with left pose increments
+//! T ← (exp(ω), τ)·T, a Huber loss first, then rejection of outliers beyond a multiple of a
+//! robust σ, then plain least squares; covariance σ²(JᵀJ)⁻¹ at the end.
+
+use super::CalibError;
+use crate::board::{Board, Hex, Side};
+use crate::camera::CameraModel;
+use nalgebra::{
+    DMatrix, DVector, Isometry3, Matrix2x3, Matrix3, Point2, Point3, Translation3, UnitQuaternion,
+    Vector2, Vector3,
+};
+
+/// Whether a device records images or casts them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DeviceKind {
+    /// A camera: observes ellipse centres of circles.
+    Camera,
+    /// A projector: observed through cameras as decoded projector pixels.
+    Projector,
+}
+
+/// One device's model and pose, as a start or as a result.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Device {
+    /// Name used in reports (e.g. "cam0").
+    pub name: String,
+    /// Camera or projector.
+    pub kind: DeviceKind,
+    /// Lens model.
+    pub model: CameraModel,
+    /// T_device_ref.
+    pub pose: Isometry3<f64>,
+}
+
+/// A projector observation's link to the camera that located its board point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Via {
+    /// Camera index.
+    pub camera: usize,
+    /// That camera's observed ellipse centre of the circle (px).
+    pub ellipse_center: Point2<f64>,
+}
+
+/// One observed circle: a camera's ellipse centre or a projector's decoded pixel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observation {
+    /// Observing device.
+    pub device: usize,
+    /// Board pose index.
+    pub pose: usize,
+    /// Side the circle is on.
+    pub side: Side,
+    /// Lattice position in that side's frame.
+    pub hex: Hex,
+    /// Observed pixel (camera: ellipse centre; projector: decoded (u, v)).
+    pub pixel: Point2<f64>,
+    /// For projector observations: which camera located the board point.
+    pub via: Option<Via>,
+}
+
+/// Solver options.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Options {
+    /// Device whose frame is the reference (its pose is fixed to the identity).
+    pub reference: usize,
+    /// Refine T_front_back (6 parameters).
+    pub refine_side_transform: bool,
+    /// Model the perspective bias of circle centres (§8); off only for tests and comparison.
+    pub bias_free: bool,
+    /// Huber threshold (px) for the robust phase.
+    pub huber: f64,
+    /// Reject observations whose residual norm exceeds this many robust σ.
+    pub outlier_sigmas: f64,
+    /// Use the rational k4–k6 terms; k3 is free unless `fix_k3`.
+    pub fix_k3: bool,
+    /// Maximum LM iterations per phase.
+    pub max_iterations: usize,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            reference: 0,
+            refine_side_transform: true,
+            bias_free: true,
+            huber: 1.0,
+            outlier_sigmas: 4.0,
+            fix_k3: false,
+            max_iterations: 50,
+        }
+    }
+}
+
+/// The data of one adjustment.
+#[derive(Clone, Debug)]
+pub struct Problem {
+    /// The board (geometry, nominal or measured side transform).
+    pub board: Board,
+    /// Devices with their starting models and poses.
+    pub devices: Vec<Device>,
+    /// Starting board poses T_ref_board.
+    pub boards: Vec<Isometry3<f64>>,
+    /// All observations.
+    pub observations: Vec<Observation>,
+}
+
+/// Residual of one observation after the adjustment.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Residual {
+    /// Observed minus predicted (px).
+    pub error: Vector2<f64>,
+    /// Whether the observation was rejected as an outlier (not used in the final solve).
+    pub outlier: bool,
+}
+
+/// Result of an adjustment.
+#[derive(Clone, Debug)]
+pub struct Solution {
+    /// Adjusted devices.
+    pub devices: Vec<Device>,
+    /// Adjusted board poses T_ref_board.
+    pub boards: Vec<Isometry3<f64>>,
+    /// Adjusted T_front_back.
+    pub front_back: Isometry3<f64>,
+    /// One residual per observation, in input order.
+    pub residuals: Vec<Residual>,
+    /// Posterior σ per coordinate: √(Σ r² / (n − p)).
+    pub sigma: f64,
+    /// Scalar residuals n and free parameters p of the final solve.
+    pub dof: (usize, usize),
+    /// Standard deviation of every device's intrinsics, in the lens parameter order.
+    pub intrinsic_std: Vec<Vec<f64>>,
+    /// Standard deviation of every device's pose increment (ω in rad, τ in mm).
+    pub pose_std: Vec<[f64; 6]>,
+    /// LM iterations over all phases.
+    pub iterations: usize,
+}
+
+/// Number of lens parameters used for a model: 9, or 12 with the rational terms.
+fn lens_len(m: &CameraModel) -> usize {
+    if m.distortion.is_rational() {
+        12
+    } else {
+        9
+    }
+}
+
+fn lens_get(m: &CameraModel) -> Vec<f64> {
+    let (k, d) = (&m.intrinsics, &m.distortion);
+    let mut v = vec![k.fx, k.fy, k.cx, k.cy, d.k1, d.k2, d.p1, d.p2, d.k3];
+    if d.is_rational() {
+        v.extend([d.k4, d.k5, d.k6]);
+    }
+    v
+}
+
+fn lens_set(m: &mut CameraModel, v: &[f64]) {
+    let (k, d) = (&mut m.intrinsics, &mut m.distortion);
+    [k.fx, k.fy, k.cx, k.cy, d.k1, d.k2, d.p1, d.p2, d.k3] =
+        [v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]];
+    if v.len() == 12 {
+        [d.k4, d.k5, d.k6] = [v[9], v[10], v[11]];
+    }
+}
+
+/// Pixel of a device-frame point with d pixel/d point (2×3) and d pixel/d lens (2×n).
+fn project_with_jacobians(
+    m: &CameraModel,
+    p: &Point3<f64>,
+) -> Option<(Point2<f64>, Matrix2x3<f64>, DMatrix<f64>)> {
+    let x = m.project(p)?;
+    let mut jp = Matrix2x3::zeros();
+    for i in 0..3 {
+        let h = 1e-6 * p.coords.norm().max(1.0);
+        let mut a = *p;
+        let mut b = *p;
+        a[i] += h;
+        b[i] -= h;
+        jp.set_column(i, &((m.project(&a)? - m.project(&b)?) / (2.0 * h)));
+    }
+    let v = lens_get(m);
+    let mut jl = DMatrix::zeros(2, v.len());
+    for i in 0..v.len() {
+        let h = 1e-7 * v[i].abs().max(1e-2);
+        let (mut a, mut b) = (*m, *m);
+        let (mut va, mut vb) = (v.clone(), v.clone());
+        va[i] += h;
+        vb[i] -= h;
+        lens_set(&mut a, &va);
+        lens_set(&mut b, &vb);
+        jl.set_column(i, &((a.project(p)? - b.project(p)?) / (2.0 * h)));
+    }
+    Some((x, jp, jl))
+}
+
+/// Apply a left increment (ω, τ) to a pose: T ← (exp(ω), τ)·T.
+fn apply_increment(t: &Isometry3<f64>, d: &[f64]) -> Isometry3<f64> {
+    let dq = UnitQuaternion::from_scaled_axis(Vector3::new(d[0], d[1], d[2]));
+    Isometry3::from_parts(Translation3::new(d[3], d[4], d[5]), dq) * t
+}
+
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// Perspective bias of a circle's image-ellipse centre in undistorted normalised
+/// coordinates: centre of the conic C = H⁻ᵀ·diag(1, 1, −R²)·H⁻¹ with H = [r1 r2 P_c]
+/// (DESIGN.md §8) minus the projected centre P_c.
+pub fn ellipse_bias(
+    device_from_side: &Isometry3<f64>,
+    center: Point2<f64>,
+    radius: f64,
+) -> Option<Vector2<f64>> {
+    let r = device_from_side.rotation.to_rotation_matrix();
+    let pc = device_from_side * Point3::new(center.x, center.y, 0.0);
+    let h = Matrix3::from_columns(&[
+        r.matrix().column(0).into(),
+        r.matrix().column(1).into(),
+        pc.coords,
+    ]);
+    let hi = h.try_inverse()?;
+    let c = hi.transpose() * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, -radius * radius)) * hi;
+    let a = nalgebra::Matrix2::new(c[(0, 0)], c[(0, 1)], c[(1, 0)], c[(1, 1)]);
+    let e = -a.try_inverse()? * Vector2::new(c[(0, 2)], c[(1, 2)]);
+    Some(e - Vector2::new(pc.x / pc.z, pc.y / pc.z))
+}
+
+/// Column layout of the parameter vector.
+struct Layout {
+    lens: Vec<(usize, usize)>,
+    pose: Vec<Option<usize>>,
+    board: Vec<usize>,
+    side: Option<usize>,
+    len: usize,
+}
+
+impl Layout {
+    fn new(p: &Problem, o: &Options) -> Layout {
+        let mut at = 0;
+        let mut lens = Vec::new();
+        let mut pose = Vec::new();
+        for (i, d) in p.devices.iter().enumerate() {
+            let n = lens_len(&d.model);
+            lens.push((at, n));
+            at += n;
+            if i == o.reference {
+                pose.push(None);
+            } else {
+                pose.push(Some(at));
+                at += 6;
+            }
+        }
+        let board = (0..p.boards.len()).map(|k| at + 6 * k).collect();
+        at += 6 * p.boards.len();
+        let side = o.refine_side_transform.then_some(at);
+        if side.is_some() {
+            at += 6;
+        }
+        Layout {
+            lens,
+            pose,
+            board,
+            side,
+            len: at,
+        }
+    }
+}
+
+/// Mutable state of the adjustment.
+#[derive(Clone)]
+struct State {
+    devices: Vec<Device>,
+    boards: Vec<Isometry3<f64>>,
+    front_back: Isometry3<f64>,
+}
+
+impl State {
+    fn side(&self, s: Side) -> Isometry3<f64> {
+        match s {
+            Side::Front => Isometry3::identity(),
+            Side::Back => self.front_back,
+        }
+    }
+
+    fn update(&self, l: &Layout, delta: &DVector<f64>, fixed: &[bool]) -> State {
+        let mut s = self.clone();
+        let step = |i: usize| if fixed[i] { 0.0 } else { delta[i] };
+        for (d, dev) in s.devices.iter_mut().enumerate() {
+            let (at, n) = l.lens[d];
+            let mut v = lens_get(&dev.model);
+            for (j, x) in v.iter_mut().enumerate().take(n) {
+                *x += step(at + j);
+            }
+            lens_set(&mut dev.model, &v);
+            if let Some(at) = l.pose[d] {
+                let inc: Vec<f64> = (0..6).map(|j| step(at + j)).collect();
+                dev.pose = apply_increment(&dev.pose, &inc);
+            }
+        }
+        for (k, b) in s.boards.iter_mut().enumerate() {
+            let inc: Vec<f64> = (0..6).map(|j| step(l.board[k] + j)).collect();
+            *b = apply_increment(b, &inc);
+        }
+        if let Some(at) = l.side {
+            let inc: Vec<f64> = (0..6).map(|j| step(at + j)).collect();
+            s.front_back = apply_increment(&s.front_back, &inc);
+        }
+        s
+    }
+}
+
+/// Per-observation quantities held fixed within one LM step: the circle bias for camera
+/// observations, the board point a camera saw for projector observations (§8).
+#[derive(Clone, Copy)]
+enum Anchor {
+    /// Side-frame board point and normalised-coordinate shift of the prediction.
+    Camera {
+        point: Point2<f64>,
+        bias: Vector2<f64>,
+    },
+    /// Side-frame board point behind the camera's ellipse centre.
+    Projector { point: Point2<f64> },
+}
+
+fn anchors(p: &Problem, s: &State, o: &Options) -> Vec<Option<Anchor>> {
+    p.observations
+        .iter()
+        .map(|ob| {
+            let center = p.board.position(ob.hex);
+            let side_pose = |dev: usize| s.devices[dev].pose * s.boards[ob.pose] * s.side(ob.side);
+            match ob.via {
+                None => {
+                    let bias = if o.bias_free {
+                        ellipse_bias(&side_pose(ob.device), center, p.board.radius)?
+                    } else {
+                        Vector2::zeros()
+                    };
+                    Some(Anchor::Camera {
+                        point: center,
+                        bias,
+                    })
+                }
+                Some(via) => {
+                    // Back-project the camera's ellipse centre onto the side's plane.
+                    let cam = &s.devices[via.camera];
+                    let ray = cam.model.ray(via.ellipse_center)?;
+                    let t = side_pose(via.camera).inverse();
+                    let origin = t * Point3::origin();
+                    let dir = t * ray;
+                    let lambda = -origin.z / dir.z;
+                    (lambda > 0.0).then(|| Anchor::Projector {
+                        point: Point2::new(origin.x + lambda * dir.x, origin.y + lambda * dir.y),
+                    })
+                }
+            }
+        })
+        .collect()
+}
+
+/// Predicted pixel and its Jacobian rows (column indices and 2-vectors) for one observation.
+struct Linearised {
+    predicted: Point2<f64>,
+    columns: Vec<(usize, Vector2<f64>)>,
+}
+
+fn linearise(
+    p: &Problem,
+    s: &State,
+    l: &Layout,
+    ob: &Observation,
+    anchor: &Anchor,
+) -> Option<Linearised> {
+    let dev = &s.devices[ob.device];
+    let (plane, bias) = match *anchor {
+        Anchor::Camera { point, bias } => (point, bias),
+        Anchor::Projector { point } => (point, Vector2::zeros()),
+    };
+    let x_side = Point3::new(plane.x, plane.y, 0.0);
+    let z = s.side(ob.side) * x_side; // board frame
+    let y = s.boards[ob.pose] * z; // reference frame
+    let pc = dev.pose * y; // device frame
+                           // Shift by the circle bias in normalised coordinates: P̃ = P + (b·z, 0).
+    let shifted = Point3::new(pc.x + bias.x * pc.z, pc.y + bias.y * pc.z, pc.z);
+    let (px, jp, jl) = project_with_jacobians(&dev.model, &shifted)?;
+    let dshift = Matrix3::new(1.0, 0.0, bias.x, 0.0, 1.0, bias.y, 0.0, 0.0, 1.0);
+    let jp = jp * dshift;
+    let mut columns = Vec::with_capacity(30);
+    let (at, n) = l.lens[ob.device];
+    for j in 0..n {
+        columns.push((at + j, Vector2::new(jl[(0, j)], jl[(1, j)])));
+    }
+    let mut block = |at: usize, drot: Matrix3<f64>, dtrans: Matrix3<f64>| {
+        let a = jp * drot;
+        let b = jp * dtrans;
+        for j in 0..3 {
+            columns.push((at + j, a.column(j).into()));
+            columns.push((at + 3 + j, b.column(j).into()));
+        }
+    };
+    let rc = *dev.pose.rotation.to_rotation_matrix().matrix();
+    if let Some(at) = l.pose[ob.device] {
+        block(at, -skew(&pc.coords), Matrix3::identity());
+    }
+    block(l.board[ob.pose], -rc * skew(&y.coords), rc);
+    if let (Some(at), Side::Back) = (l.side, ob.side) {
+        let rk = *s.boards[ob.pose].rotation.to_rotation_matrix().matrix();
+        block(at, -rc * rk * skew(&z.coords), rc * rk);
+    }
+    let _ = p;
+    Some(Linearised {
+        predicted: px,
+        columns,
+    })
+}
+
+/// Normal equations, weighted cost and per-observation residuals at a state.
+struct Normal {
+    jtj: DMatrix<f64>,
+    jtr: DVector<f64>,
+    cost: f64,
+    residuals: Vec<Option<Vector2<f64>>>,
+}
+
+fn weight(e: &Vector2<f64>, huber: Option<f64>) -> f64 {
+    match huber {
+        Some(k) if e.norm() > k => k / e.norm(),
+        _ => 1.0,
+    }
+}
+
+fn normal_equations(
+    p: &Problem,
+    s: &State,
+    l: &Layout,
+    an: &[Option<Anchor>],
+    active: &[bool],
+    huber: Option<f64>,
+    with_jacobian: bool,
+) -> Normal {
+    let mut jtj = DMatrix::zeros(
+        if with_jacobian { l.len } else { 0 },
+        if with_jacobian { l.len } else { 0 },
+    );
+    let mut jtr = DVector::zeros(if with_jacobian { l.len } else { 0 });
+    let mut cost = 0.0;
+    let mut residuals = Vec::with_capacity(p.observations.len());
+    for (i, ob) in p.observations.iter().enumerate() {
+        let lin = an[i].as_ref().and_then(|a| linearise(p, s, l, ob, a));
+        let Some(lin) = lin else {
+            residuals.push(None);
+            continue;
+        };
+        let e = ob.pixel - lin.predicted;
+        residuals.push(Some(e));
+        if !active[i] {
+            continue;
+        }
+        let w = weight(&e, huber);
+        cost += match huber {
+            Some(k) if e.norm() > k => 2.0 * k * e.norm() - k * k,
+            _ => e.norm_squared(),
+        };
+        if with_jacobian {
+            for (a, ja) in &lin.columns {
+                jtr[*a] += w * ja.dot(&e);
+                for (b, jb) in &lin.columns {
+                    jtj[(*a, *b)] += w * ja.dot(jb);
+                }
+            }
+        }
+    }
+    Normal {
+        jtj,
+        jtr,
+        cost,
+        residuals,
+    }
+}
+
+/// Parameters that carry no information (no observation touches them) or that the options
+/// fix: held at their start.
+fn fixed_parameters(p: &Problem, l: &Layout, o: &Options, jtj: &DMatrix<f64>) -> Vec<bool> {
+    let mut fixed: Vec<bool> = (0..l.len).map(|i| jtj[(i, i)] <= 0.0).collect();
+    if o.fix_k3 {
+        for &(at, _) in &l.lens {
+            fixed[at + 8] = true;
+        }
+    }
+    let _ = p;
+    fixed
+}
+
+/// Levenberg–Marquardt iterations; returns the new state and the iteration count.
+fn levenberg_marquardt(
+    p: &Problem,
+    mut s: State,
+    l: &Layout,
+    o: &Options,
+    active: &[bool],
+    huber: Option<f64>,
+) -> (State, usize) {
+    let mut lambda = 1e-3;
+    let mut iterations = 0;
+    for _ in 0..o.max_iterations {
+        iterations += 1;
+        let an = anchors(p, &s, o);
+        let ne = normal_equations(p, &s, l, &an, active, huber, true);
+        let fixed = fixed_parameters(p, l, o, &ne.jtj);
+        let mut improved = false;
+        for _ in 0..10 {
+            let mut a = ne.jtj.clone();
+            for i in 0..l.len {
+                if fixed[i] {
+                    a.row_mut(i).fill(0.0);
+                    a.column_mut(i).fill(0.0);
+                    a[(i, i)] = 1.0;
+                } else {
+                    a[(i, i)] += lambda * ne.jtj[(i, i)].max(1e-12);
+                }
+            }
+            let rhs = DVector::from_fn(l.len, |i, _| if fixed[i] { 0.0 } else { ne.jtr[i] });
+            let Some(chol) = a.cholesky() else {
+                lambda *= 10.0;
+                continue;
+            };
+            let delta = chol.solve(&rhs);
+            let trial = s.update(l, &delta, &fixed);
+            let an_t = anchors(p, &trial, o);
+            let c = normal_equations(p, &trial, l, &an_t, active, huber, false).cost;
+            if c < ne.cost {
+                let rel = (ne.cost - c) / ne.cost.max(1e-300);
+                s = trial;
+                lambda = (lambda / 3.0).max(1e-12);
+                improved = rel > 1e-12;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    (s, iterations)
+}
+
+/// Median absolute deviation scaled to a Gaussian σ per coordinate.
+fn robust_sigma(norms: &mut [f64]) -> f64 {
+    if norms.is_empty() {
+        return 0.0;
+    }
+    norms.sort_by(f64::total_cmp);
+    // For 2D Gaussian errors the residual norm is Rayleigh(σ): median = σ·√(2 ln 2).
+    norms[norms.len() / 2] / (2.0 * std::f64::consts::LN_2).sqrt()
+}
+
+/// Run the adjustment: robust phase, outlier rejection per device, plain phase, covariance.
+pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
+    if o.reference >= p.devices.len() {
+        return Err(CalibError::Degenerate("reference device out of range"));
+    }
+    let l = Layout::new(p, o);
+    let start = State {
+        devices: p.devices.clone(),
+        boards: p.boards.clone(),
+        front_back: p.board.side_transform(Side::Back),
+    };
+    let mut active = vec![true; p.observations.len()];
+    let (s, it1) = levenberg_marquardt(p, start, &l, o, &active, Some(o.huber));
+    // Outliers per device against its own robust σ.
+    let an = anchors(p, &s, o);
+    let ne = normal_equations(p, &s, &l, &an, &active, None, false);
+    for d in 0..p.devices.len() {
+        let mut norms: Vec<f64> = p
+            .observations
+            .iter()
+            .zip(&ne.residuals)
+            .filter(|(ob, _)| ob.device == d)
+            .filter_map(|(_, r)| r.map(|e| e.norm()))
+            .collect();
+        let sigma = robust_sigma(&mut norms);
+        for (i, ob) in p.observations.iter().enumerate() {
+            if ob.device == d {
+                active[i] =
+                    ne.residuals[i].is_some_and(|e| e.norm() <= o.outlier_sigmas * sigma.max(1e-9));
+            }
+        }
+    }
+    let (s, it2) = levenberg_marquardt(p, s, &l, o, &active, None);
+    let an = anchors(p, &s, o);
+    let ne = normal_equations(p, &s, &l, &an, &active, None, true);
+    let fixed = fixed_parameters(p, &l, o, &ne.jtj);
+    let free = fixed.iter().filter(|f| !**f).count();
+    let n = 2 * active.iter().filter(|a| **a).count();
+    let sigma = (ne.cost / (n.saturating_sub(free)).max(1) as f64).sqrt();
+    let mut a = ne.jtj.clone();
+    for i in 0..l.len {
+        if fixed[i] {
+            a.row_mut(i).fill(0.0);
+            a.column_mut(i).fill(0.0);
+            a[(i, i)] = 1.0;
+        }
+    }
+    let cov = a
+        .cholesky()
+        .ok_or(CalibError::Degenerate(
+            "normal equations are singular: a device or pose is not constrained",
+        ))?
+        .inverse();
+    let std = |i: usize| {
+        if fixed[i] {
+            0.0
+        } else {
+            sigma * cov[(i, i)].sqrt()
+        }
+    };
+    let intrinsic_std = l
+        .lens
+        .iter()
+        .map(|&(at, n)| (at..at + n).map(std).collect())
+        .collect();
+    let pose_std = l
+        .pose
+        .iter()
+        .map(|at| at.map_or([0.0; 6], |at| std::array::from_fn(|j| std(at + j))))
+        .collect();
+    let residuals = ne
+        .residuals
+        .iter()
+        .zip(&active)
+        .map(|(r, a)| Residual {
+            error: r.unwrap_or_else(|| Vector2::new(f64::NAN, f64::NAN)),
+            outlier: !a,
+        })
+        .collect();
+    Ok(Solution {
+        devices: s.devices,
+        boards: s.boards,
+        front_back: s.front_back,
+        residuals,
+        sigma,
+        dof: (n, free),
+        intrinsic_std,
+        pose_std,
+        iterations: it1 + it2,
+    })
+}
