@@ -11,6 +11,7 @@
 //! T ← (exp(ω), τ)·T, a Huber loss first, then rejection of outliers beyond a multiple of a
 //! robust σ, then plain least squares; covariance σ²(JᵀJ)⁻¹ at the end.
 
+use super::synthetic::ellipse_center;
 use super::CalibError;
 use crate::board::{Board, Hex, Side};
 use crate::camera::CameraModel;
@@ -142,6 +143,11 @@ pub struct Solution {
     pub intrinsic_std: Vec<Vec<f64>>,
     /// Standard deviation of every device's pose increment (ω in rad, τ in mm).
     pub pose_std: Vec<[f64; 6]>,
+    /// Full parameter covariance σ²(JᵀJ)⁻¹ in [`Solution::index`] order (zero rows and
+    /// columns for fixed parameters).
+    pub covariance: DMatrix<f64>,
+    /// Where each device's lens block and pose block start in `covariance`.
+    pub index: Vec<(usize, Option<usize>)>,
     /// LM iterations over all phases.
     pub iterations: usize,
 }
@@ -191,7 +197,7 @@ fn project_with_jacobians(
     let v = lens_get(m);
     let mut jl = DMatrix::zeros(2, v.len());
     for i in 0..v.len() {
-        let h = 1e-7 * v[i].abs().max(1e-2);
+        let h = 1e-5 * v[i].abs().max(1e-1);
         let (mut a, mut b) = (*m, *m);
         let (mut va, mut vb) = (v.clone(), v.clone());
         va[i] += h;
@@ -319,58 +325,78 @@ impl State {
     }
 }
 
-/// Per-observation quantities held fixed within one LM step: the circle bias for camera
-/// observations, the board point a camera saw for projector observations (§8).
+/// Per-observation quantity held fixed within one LM step: the perspective bias of a camera
+/// observation's circle (it changes far less than the noise between steps, §8).
 #[derive(Clone, Copy)]
 enum Anchor {
-    /// Side-frame board point and normalised-coordinate shift of the prediction.
-    Camera {
-        point: Point2<f64>,
-        bias: Vector2<f64>,
-    },
-    /// Side-frame board point behind the camera's ellipse centre.
-    Projector { point: Point2<f64> },
+    /// Pixel offset from the projected circle centre to the image-ellipse centre.
+    Camera { bias: Vector2<f64> },
+    /// Projector observations are linearised through the ray–plane intersection instead.
+    Projector,
 }
 
 fn anchors(p: &Problem, s: &State, o: &Options) -> Vec<Option<Anchor>> {
     p.observations
         .iter()
-        .map(|ob| {
-            let center = p.board.position(ob.hex);
-            let side_pose = |dev: usize| s.devices[dev].pose * s.boards[ob.pose] * s.side(ob.side);
-            match ob.via {
-                None => {
-                    let bias = if o.bias_free {
-                        ellipse_bias(&side_pose(ob.device), center, p.board.radius)?
-                    } else {
-                        Vector2::zeros()
-                    };
-                    Some(Anchor::Camera {
-                        point: center,
-                        bias,
-                    })
-                }
-                Some(via) => {
-                    // Back-project the camera's ellipse centre onto the side's plane.
-                    let cam = &s.devices[via.camera];
-                    let ray = cam.model.ray(via.ellipse_center)?;
-                    let t = side_pose(via.camera).inverse();
-                    let origin = t * Point3::origin();
-                    let dir = t * ray;
-                    let lambda = -origin.z / dir.z;
-                    (lambda > 0.0).then(|| Anchor::Projector {
-                        point: Point2::new(origin.x + lambda * dir.x, origin.y + lambda * dir.y),
-                    })
-                }
+        .map(|ob| match ob.via {
+            Some(_) => Some(Anchor::Projector),
+            None if !o.bias_free => Some(Anchor::Camera {
+                bias: Vector2::zeros(),
+            }),
+            None => {
+                let dev = &s.devices[ob.device];
+                let pose = dev.pose * s.boards[ob.pose] * s.side(ob.side);
+                let c = p.board.position(ob.hex);
+                let centre = dev.model.project(&(pose * Point3::new(c.x, c.y, 0.0)))?;
+                let ellipse = ellipse_center(&dev.model, &pose, c, p.board.radius)?;
+                Some(Anchor::Camera {
+                    bias: ellipse - centre,
+                })
             }
         })
         .collect()
 }
 
-/// Predicted pixel and its Jacobian rows (column indices and 2-vectors) for one observation.
+/// Predicted pixel and its Jacobian columns (parameter index, d pixel / d parameter).
 struct Linearised {
     predicted: Point2<f64>,
     columns: Vec<(usize, Vector2<f64>)>,
+}
+
+impl Linearised {
+    fn push_lens(&mut self, at: usize, j: &DMatrix<f64>) {
+        for c in 0..j.ncols() {
+            self.columns
+                .push((at + c, Vector2::new(j[(0, c)], j[(1, c)])));
+        }
+    }
+
+    /// Columns of a pose increment (ω, τ) from d pixel/dω (2×3) and d pixel/dτ (2×3).
+    fn push_pose(&mut self, at: usize, dw: Matrix2x3<f64>, dt: Matrix2x3<f64>) {
+        for c in 0..3 {
+            self.columns.push((at + c, dw.column(c).into()));
+            self.columns.push((at + 3 + c, dt.column(c).into()));
+        }
+    }
+}
+
+/// Derivative of the ray–plane intersection P = λ·r, λ = (N·Q)/(N·r), with respect to a left
+/// increment (ω′, τ′) of the plane's pose expressed through M (the increment acts in the
+/// frame M maps from): ω′ = R_M·ω, τ′ = [t_M]×·R_M·ω + R_M·τ.
+fn plane_increment(
+    r: &Vector3<f64>,
+    n: &Vector3<f64>,
+    lambda: f64,
+    m: &Isometry3<f64>,
+) -> (Matrix3<f64>, Matrix3<f64>) {
+    let rm = *m.rotation.to_rotation_matrix().matrix();
+    let nr = n.dot(r);
+    // dλ = (N·τ′ − λ·ω′·(N×r)) / (N·r)
+    let dl_dtau_prime = n.transpose() / nr;
+    let dl_domega_prime = -(n.cross(r)).transpose() * lambda / nr;
+    let dl_domega = dl_dtau_prime * skew(&m.translation.vector) * rm + dl_domega_prime * rm;
+    let dl_dtau = dl_dtau_prime * rm;
+    (r * dl_domega, r * dl_dtau)
 }
 
 fn linearise(
@@ -381,46 +407,110 @@ fn linearise(
     anchor: &Anchor,
 ) -> Option<Linearised> {
     let dev = &s.devices[ob.device];
-    let (plane, bias) = match *anchor {
-        Anchor::Camera { point, bias } => (point, bias),
-        Anchor::Projector { point } => (point, Vector2::zeros()),
-    };
-    let x_side = Point3::new(plane.x, plane.y, 0.0);
-    let z = s.side(ob.side) * x_side; // board frame
-    let y = s.boards[ob.pose] * z; // reference frame
-    let pc = dev.pose * y; // device frame
-                           // Shift by the circle bias in normalised coordinates: P̃ = P + (b·z, 0).
-    let shifted = Point3::new(pc.x + bias.x * pc.z, pc.y + bias.y * pc.z, pc.z);
-    let (px, jp, jl) = project_with_jacobians(&dev.model, &shifted)?;
-    let dshift = Matrix3::new(1.0, 0.0, bias.x, 0.0, 1.0, bias.y, 0.0, 0.0, 1.0);
-    let jp = jp * dshift;
-    let mut columns = Vec::with_capacity(30);
-    let (at, n) = l.lens[ob.device];
-    for j in 0..n {
-        columns.push((at + j, Vector2::new(jl[(0, j)], jl[(1, j)])));
-    }
-    let mut block = |at: usize, drot: Matrix3<f64>, dtrans: Matrix3<f64>| {
-        let a = jp * drot;
-        let b = jp * dtrans;
-        for j in 0..3 {
-            columns.push((at + j, a.column(j).into()));
-            columns.push((at + 3 + j, b.column(j).into()));
-        }
-    };
     let rc = *dev.pose.rotation.to_rotation_matrix().matrix();
-    if let Some(at) = l.pose[ob.device] {
-        block(at, -skew(&pc.coords), Matrix3::identity());
+    let side = s.side(ob.side);
+    match (*anchor, ob.via) {
+        (Anchor::Camera { bias }, _) => {
+            let plane = p.board.position(ob.hex);
+            let z = side * Point3::new(plane.x, plane.y, 0.0); // board frame
+            let y = s.boards[ob.pose] * z; // reference frame
+            let pc = dev.pose * y; // device frame
+                                   // The observed ellipse centre sits `bias` pixels from the projected centre (§4).
+            let (px, jp, jl) = project_with_jacobians(&dev.model, &pc)?;
+            let mut lin = Linearised {
+                predicted: px + bias,
+                columns: Vec::with_capacity(40),
+            };
+            lin.push_lens(l.lens[ob.device].0, &jl);
+            if let Some(at) = l.pose[ob.device] {
+                lin.push_pose(at, -jp * skew(&pc.coords), jp);
+            }
+            lin.push_pose(l.board[ob.pose], -jp * rc * skew(&y.coords), jp * rc);
+            if let (Some(at), Side::Back) = (l.side, ob.side) {
+                let rk = *s.boards[ob.pose].rotation.to_rotation_matrix().matrix();
+                lin.push_pose(at, -jp * rc * rk * skew(&z.coords), jp * rc * rk);
+            }
+            Some(lin)
+        }
+        (Anchor::Projector, Some(via)) => {
+            // The board point camera c sees at its observed ellipse centre (§7): the ray
+            // r = (n, 1), n = undistort(e_c), meets the side's plane (normal N through Q,
+            // in camera c's frame) at P_c = λ·r.
+            let cam = &s.devices[via.camera];
+            let (n, dn_dlens) = undistort_with_jacobian(&cam.model, via.ellipse_center)?;
+            let r = Vector3::new(n.x, n.y, 1.0);
+            let to_board = s.boards[ob.pose];
+            let plane_pose = cam.pose * to_board * side;
+            let normal = plane_pose.rotation * Vector3::z();
+            let lambda = normal.dot(&plane_pose.translation.vector) / normal.dot(&r);
+            if lambda <= 0.0 {
+                return None;
+            }
+            let p_c = Point3::from(r * lambda);
+            let proj_from_cam = dev.pose * cam.pose.inverse();
+            let p_p = proj_from_cam * p_c;
+            let (px, jp, jl) = project_with_jacobians(&dev.model, &p_p)?;
+            let jpc = jp * *proj_from_cam.rotation.to_rotation_matrix().matrix();
+            let mut lin = Linearised {
+                predicted: px,
+                columns: Vec::with_capacity(60),
+            };
+            lin.push_lens(l.lens[ob.device].0, &jl);
+            if let Some(at) = l.pose[ob.device] {
+                lin.push_pose(at, -jp * skew(&p_p.coords), jp);
+            }
+            // Camera c's pose moves the plane in its frame and T_c⁻¹ as well:
+            // W = P_c + dλ·r − τ − ω×P_c.
+            if let Some(at) = l.pose[via.camera] {
+                let (aw, at_) = plane_increment(&r, &normal, lambda, &Isometry3::identity());
+                lin.push_pose(
+                    at,
+                    jpc * (aw + skew(&p_c.coords)),
+                    jpc * (at_ - Matrix3::identity()),
+                );
+            }
+            let (aw, at_) = plane_increment(&r, &normal, lambda, &cam.pose);
+            lin.push_pose(l.board[ob.pose], jpc * aw, jpc * at_);
+            if let (Some(at), Side::Back) = (l.side, ob.side) {
+                let (aw, at_) = plane_increment(&r, &normal, lambda, &(cam.pose * to_board));
+                lin.push_pose(at, jpc * aw, jpc * at_);
+            }
+            // Camera c's lens moves the ray: dP_c = λ·(I − r·Nᵀ/(N·r))·(dn, 0).
+            let slide = (Matrix3::identity() - r * normal.transpose() / normal.dot(&r)) * lambda;
+            let dpc_dn = slide.fixed_columns::<2>(0).into_owned();
+            let j = jpc * dpc_dn * dn_dlens;
+            lin.push_lens(
+                l.lens[via.camera].0,
+                &DMatrix::from_fn(2, j.ncols(), |i, c| j[(i, c)]),
+            );
+            Some(lin)
+        }
+        (Anchor::Projector, None) => None,
     }
-    block(l.board[ob.pose], -rc * skew(&y.coords), rc);
-    if let (Some(at), Side::Back) = (l.side, ob.side) {
-        let rk = *s.boards[ob.pose].rotation.to_rotation_matrix().matrix();
-        block(at, -rc * rk * skew(&z.coords), rc * rk);
+}
+
+/// Undistorted normalised point of a pixel and its derivative with respect to the lens
+/// parameters, by implicit differentiation of distort(n) = K⁻¹·e.
+fn undistort_with_jacobian(
+    m: &CameraModel,
+    e: Point2<f64>,
+) -> Option<(Vector2<f64>, DMatrix<f64>)> {
+    let n = m.undistort(e)?;
+    let v = lens_get(m);
+    let mut j = DMatrix::zeros(2, v.len());
+    for i in 0..v.len() {
+        let h = 1e-5 * v[i].abs().max(1e-1);
+        let (mut a, mut b) = (*m, *m);
+        let (mut va, mut vb) = (v.clone(), v.clone());
+        va[i] += h;
+        vb[i] -= h;
+        lens_set(&mut a, &va);
+        lens_set(&mut b, &vb);
+        let d = (a.undistort(e)? - b.undistort(e)?) / (2.0 * h);
+        j[(0, i)] = d.x;
+        j[(1, i)] = d.y;
     }
-    let _ = p;
-    Some(Linearised {
-        predicted: px,
-        columns,
-    })
+    Some((n, j))
 }
 
 /// Normal equations, weighted cost and per-observation residuals at a state.
@@ -610,19 +700,22 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
             a[(i, i)] = 1.0;
         }
     }
-    let cov = a
+    let inverse = a
         .cholesky()
         .ok_or(CalibError::Degenerate(
             "normal equations are singular: a device or pose is not constrained",
         ))?
         .inverse();
-    let std = |i: usize| {
-        if fixed[i] {
+    // Cov(θ) ≈ σ²(JᵀJ)⁻¹ (§8); fixed parameters get zero rows and columns.
+    let cov = DMatrix::from_fn(l.len, l.len, |i, j| {
+        if fixed[i] || fixed[j] {
             0.0
         } else {
-            sigma * cov[(i, i)].sqrt()
+            sigma * sigma * inverse[(i, j)]
         }
-    };
+    });
+    let std = |i: usize| cov[(i, i)].sqrt();
+
     let intrinsic_std = l
         .lens
         .iter()
@@ -651,6 +744,102 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         dof: (n, free),
         intrinsic_std,
         pose_std,
+        index: l
+            .lens
+            .iter()
+            .zip(&l.pose)
+            .map(|(&(at, _), &p)| (at, p))
+            .collect(),
+        covariance: cov,
         iterations: it1 + it2,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::synthetic::SyntheticRig;
+
+    #[test]
+    fn jacobian_columns_match_finite_differences() {
+        let rig = SyntheticRig::paper(3, 0.3, 5);
+        let mut devices = rig.devices.clone();
+        devices[4].model.distortion.k3 = 0.02;
+        let problem = Problem {
+            board: rig.board.clone(),
+            devices,
+            boards: rig.boards.clone(),
+            observations: rig.observations.clone(),
+        };
+        let o = Options::default();
+        let l = Layout::new(&problem, &o);
+        let mut state = State {
+            devices: problem.devices.clone(),
+            boards: problem.boards.clone(),
+            front_back: problem.board.side_transform(Side::Back),
+        };
+        // Move off the truth so no term vanishes by symmetry.
+        let wiggle = DVector::from_fn(l.len, |i, _| 1e-4 * ((i * 7919 % 13) as f64 - 6.0));
+        state = state.update(&l, &wiggle, &vec![false; l.len]);
+        let an = anchors(&problem, &state, &o);
+        // One observation of each kind: camera front, camera back, projector front, projector back.
+        let pick = |cam: bool, side: Side| {
+            problem
+                .observations
+                .iter()
+                .position(|ob| ob.via.is_none() == cam && ob.side == side && ob.device != 0)
+                .expect("observation of that kind")
+        };
+        for i in [
+            pick(true, Side::Front),
+            pick(true, Side::Back),
+            pick(false, Side::Front),
+            pick(false, Side::Back),
+        ] {
+            let ob = &problem.observations[i];
+            let lin = linearise(&problem, &state, &l, ob, an[i].as_ref().unwrap()).unwrap();
+            let mut analytic = DMatrix::<f64>::zeros(2, l.len);
+            for (c, v) in &lin.columns {
+                analytic[(0, *c)] += v.x;
+                analytic[(1, *c)] += v.y;
+            }
+            for c in 0..l.len {
+                let h = if l.lens.iter().any(|&(at, n)| c >= at && c < at + 4 && n > 0) {
+                    1e-3
+                } else {
+                    1e-6
+                };
+                let mut d = DVector::zeros(l.len);
+                d[c] = h;
+                let plus = linearise(
+                    &problem,
+                    &state.update(&l, &d, &vec![false; l.len]),
+                    &l,
+                    ob,
+                    an[i].as_ref().unwrap(),
+                )
+                .unwrap()
+                .predicted;
+                d[c] = -h;
+                let minus = linearise(
+                    &problem,
+                    &state.update(&l, &d, &vec![false; l.len]),
+                    &l,
+                    ob,
+                    an[i].as_ref().unwrap(),
+                )
+                .unwrap()
+                .predicted;
+                let fd = (plus - minus) / (2.0 * h);
+                let an = Vector2::new(analytic[(0, c)], analytic[(1, c)]);
+                let tol = 1e-5 * (1.0 + fd.norm());
+                assert!(
+                    (fd - an).norm() < tol.max(1e-4 * fd.norm()),
+                    "obs {i} ({:?}, via {:?}) column {c}: analytic {an} vs fd {fd}",
+                    ob.side,
+                    ob.via.map(|v| v.camera)
+                );
+            }
+        }
+    }
 }

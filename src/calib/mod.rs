@@ -5,8 +5,7 @@
 
 pub mod bundle;
 pub mod posegraph;
-#[cfg(test)]
-pub(crate) mod synthetic;
+pub mod synthetic;
 pub mod zhang;
 
 use nalgebra::Point2;
