@@ -19,6 +19,7 @@ use nalgebra::{
     DMatrix, DVector, Isometry3, Matrix2x3, Matrix3, Point2, Point3, Translation3, UnitQuaternion,
     Vector2, Vector3,
 };
+use rayon::prelude::*;
 
 /// Whether a device records images or casts them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -405,6 +406,7 @@ fn linearise(
     l: &Layout,
     ob: &Observation,
     anchor: &Anchor,
+    jacobian: bool,
 ) -> Option<Linearised> {
     let dev = &s.devices[ob.device];
     let rc = *dev.pose.rotation.to_rotation_matrix().matrix();
@@ -416,6 +418,12 @@ fn linearise(
             let y = s.boards[ob.pose] * z; // reference frame
             let pc = dev.pose * y; // device frame
                                    // The observed ellipse centre sits `bias` pixels from the projected centre (§4).
+            if !jacobian {
+                return Some(Linearised {
+                    predicted: dev.model.project(&pc)? + bias,
+                    columns: Vec::new(),
+                });
+            }
             let (px, jp, jl) = project_with_jacobians(&dev.model, &pc)?;
             let mut lin = Linearised {
                 predicted: px + bias,
@@ -437,7 +445,7 @@ fn linearise(
             // r = (n, 1), n = undistort(e_c), meets the side's plane (normal N through Q,
             // in camera c's frame) at P_c = λ·r.
             let cam = &s.devices[via.camera];
-            let (n, dn_dlens) = undistort_with_jacobian(&cam.model, via.ellipse_center)?;
+            let n = cam.model.undistort(via.ellipse_center)?;
             let r = Vector3::new(n.x, n.y, 1.0);
             let to_board = s.boards[ob.pose];
             let plane_pose = cam.pose * to_board * side;
@@ -449,7 +457,14 @@ fn linearise(
             let p_c = Point3::from(r * lambda);
             let proj_from_cam = dev.pose * cam.pose.inverse();
             let p_p = proj_from_cam * p_c;
+            if !jacobian {
+                return Some(Linearised {
+                    predicted: dev.model.project(&p_p)?,
+                    columns: Vec::new(),
+                });
+            }
             let (px, jp, jl) = project_with_jacobians(&dev.model, &p_p)?;
+            let dn_dlens = undistort_jacobian(&cam.model, via.ellipse_center)?;
             let jpc = jp * *proj_from_cam.rotation.to_rotation_matrix().matrix();
             let mut lin = Linearised {
                 predicted: px,
@@ -489,13 +504,9 @@ fn linearise(
     }
 }
 
-/// Undistorted normalised point of a pixel and its derivative with respect to the lens
-/// parameters, by implicit differentiation of distort(n) = K⁻¹·e.
-fn undistort_with_jacobian(
-    m: &CameraModel,
-    e: Point2<f64>,
-) -> Option<(Vector2<f64>, DMatrix<f64>)> {
-    let n = m.undistort(e)?;
+/// Derivative of the undistorted normalised point of a pixel with respect to the lens
+/// parameters.
+fn undistort_jacobian(m: &CameraModel, e: Point2<f64>) -> Option<DMatrix<f64>> {
     let v = lens_get(m);
     let mut j = DMatrix::zeros(2, v.len());
     for i in 0..v.len() {
@@ -510,7 +521,7 @@ fn undistort_with_jacobian(
         j[(0, i)] = d.x;
         j[(1, i)] = d.y;
     }
-    Some((n, j))
+    Some(j)
 }
 
 /// Normal equations, weighted cost and per-observation residuals at a state.
@@ -537,38 +548,51 @@ fn normal_equations(
     huber: Option<f64>,
     with_jacobian: bool,
 ) -> Normal {
-    let mut jtj = DMatrix::zeros(
-        if with_jacobian { l.len } else { 0 },
-        if with_jacobian { l.len } else { 0 },
-    );
-    let mut jtr = DVector::zeros(if with_jacobian { l.len } else { 0 });
-    let mut cost = 0.0;
-    let mut residuals = Vec::with_capacity(p.observations.len());
-    for (i, ob) in p.observations.iter().enumerate() {
-        let lin = an[i].as_ref().and_then(|a| linearise(p, s, l, ob, a));
-        let Some(lin) = lin else {
-            residuals.push(None);
-            continue;
-        };
-        let e = ob.pixel - lin.predicted;
-        residuals.push(Some(e));
-        if !active[i] {
-            continue;
-        }
-        let w = weight(&e, huber);
-        cost += match huber {
+    let residuals: Vec<Option<Vector2<f64>>> = p
+        .observations
+        .par_iter()
+        .zip(an)
+        .map(|(ob, a)| {
+            let lin = linearise(p, s, l, ob, a.as_ref()?, false)?;
+            Some(ob.pixel - lin.predicted)
+        })
+        .collect();
+    let cost = residuals
+        .iter()
+        .zip(active)
+        .filter_map(|(r, a)| r.filter(|_| *a))
+        .map(|e| match huber {
             Some(k) if e.norm() > k => 2.0 * k * e.norm() - k * k,
             _ => e.norm_squared(),
-        };
-        if with_jacobian {
-            for (a, ja) in &lin.columns {
-                jtr[*a] += w * ja.dot(&e);
-                for (b, jb) in &lin.columns {
-                    jtj[(*a, *b)] += w * ja.dot(jb);
+        })
+        .sum();
+    let n = if with_jacobian { l.len } else { 0 };
+    // JᵀWJ and JᵀWr, accumulated per thread over the upper triangle, then summed.
+    let (mut jtj, jtr) = (0..p.observations.len())
+        .into_par_iter()
+        .filter(|&i| with_jacobian && active[i] && residuals[i].is_some())
+        .fold(
+            || (DMatrix::<f64>::zeros(n, n), DVector::<f64>::zeros(n)),
+            |(mut jtj, mut jtr), i| {
+                let ob = &p.observations[i];
+                if let Some(lin) = an[i].as_ref().and_then(|a| linearise(p, s, l, ob, a, true)) {
+                    let e = ob.pixel - lin.predicted;
+                    let w = weight(&e, huber);
+                    for (x, (a, ja)) in lin.columns.iter().enumerate() {
+                        jtr[*a] += w * ja.dot(&e);
+                        for (b, jb) in &lin.columns[x..] {
+                            jtj[(*a.min(b), *a.max(b))] += w * ja.dot(jb);
+                        }
+                    }
                 }
-            }
-        }
-    }
+                (jtj, jtr)
+            },
+        )
+        .reduce(
+            || (DMatrix::<f64>::zeros(n, n), DVector::<f64>::zeros(n)),
+            |(a, b), (c, d)| (a + c, b + d),
+        );
+    jtj.fill_lower_triangle_with_upper_triangle();
     Normal {
         jtj,
         jtr,
@@ -797,7 +821,7 @@ mod tests {
             pick(false, Side::Back),
         ] {
             let ob = &problem.observations[i];
-            let lin = linearise(&problem, &state, &l, ob, an[i].as_ref().unwrap()).unwrap();
+            let lin = linearise(&problem, &state, &l, ob, an[i].as_ref().unwrap(), true).unwrap();
             let mut analytic = DMatrix::<f64>::zeros(2, l.len);
             for (c, v) in &lin.columns {
                 analytic[(0, *c)] += v.x;
@@ -817,6 +841,7 @@ mod tests {
                     &l,
                     ob,
                     an[i].as_ref().unwrap(),
+                    false,
                 )
                 .unwrap()
                 .predicted;
@@ -827,6 +852,7 @@ mod tests {
                     &l,
                     ob,
                     an[i].as_ref().unwrap(),
+                    false,
                 )
                 .unwrap()
                 .predicted;
