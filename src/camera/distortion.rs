@@ -14,6 +14,10 @@
 //!   ∂x_d/∂y = ∂y_d/∂x = 2xy s' + 2 p1 x + 2 p2 y
 //! - (D4) ∂n_d/∂(k1, k2, k3) = n (r², r⁴, r⁶) / b,  ∂n_d/∂(k4, k5, k6) = −n s (r², r⁴, r⁶) / b,
 //!   ∂n_d/∂p1 = (2xy, r² + 2y²),  ∂n_d/∂p2 = (r² + 2x², 2xy)
+//!
+//! Undistortion of n_d: (D5) start n₀ = (n_d − t(n_d)) / s(n_d), t the tangential terms of
+//! (D2) (one step of OpenCV's fixed-point iteration); (D6) Newton
+//! n ← n − (∂n_d/∂n)⁻¹ (distort(n) − n_d).
 
 use nalgebra::{Matrix2, SMatrix, Vector2};
 use serde::{Deserialize, Serialize};
@@ -62,7 +66,7 @@ pub struct DistortedPoint {
 }
 
 /// Newton iterations [`Distortion::undistort`] allows before it gives up. From its start it
-/// took 2–4 (mean 2.0–3.7) on every pixel of the four OpenCV test lenses, k1 = −0.3 included;
+/// took 2–4 (mean 2.0–3.2) on every pixel of the four OpenCV test lenses, k1 = −0.3 included;
 /// more are needed only close to where the model folds over.
 const MAX_NEWTON_STEPS: usize = 20;
 
@@ -211,7 +215,7 @@ impl Distortion {
             2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x),
             self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y,
         );
-        let mut n = if s0 > 0.0 { (d - t0) / s0 } else { d };
+        let mut n = if s0 > 0.0 { (d - t0) / s0 } else { d }; // D5
         let mut previous = f64::INFINITY;
         for _ in 0..MAX_NEWTON_STEPS {
             let (f, j, s) = self.distort_with_jacobian(n);
@@ -221,7 +225,7 @@ impl Distortion {
                 return None;
             }
             let step = Vector2::new(j.m22 * r.x - j.m12 * r.y, j.m11 * r.y - j.m21 * r.x) / det;
-            n -= step;
+            n -= step; // D6
             let size = step.x.abs().max(step.y.abs());
             // Quadratic convergence: the error left is ≈ C·size² with C ≈ size/previous², so
             // once two steps are small, size³ ≤ 1e-17·previous² leaves < 1e-17.
