@@ -203,8 +203,7 @@ mod tests {
             // Circles: all 797, radius 6, each at its lattice position (4 decimals: 5e-5 mm).
             let circles = elements(&doc, "circle");
             assert_eq!(circles.len(), 797, "{side}");
-            let mut expect: Vec<Point2<f64>> =
-                b.circles(side).iter().map(|c| c.center_2d).collect();
+            let expect: Vec<Point2<f64>> = b.circles(side).iter().map(|c| c.center_2d).collect();
             for (el, want) in circles.iter().zip(&expect) {
                 assert_eq!(num(el, "r"), 6.0);
                 let p = board_point(&b, num(el, "cx"), num(el, "cy"));
@@ -223,12 +222,15 @@ mod tests {
             // Rings: one even-odd path per ringed circle, centred on it, radii 4.5 and 2.7.
             let paths = elements(&doc, "path");
             assert_eq!(paths.len(), rings, "{side}");
-            let mut centres = Vec::new();
+            // Every ring sits on a distinct ringed lattice point, and all of them are drawn.
+            let mut want: Vec<Point2<f64>> =
+                b.ringed(side).iter().map(|&h| b.position(h)).collect();
             for el in &paths {
                 let d = attr(el, "d").unwrap();
                 let sub: Vec<&str> = d.split('M').filter(|p| !p.is_empty()).collect();
                 assert_eq!(sub.len(), 2, "{d}");
                 let mut radii = Vec::new();
+                let mut centres = Vec::new();
                 for p in sub {
                     let v: Vec<f64> = p
                         .split(['A', ' ', 'Z'])
@@ -236,24 +238,20 @@ mod tests {
                         .map(|t| t.parse().unwrap())
                         .collect();
                     // M x+r y A r r 0 1 0 x−r y A r r 0 1 0 x+r y Z
+                    assert_eq!(v.len(), 16, "{d}");
                     let r = v[2];
                     radii.push(r);
                     centres.push(board_point(&b, v[0] - r, v[1]));
                 }
                 assert_eq!(radii, [4.5, 2.7]);
-            }
-            let ringed = b.ringed(side);
-            expect.retain(|p| {
-                b.circles(side)
+                assert!((centres[0] - centres[1]).norm() < 1e-4, "{d}");
+                let i = want
                     .iter()
-                    .any(|c| c.center_2d == *p && ringed.contains(&c.hex))
-            });
-            for c in centres {
-                assert!(
-                    expect.iter().any(|p| (p - c).norm() < 1e-4),
-                    "{side}: ring at {c}"
-                );
+                    .position(|p| (p - centres[0]).norm() < 1e-4)
+                    .unwrap_or_else(|| panic!("{side}: ring at {} on no ringed point", centres[0]));
+                want.swap_remove(i);
             }
+            assert!(want.is_empty(), "{side}: rings missing at {want:?}");
 
             // Scale bar exactly 100 mm; label names board and side.
             let bar = elements(&doc, "rect")

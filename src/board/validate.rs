@@ -26,7 +26,11 @@ fn check(field: &str, values: &[f64], ok: bool, rule: &str) -> Result<(), Invali
     if values.iter().all(|v| v.is_finite()) && ok {
         Ok(())
     } else {
-        Err(invalid(field, format!("{values:?} breaks the rule {rule}")))
+        let shown = match values {
+            [v] => v.to_string(),
+            _ => format!("{values:?}"),
+        };
+        Err(invalid(field, format!("{shown} breaks the rule {rule}")))
     }
 }
 
@@ -61,13 +65,13 @@ impl Board {
             "half_width",
             &[self.half_width],
             self.half_width > 0.0,
-            "> 0",
+            "half_width > 0",
         )?;
         check(
             "half_height",
             &[self.half_height],
             self.half_height > 0.0,
-            "> 0",
+            "half_height > 0",
         )?;
         let [w, h] = self.size;
         let fits = 2.0 * (self.half_width + r) <= w && 2.0 * (self.half_height + r) <= h;
@@ -77,7 +81,12 @@ impl Board {
             fits,
             "width ≥ 2·(half_width + radius), height ≥ 2·(half_height + radius)",
         )?;
-        check("thickness", &[self.thickness], self.thickness > 0.0, "> 0")?;
+        check(
+            "thickness",
+            &[self.thickness],
+            self.thickness > 0.0,
+            "thickness > 0",
+        )?;
         if self.marker_spacing < 1 {
             return Err(invalid(
                 "marker_spacing",
@@ -85,8 +94,8 @@ impl Board {
             ));
         }
         if let Some(t) = &self.front_back {
-            check("front_back.rotation", &t.rotation, true, "finite")?;
-            check("front_back.translation", &t.translation, true, "finite")?;
+            check("front_back.rotation", &t.rotation, true, "all finite")?;
+            check("front_back.translation", &t.translation, true, "all finite")?;
         }
         Ok(())
     }
