@@ -69,7 +69,10 @@ pub enum BoardError {
         invalid: Invalid,
     },
     /// `--board` named neither a built-in board nor an existing file.
-    #[error("board {0:?} is neither a built-in board ({builtin}) nor a file", builtin = Board::BUILTIN.join(", "))]
+    #[error(
+        "board {0:?} is neither a built-in board ({names}) nor a file",
+        names = builtin_names()
+    )]
     Unknown(String),
 }
 
@@ -104,13 +107,18 @@ fn at(line: Option<usize>, field: Option<&str>) -> String {
     s
 }
 
-impl Board {
-    /// Names of the built-in boards.
-    pub const BUILTIN: [&'static str; 1] = ["hex600"];
+/// The built-in boards (each known by its `name`).
+const BUILTIN: [fn() -> Board; 1] = [Board::hex600];
 
-    /// A built-in board by name.
+/// "hex600" (the names of the built-in boards).
+fn builtin_names() -> String {
+    BUILTIN.map(|make| make().name).join(", ")
+}
+
+impl Board {
+    /// A built-in board by name (`hex600`).
     pub fn builtin(name: &str) -> Option<Board> {
-        (name == "hex600").then(Board::hex600)
+        BUILTIN.iter().map(|make| make()).find(|b| b.name == name)
     }
 
     /// Read and validate a board file's text; errors name `<string>` as the origin.
@@ -142,12 +150,16 @@ impl Board {
 }
 
 fn parse(text: &str, origin: &str) -> Result<Board, BoardError> {
-    // Spans of every key, from the same text; when this fails, toml's error below has the line.
-    let keys = toml_edit::ImDocument::parse(text)
-        .map(|doc| KeySpans::of(doc.as_table()))
-        .unwrap_or_default();
-    let board: Board = toml::from_str(text).map_err(|e| {
-        // A missing top-level key spans the root table: no line says more than none.
+    // One parse keeps the spans: every key's for errors after deserialising, the root's to
+    // recognise a missing top-level key (its error spans the root table: no line helps).
+    let mut keys = KeySpans::default();
+    let board: Result<Board, toml_edit::de::Error> = toml_edit::ImDocument::parse(text.to_owned())
+        .map_err(Into::into)
+        .and_then(|doc| {
+            keys = KeySpans::of(doc.as_table());
+            toml_edit::de::from_document(doc)
+        });
+    let board = board.map_err(|e| {
         let span = e.span().filter(|s| Some(s) != keys.root.as_ref());
         BoardError::Parse {
             origin: origin.to_owned(),
