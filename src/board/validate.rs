@@ -169,8 +169,8 @@ impl Board {
                         return Err(invalid(
                             "marker_spacing",
                             format!(
-                                "{} marker cells at ({}, {}) and ({}, {}) of the {side} share \
-                                 the circle ({}, {})",
+                                "with spacing {} the marker cells at ({}, {}) and ({}, {}) of \
+                                 the {side} share the circle ({}, {})",
                                 self.marker_spacing,
                                 other.q,
                                 other.r,
@@ -184,10 +184,9 @@ impl Board {
                 }
             }
             let ringed = self.ringed(side);
-            let centres: Vec<Hex> = cells.iter().map(|c| c.center).collect();
             for h in self.lattice() {
-                if centres.contains(&h) {
-                    continue;
+                if owner.get(&h) == Some(&h) {
+                    continue; // a marker centre
                 }
                 let read = Code(
                     (0..6)
@@ -198,8 +197,9 @@ impl Board {
                     return Err(invalid(
                         "marker_spacing",
                         format!(
-                            "{} puts marker cells so close that the circle ({}, {}) of the \
-                             {side}, no marker centre, reads {read} = codes.{} turned by {k} steps",
+                            "with spacing {} the circle ({}, {}) of the {side}, no marker \
+                             centre, has rings of two marker cells around it that read {read}, \
+                             codes.{} turned by {k} steps",
                             self.marker_spacing,
                             h.q,
                             h.r,
@@ -326,7 +326,10 @@ mod tests {
         assert!(msg.contains("share"), "{msg}");
         // Spacing 3: cells apart, but circles between them see rings of two cells.
         let msg = rejects("marker_spacing", "marker_spacing = 3", "marker_spacing");
-        assert!(msg.contains("no marker centre"), "{msg}");
+        assert!(
+            msg.contains("no marker centre, has rings of two marker cells"),
+            "{msg}"
+        );
     }
 
     /// DESIGN.md §3: with spacing 6 any non-marker circle has at most 2 ringed neighbours.
