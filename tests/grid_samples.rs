@@ -1,0 +1,263 @@
+//! Grid building on the independent sample images (shared/samples/detect, README there), with
+//! the true ellipses standing in for the detector: clean, and with circles dropped, centres
+//! jittered, false detections added and the centre cell removed.
+
+#[path = "support/grid_truth.rs"]
+mod truth;
+
+use hexcal::board::{Board, Hex};
+use hexcal::detect::{Circle, Ellipse};
+use hexcal::grid::{build, Grid, GridParams};
+use nalgebra::Point2;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use std::collections::HashSet;
+use truth::{load, score, true_detections, Sample, Score, SAMPLES};
+
+/// Circles the builder can label from the given true circles: those in a local cell with at
+/// least two complete opposing pairs (as centre or as one of its found neighbours). The
+/// builder's own cells come from image geometry, this oracle's from the truth.
+fn labellable(kept: &HashSet<Hex>) -> usize {
+    let mut out = HashSet::new();
+    for &h in kept {
+        let n = h.neighbours();
+        let pairs = (0..3)
+            .filter(|&k| kept.contains(&n[k]) && kept.contains(&n[k + 3]))
+            .count();
+        if pairs >= 2 {
+            out.insert(h);
+            out.extend(n.iter().filter(|x| kept.contains(x)));
+        }
+    }
+    out.len()
+}
+
+/// Build and score the grid of a sample from chosen detections; `truth_of[i]` names the true
+/// circle of detection i (None for a false one).
+fn run(s: &Sample, circles: &[Circle], truth_of: &[Option<usize>]) -> (Grid, Score) {
+    let grid = build(&s.image, circles, &Board::hex600(), &GridParams::default());
+    let given = truth_of.iter().flatten().count();
+    let sc = score(&grid, &s.truth, truth_of, given);
+    (grid, sc)
+}
+
+/// The checks every variant must pass: no wrong or stray label, one lattice transform for
+/// all labels, the side right when given, and the marker lattice respected when the side is
+/// known but the grid is not anchored.
+fn assert_sound(what: &str, grid: &Grid, sc: &Score) {
+    assert_eq!(sc.wrong_anchored, 0, "{what}: wrong anchored labels {sc:?}");
+    assert_eq!(sc.wrong_side, 0, "{what}: wrong side {sc:?}");
+    assert_eq!(sc.stray, 0, "{what}: false detections labelled {sc:?}");
+    assert_eq!(
+        sc.inconsistent, 0,
+        "{what}: labels not one lattice transform {sc:?}"
+    );
+    if grid.anchored {
+        assert!(grid.points.iter().all(|p| Board::hex600().contains(p.hex)));
+    } else if grid.side.is_some() {
+        // Side marks fix side and rotation; the origin is off by a marker-lattice step.
+        assert_eq!(sc.rotation, 0, "{what}: rotation not fixed {sc:?}");
+        let s = Board::hex600().marker_spacing;
+        let t = sc.translation;
+        assert!(
+            t.q % s == 0 && t.r % s == 0,
+            "{what}: translation {t:?} off the marker lattice"
+        );
+    }
+}
+
+#[test]
+fn samples_from_true_ellipses() {
+    for name in SAMPLES {
+        let s = load(name);
+        let circles = true_detections(&s);
+        let truth_of: Vec<_> = (0..circles.len()).map(Some).collect();
+        let (grid, sc) = run(&s, &circles, &truth_of);
+        let kept: HashSet<Hex> = s.truth.circles.iter().map(|t| t.hex()).collect();
+        let expected = labellable(&kept);
+        println!(
+            "{name}: labelled {}/{} (recall {:.4}; labellable {expected}), anchored {}, side {:?}, \
+             markers {} ({} confirmed), cells {}, conflicts {}",
+            sc.labelled,
+            circles.len(),
+            sc.recall,
+            grid.anchored,
+            grid.side,
+            grid.stats.markers.len(),
+            grid.stats.markers.iter().filter(|m| m.confirmed).count(),
+            grid.stats.cells,
+            grid.stats.conflicts,
+        );
+        assert_sound(name, &grid, &sc);
+        assert_eq!(grid.anchored, s.truth.centre_visible, "{name}: anchoring");
+        // Clean input: every circle a cell can reach is labelled.
+        assert_eq!(sc.labelled, expected, "{name}: labelled vs labellable");
+        // Every decoded marker is a true marker cell and agrees with the output.
+        assert!(
+            grid.stats.markers.iter().all(|m| m.confirmed),
+            "{name}: {:?}",
+            grid.stats.markers
+        );
+    }
+}
+
+/// Drop 10 % of the circles at random (five draws per sample).
+#[test]
+fn samples_with_dropped_circles() {
+    for name in SAMPLES {
+        let s = load(name);
+        let all = true_detections(&s);
+        let centre: Vec<Hex> = std::iter::once(Hex::new(0, 0))
+            .chain(Hex::new(0, 0).neighbours())
+            .collect();
+        for seed in 0..5 {
+            let mut rng = StdRng::seed_from_u64(seed);
+            let keep: Vec<usize> = (0..all.len())
+                .filter(|_| rng.random::<f64>() >= 0.1)
+                .collect();
+            let circles: Vec<Circle> = keep.iter().map(|&i| all[i]).collect();
+            let truth_of: Vec<_> = keep.iter().map(|&i| Some(i)).collect();
+            let (grid, sc) = run(&s, &circles, &truth_of);
+            let kept: HashSet<Hex> = keep.iter().map(|&i| s.truth.circles[i].hex()).collect();
+            let expected = labellable(&kept);
+            let what = format!("{name} drop 10 % seed {seed}");
+            println!(
+                "{what}: labelled {}/{} (labellable {expected}), anchored {}, components {:?}",
+                sc.labelled,
+                circles.len(),
+                grid.anchored,
+                grid.stats.components
+            );
+            assert_sound(&what, &grid, &sc);
+            let centre_whole = centre.iter().all(|h| kept.contains(h));
+            assert_eq!(
+                grid.anchored,
+                s.truth.centre_visible && centre_whole,
+                "{what}: anchoring"
+            );
+            assert!(
+                sc.labelled as f64 >= 0.97 * expected as f64,
+                "{what}: {sc:?}"
+            );
+        }
+    }
+}
+
+/// Gaussian centre jitter of 0.05 px on every circle.
+#[test]
+fn samples_with_jitter() {
+    for name in SAMPLES {
+        let s = load(name);
+        let mut rng = StdRng::seed_from_u64(7);
+        let circles: Vec<Circle> = true_detections(&s)
+            .into_iter()
+            .map(|mut c| {
+                // Box–Muller: two independent standard normals.
+                let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
+                let (s, c2) = (std::f64::consts::TAU * v).sin_cos();
+                let n = (-2.0 * u.ln()).sqrt();
+                c.ellipse.center += nalgebra::Vector2::new(n * c2, n * s) * 0.05;
+                c
+            })
+            .collect();
+        let truth_of: Vec<_> = (0..circles.len()).map(Some).collect();
+        let (grid, sc) = run(&s, &circles, &truth_of);
+        let expected = labellable(&s.truth.circles.iter().map(|t| t.hex()).collect());
+        assert_sound(&format!("{name} jitter"), &grid, &sc);
+        assert_eq!(
+            grid.anchored, s.truth.centre_visible,
+            "{name} jitter: anchoring"
+        );
+        assert_eq!(sc.labelled, expected, "{name} jitter");
+    }
+}
+
+/// False detections: blobs off the board and on its black between the circles.
+#[test]
+fn samples_with_false_detections() {
+    for name in SAMPLES {
+        let s = load(name);
+        let mut circles = true_detections(&s);
+        let mut truth_of: Vec<_> = (0..circles.len()).map(Some).collect();
+        let mut rng = StdRng::seed_from_u64(11);
+        let (w, h) = (f64::from(s.image.width()), f64::from(s.image.height()));
+        let trues = &s.truth.circles;
+        let nearest = |p: Point2<f64>| {
+            trues
+                .iter()
+                .map(|t| ((p - Point2::from(t.ellipse)).norm(), t.axes[0]))
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .unwrap()
+        };
+        let (mut on, mut off) = (0, 0);
+        while on < 60 || off < 60 {
+            let p = Point2::new(rng.random_range(0.0..w), rng.random_range(0.0..h));
+            let (d, a) = nearest(p);
+            // On the board: within a lattice triangle (≤ pitch/√3 = 1.92 R from a centre) but
+            // clear of the circles; off it: beyond 4 R of every circle.
+            let radius = if d > 1.3 * a && d < 1.9 * a && on < 60 {
+                on += 1;
+                rng.random_range(0.3..0.6) * a
+            } else if d > 4.0 * a && off < 60 {
+                off += 1;
+                rng.random_range(0.5..2.0) * a
+            } else {
+                continue;
+            };
+            let e = Ellipse {
+                center: p,
+                a: radius,
+                b: radius * rng.random_range(0.3..1.0),
+                angle: rng.random_range(0.0..std::f64::consts::PI),
+            };
+            circles.push(truth::detection(&s.image, e));
+            truth_of.push(None);
+        }
+        let (grid, sc) = run(&s, &circles, &truth_of);
+        let expected = labellable(&trues.iter().map(|t| t.hex()).collect());
+        let what = format!("{name} with 120 false detections");
+        println!(
+            "{what}: labelled {} (labellable {expected}), {sc:?}",
+            sc.labelled
+        );
+        assert_sound(&what, &grid, &sc);
+        assert_eq!(grid.anchored, s.truth.centre_visible, "{what}: anchoring");
+        assert!(
+            sc.labelled as f64 >= 0.99 * expected as f64,
+            "{what}: {sc:?}"
+        );
+    }
+}
+
+/// Without the centre cell's seven circles no grid may be anchored; side marks still fix
+/// side and rotation.
+#[test]
+fn samples_without_centre_cell() {
+    for name in SAMPLES {
+        let s = load(name);
+        let all = true_detections(&s);
+        let centre: HashSet<Hex> = std::iter::once(Hex::new(0, 0))
+            .chain(Hex::new(0, 0).neighbours())
+            .collect();
+        let keep: Vec<usize> = (0..all.len())
+            .filter(|&i| !centre.contains(&s.truth.circles[i].hex()))
+            .collect();
+        let circles: Vec<Circle> = keep.iter().map(|&i| all[i]).collect();
+        let truth_of: Vec<_> = keep.iter().map(|&i| Some(i)).collect();
+        let (grid, sc) = run(&s, &circles, &truth_of);
+        let what = format!("{name} without centre cell");
+        println!(
+            "{what}: labelled {}/{}, side {:?}, {sc:?}",
+            sc.labelled,
+            circles.len(),
+            grid.side
+        );
+        assert_sound(&what, &grid, &sc);
+        assert!(!grid.anchored, "{what}");
+        assert_eq!(
+            grid.side,
+            Some(s.truth.side),
+            "{what}: side marks should fix the side"
+        );
+    }
+}
