@@ -261,3 +261,121 @@ fn samples_without_centre_cell() {
         );
     }
 }
+
+/// Darken the annulus `band` (fractions of the radius) of detection `c` to its background
+/// level, with 4×4 coverage sampling per pixel: a false marker ring.
+fn paint_ring(image: &mut hexcal::detect::GrayImage, c: &Circle, band: [f64; 2]) {
+    let e = &c.ellipse;
+    let (sa, ca) = e.angle.sin_cos();
+    let reach = e.a.ceil() as i64 + 1;
+    let (cx, cy) = (e.center.x.round() as i64, e.center.y.round() as i64);
+    for y in cy - reach..=cy + reach {
+        for x in cx - reach..=cx + reach {
+            let mut cover = 0.0;
+            for i in 0..4 {
+                for j in 0..4 {
+                    let dx = x as f64 + (f64::from(i) + 0.5) / 4.0 - 0.5 - e.center.x;
+                    let dy = y as f64 + (f64::from(j) + 0.5) / 4.0 - 0.5 - e.center.y;
+                    let (u, v) = ((dx * ca + dy * sa) / e.a, (-dx * sa + dy * ca) / e.b);
+                    let rho = u.hypot(v);
+                    if rho > band[0] && rho < band[1] {
+                        cover += 1.0 / 16.0;
+                    }
+                }
+            }
+            let p = image.get_pixel_mut(x as u32, y as u32);
+            p.0[0] = p.0[0] * (1.0 - cover) + c.background * cover;
+        }
+    }
+}
+
+/// One false ring that turns a plain neighbourhood into a centre code word — the worst
+/// single ring error (DESIGN.md §5) — must neither anchor a wrong frame nor stop the true
+/// centre from anchoring.
+#[test]
+fn samples_with_a_false_centre_code() {
+    let board = Board::hex600();
+    for name in SAMPLES {
+        let s = load(name);
+        let circles = true_detections(&s);
+        let truth_of: Vec<_> = (0..circles.len()).map(Some).collect();
+        let index: std::collections::HashMap<Hex, usize> = s
+            .truth
+            .circles
+            .iter()
+            .enumerate()
+            .map(|(i, t)| (t.hex(), i))
+            .collect();
+        let ringed = |h: &Hex| index.get(h).is_some_and(|&i| s.truth.circles[i].ringed);
+        // (circle to ring, cell centre that then reads as a centre marker).
+        let mut traps = Vec::new();
+        for t in s.truth.circles.iter().filter(|t| !t.ringed) {
+            for c in t.hex().neighbours() {
+                let nbrs = c.neighbours();
+                if ringed(&c)
+                    || !index.contains_key(&c)
+                    || !nbrs.iter().all(|h| index.contains_key(h))
+                {
+                    continue;
+                }
+                let code = (0..6)
+                    .map(|k| u8::from(ringed(&nbrs[k]) || nbrs[k] == t.hex()) << k)
+                    .sum();
+                if board
+                    .codes
+                    .decode(hexcal::board::Code(code))
+                    .is_some_and(|(kind, _)| kind.is_center())
+                {
+                    traps.push((index[&t.hex()], c));
+                }
+            }
+        }
+        println!(
+            "{name}: {} single false rings make a centre code",
+            traps.len()
+        );
+        for &(victim, cell) in traps.iter().step_by(traps.len().div_ceil(4).max(1)) {
+            let mut s2 = Sample {
+                name: s.name,
+                image: s.image.clone(),
+                truth: truth::Truth {
+                    side: s.truth.side,
+                    centre_visible: s.truth.centre_visible,
+                    circles: s.truth.circles.clone(),
+                },
+            };
+            paint_ring(&mut s2.image, &circles[victim], board.ring);
+            let (grid, sc) = run(&s2, &circles, &truth_of);
+            let what = format!(
+                "{name} false ring on {:?} (cell {cell:?})",
+                s.truth.circles[victim].hex()
+            );
+            println!(
+                "{what}: anchored {}, markers {:?}",
+                grid.anchored,
+                grid.stats
+                    .markers
+                    .iter()
+                    .filter(|m| !m.confirmed)
+                    .collect::<Vec<_>>()
+            );
+            assert_sound(&what, &grid, &sc);
+            assert_eq!(grid.anchored, s.truth.centre_visible, "{what}: anchoring");
+            // The same in a small view: the circles within 4 steps of the false cell, which
+            // hold the whole side mark the false ring borrowed two rings from.
+            let keep: Vec<usize> = (0..circles.len())
+                .filter(|&i| s.truth.circles[i].hex().distance(cell) <= 4)
+                .collect();
+            let small: Vec<Circle> = keep.iter().map(|&i| circles[i]).collect();
+            let small_truth: Vec<_> = keep.iter().map(|&i| Some(i)).collect();
+            let (grid, sc) = run(&s2, &small, &small_truth);
+            println!(
+                "  small view of {} circles: anchored {}, side {:?}",
+                small.len(),
+                grid.anchored,
+                grid.side
+            );
+            assert_sound(&format!("{what}, small view"), &grid, &sc);
+        }
+    }
+}

@@ -348,7 +348,10 @@ fn frame(
     readings: &[Ring],
     params: &GridParams,
 ) -> Frame {
-    let centre = markers
+    // Centre hypotheses not refuted by the rings or the board's outline, scored by marker
+    // agreement; the best is accepted when more markers agree than disagree and no other
+    // hypothesis scores as well (one false ring can make two locally symmetric readings).
+    let mut centre: Vec<(Side, LatticeMap, Evidence)> = markers
         .iter()
         .filter(|m| m.kind.is_center())
         .map(|m| {
@@ -362,16 +365,20 @@ fn frame(
         })
         .filter(|(_, _, ev)| {
             let bearing = ev.rings_agree + ev.rings_disagree;
-            2 * ev.markers_disagree < ev.markers_agree
-                && ev.rings_disagree as f64 <= params.max_ring_disagreement * bearing as f64
+            ev.rings_disagree as f64 <= params.max_ring_disagreement * bearing as f64
                 && ev.off_board <= params.max_off_board
         })
-        .max_by_key(|(_, _, ev)| {
-            (
-                ev.markers_agree as i64 - ev.markers_disagree as i64,
-                -(ev.rings_disagree as i64),
-            )
-        });
+        .collect();
+    let score = |ev: &Evidence| ev.markers_agree as i64 - ev.markers_disagree as i64;
+    centre.sort_by_key(|(_, _, ev)| std::cmp::Reverse(score(ev)));
+    let centre = match centre.as_slice() {
+        [best, rest @ ..]
+            if score(&best.2) > 0 && rest.iter().all(|o| score(&o.2) < score(&best.2)) =>
+        {
+            Some(*best)
+        }
+        _ => None,
+    };
     if let Some((side, map, evidence)) = centre {
         return Frame {
             side: Some(side),

@@ -2,6 +2,7 @@
 //! detected white circle?
 
 use crate::detect::{Circle, GrayImage};
+use std::sync::OnceLock;
 
 /// What the annulus of one circle shows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -31,17 +32,21 @@ pub(crate) fn ring_contrast(image: &GrayImage, circle: &Circle, band: [f64; 2]) 
     if contrast <= 0.0 {
         return None;
     }
+    static UNIT: OnceLock<[(f64, f64); ANGLES]> = OnceLock::new();
+    let unit = UNIT.get_or_init(|| {
+        std::array::from_fn(|m| {
+            (std::f64::consts::TAU * (m as f64 + 0.5) / ANGLES as f64).sin_cos()
+        })
+    });
     let e = &circle.ellipse;
     let (sa, ca) = e.angle.sin_cos();
     let (mut sum, mut weight) = (0.0, 0.0);
-    for m in 0..ANGLES {
-        let t = std::f64::consts::TAU * (m as f64 + 0.5) / ANGLES as f64;
-        let (st, ct) = t.sin_cos();
+    for &(st, ct) in unit {
         // Point of the unit ellipse along parameter t: a·cos t·u + b·sin t·v.
         let (px, py) = (e.a * ct, e.b * st);
         let dx = px * ca - py * sa;
         let dy = px * sa + py * ca;
-        let w = px.hypot(py);
+        let w = (px * px + py * py).sqrt();
         for f in RADIAL {
             let s = band[0] + f * (band[1] - band[0]);
             let v = bilinear(image, e.center.x + s * dx, e.center.y + s * dy)?;
@@ -66,13 +71,11 @@ pub(crate) fn classify(contrast: Option<f64>, plain_below: f64, ringed_above: f6
 /// image.
 fn bilinear(image: &GrayImage, x: f64, y: f64) -> Option<f32> {
     let (w, h) = (image.width() as usize, image.height() as usize);
-    if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
+    if w < 2 || h < 2 || !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
         return None;
     }
-    let (x0, y0) = (
-        (x.floor() as usize).min(w - 2),
-        (y.floor() as usize).min(h - 2),
-    );
+    // x, y ≥ 0 here, so truncation is the floor.
+    let (x0, y0) = ((x as usize).min(w - 2), (y as usize).min(h - 2));
     let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
     let raw = image.as_raw();
     let p = |xx: usize, yy: usize| raw[yy * w + xx];
