@@ -12,8 +12,8 @@ use std::collections::{BinaryHeap, HashMap};
 enum State {
     /// Not (yet) placeable: fewer than two of its circles are placed.
     Pending,
-    /// Placed with rotation ρ: its slot j is lattice direction (j + ρ) mod 6.
-    Placed(u8),
+    /// Placed (its rotation is recorded in its component).
+    Placed,
     /// Disagreed with the labelling around it (or touched another component).
     Rejected,
 }
@@ -23,10 +23,21 @@ enum State {
 pub(crate) struct Component {
     /// (circle, lattice position) of every labelled circle.
     pub points: Vec<(u32, Hex)>,
-    /// (cell index, rotation ρ) of every placed cell.
-    pub cells: Vec<(usize, u8)>,
+    /// Every placed cell.
+    pub cells: Vec<PlacedCell>,
     /// Cells rejected because they disagreed with this component.
     pub rejected: usize,
+}
+
+/// A cell placed in a component.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct PlacedCell {
+    /// Index of the cell.
+    pub cell: usize,
+    /// Its centre's lattice position in the component's frame.
+    pub centre: Hex,
+    /// Rotation ρ: slot j lies along lattice direction (j + ρ) mod 6.
+    pub rotation: u8,
 }
 
 /// The assembler: cells plus which cells each circle belongs to.
@@ -47,11 +58,9 @@ pub(crate) struct Assembler<'a> {
 impl<'a> Assembler<'a> {
     /// Prepare assembly of `cells` over `n_circles` detections.
     pub(crate) fn new(cells: &'a [Cell], n_circles: usize) -> Assembler<'a> {
-        let members =
-            |c: &'a Cell| std::iter::once(c.center).chain(c.slots.iter().flatten().copied());
         let mut start = vec![0u32; n_circles + 1];
         for c in cells {
-            for m in members(c) {
+            for (_, m) in c.members() {
                 start[m as usize + 1] += 1;
             }
         }
@@ -61,7 +70,7 @@ impl<'a> Assembler<'a> {
         let mut fill = start.clone();
         let mut holders = vec![0u32; start[n_circles] as usize];
         for (k, c) in cells.iter().enumerate() {
-            for m in members(c) {
+            for (_, m) in c.members() {
                 holders[fill[m as usize] as usize] = k as u32;
                 fill[m as usize] += 1;
             }
@@ -92,19 +101,18 @@ impl<'a> Assembler<'a> {
 
     /// Whether a cell can seed a new component: still pending and none of its circles taken.
     pub(crate) fn can_seed(&self, k: usize) -> bool {
-        let c = &self.cells[k];
         self.state[k] == State::Pending
-            && std::iter::once(c.center)
-                .chain(c.slots.iter().flatten().copied())
-                .all(|m| self.owner[m as usize].is_none())
+            && self.cells[k]
+                .members()
+                .all(|(_, m)| self.owner[m as usize].is_none())
     }
 
-    /// Grow component number `id` from seed cell `seed`, its centre at the frame origin and
-    /// its slot 0 along lattice direction `rotation`.
-    pub(crate) fn grow(&mut self, id: u32, seed: usize, rotation: u8) -> Component {
+    /// Grow component number `id` from seed cell `seed`: its centre at the frame origin, its
+    /// slot 0 along lattice direction 0.
+    pub(crate) fn grow(&mut self, id: u32, seed: usize) -> Component {
         let mut comp = Component::default();
         let mut heap = Queue::new();
-        self.commit(id, seed, Hex::new(0, 0), rotation, &mut comp, &mut heap);
+        self.commit(id, seed, Hex::new(0, 0), 0, &mut comp, &mut heap);
         while let Some((_, k)) = heap.pop() {
             if self.state[k] != State::Pending {
                 continue;
@@ -125,14 +133,9 @@ impl<'a> Assembler<'a> {
     /// circles already placed, and a check that every other circle of it agrees or is free.
     fn fit(&self, id: u32, k: usize) -> Fit {
         let c = &self.cells[k];
+        // (slot, position) of the circles already placed; slot None is the centre.
         let mut placed = Vec::with_capacity(7);
-        // (slot or None for the centre, circle, position).
-        for (slot, m) in std::iter::once((None, c.center)).chain(
-            c.slots
-                .iter()
-                .enumerate()
-                .filter_map(|(j, m)| m.map(|m| (Some(j), m))),
-        ) {
+        for (slot, m) in c.members() {
             match self.owner[m as usize] {
                 Some((owner, h)) if owner == id => placed.push((slot, h)),
                 Some(_) => return Fit::Conflict,
@@ -142,30 +145,21 @@ impl<'a> Assembler<'a> {
         if placed.len() < 2 {
             return Fit::NotReady;
         }
-        let offset = |slot: Option<usize>, rho: usize| match slot {
-            None => Hex::new(0, 0),
-            Some(j) => Hex::DIRECTIONS[(j + rho) % 6],
-        };
         // The first placed circle fixes the centre for each rotation; all others must agree.
         let (s0, h0) = placed[0];
         let Some((centre, rho)) = (0..6).find_map(|rho| {
-            let centre = h0 - offset(s0, rho);
+            let centre = h0 - slot_offset(s0, rho);
             placed
                 .iter()
-                .all(|&(s, h)| centre + offset(s, rho) == h)
+                .all(|&(s, h)| centre + slot_offset(s, rho) == h)
                 .then_some((centre, rho))
         }) else {
             return Fit::Conflict;
         };
         // The free circles' positions must not be held by other circles.
         let occupied = |h: Hex, m: u32| self.position_holder(id, h).is_some_and(|other| other != m);
-        for (slot, m) in std::iter::once((None, c.center)).chain(
-            c.slots
-                .iter()
-                .enumerate()
-                .filter_map(|(j, m)| m.map(|m| (Some(j), m))),
-        ) {
-            if self.owner[m as usize].is_none() && occupied(centre + offset(slot, rho), m) {
+        for (slot, m) in c.members() {
+            if self.owner[m as usize].is_none() && occupied(centre + slot_offset(slot, rho), m) {
                 return Fit::Conflict;
             }
         }
@@ -188,14 +182,14 @@ impl<'a> Assembler<'a> {
         comp: &mut Component,
         heap: &mut Queue,
     ) {
-        let c = &self.cells[k];
-        self.state[k] = State::Placed(rho);
-        comp.cells.push((k, rho));
-        let members =
-            std::iter::once((c.center, centre)).chain(c.slots.iter().enumerate().filter_map(
-                |(j, m)| m.map(|m| (m, centre + Hex::DIRECTIONS[(j + rho as usize) % 6])),
-            ));
-        for (m, h) in members {
+        self.state[k] = State::Placed;
+        comp.cells.push(PlacedCell {
+            cell: k,
+            centre,
+            rotation: rho,
+        });
+        for (slot, m) in self.cells[k].members() {
+            let h = centre + slot_offset(slot, rho as usize);
             if self.owner[m as usize].is_some() {
                 continue;
             }
@@ -214,6 +208,12 @@ impl<'a> Assembler<'a> {
             }
         }
     }
+}
+
+/// Lattice offset of a cell member from the cell centre: slot j lies along direction
+/// (j + ρ) mod 6; the centre (slot `None`) at zero.
+fn slot_offset(slot: Option<usize>, rho: usize) -> Hex {
+    slot.map_or(Hex::new(0, 0), |j| Hex::DIRECTIONS[(j + rho) % 6])
 }
 
 /// Order cells best first: three checked pairs, then full, then by worst normalised residual.

@@ -20,11 +20,11 @@ impl Buckets {
     /// Index `circles` in square buckets of side `size` (px).
     pub(crate) fn new(circles: &[Circle], size: f64) -> Buckets {
         let (mut lo, mut hi) = (Vector2::repeat(f64::MAX), Vector2::repeat(f64::MIN));
-        for c in circles {
+        for c in circles.iter().filter(|c| usable(c)) {
             lo = lo.inf(&c.ellipse.center.coords);
             hi = hi.sup(&c.ellipse.center.coords);
         }
-        if circles.is_empty() {
+        if lo.x > hi.x {
             (lo, hi) = (Vector2::zeros(), Vector2::zeros());
         }
         // At most ~4 buckets per circle on average: keeps memory bounded for stray outliers.
@@ -37,15 +37,15 @@ impl Buckets {
             (p.y as usize).min(rows - 1) * cols + (p.x as usize).min(cols - 1)
         };
         let mut start = vec![0u32; cols * rows + 1];
-        for c in circles {
+        for c in circles.iter().filter(|c| usable(c)) {
             start[bucket(c) + 1] += 1;
         }
         for b in 0..cols * rows {
             start[b + 1] += start[b];
         }
         let mut fill = start.clone();
-        let mut items = vec![0u32; circles.len()];
-        for (i, c) in circles.iter().enumerate() {
+        let mut items = vec![0u32; start[cols * rows] as usize];
+        for (i, c) in circles.iter().enumerate().filter(|(_, c)| usable(c)) {
             let b = bucket(c);
             items[fill[b] as usize] = i as u32;
             fill[b] += 1;
@@ -82,6 +82,17 @@ impl Buckets {
     }
 }
 
+/// Whether a detection's ellipse is finite with positive semi-axes; others are ignored.
+fn usable(c: &Circle) -> bool {
+    let e = &c.ellipse;
+    e.center.coords.iter().all(|v| v.is_finite())
+        && e.a.is_finite()
+        && e.b.is_finite()
+        && e.angle.is_finite()
+        && e.a > 0.0
+        && e.b > 0.0
+}
+
 /// One local cell: a centre circle and its neighbours in six counter-clockwise slots as seen
 /// on screen (slot s and s + 3 opposite).
 #[derive(Clone, Debug, PartialEq)]
@@ -100,6 +111,16 @@ impl Cell {
     /// Whether all six neighbours were found.
     pub(crate) fn is_full(&self) -> bool {
         self.slots.iter().all(Option::is_some)
+    }
+
+    /// Its circles: the centre (slot `None`), then each found neighbour with its slot.
+    pub(crate) fn members(&self) -> impl Iterator<Item = (Option<usize>, u32)> + '_ {
+        std::iter::once((None, self.center)).chain(
+            self.slots
+                .iter()
+                .enumerate()
+                .filter_map(|(j, m)| m.map(|m| (Some(j), m))),
+        )
     }
 }
 
@@ -138,6 +159,8 @@ struct Pair {
 /// Why a detection has no cell (pass-1 diagnostics).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Rejection {
+    /// The ellipse is not finite or has a non-positive axis.
+    Degenerate,
     /// Fewer than two opposing pairs were found (board edge, missing neighbours, stray blob).
     TooFewPairs,
     /// Pairs were found but their slots or the affine consistency failed.
@@ -153,7 +176,8 @@ pub(crate) fn find_cells(
 ) -> Vec<Result<Cell, Rejection>> {
     let half = 0.5 * nu;
     let max_near = half * params.max_neighbour_ratio;
-    let mut sizes: Vec<f64> = circles.iter().map(|c| c.ellipse.a).collect();
+    let major = |c: &Circle| c.ellipse.a.max(c.ellipse.b);
+    let mut sizes: Vec<f64> = circles.iter().filter(|c| usable(c)).map(major).collect();
     let bucket = if sizes.is_empty() {
         1.0
     } else {
@@ -166,12 +190,15 @@ pub(crate) fn find_cells(
         .iter()
         .enumerate()
         .map(|(i, c)| {
+            if !usable(c) {
+                return Err(Rejection::Degenerate);
+            }
             candidates.clear();
             let w = whitening(c);
             let r = c.ellipse.radius();
             let centre = c.ellipse.center.coords;
             // |WΔ| ≥ |Δ|/(2a): a neighbour within ν ≤ max_near lies within 2a·max_near px.
-            buckets.around(centre, 2.0 * c.ellipse.a * max_near, |j| {
+            buckets.around(centre, 2.0 * major(c) * max_near, |j| {
                 if j as usize == i {
                     return;
                 }
@@ -307,4 +334,94 @@ fn local_cell(
         pairs: chosen.len() as u8,
         error,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::board::{Board, Hex};
+    use crate::detect::Ellipse;
+    use nalgebra::{Matrix2, Point2};
+
+    /// Circles of the lattice within `reach` of the origin seen through the affine map
+    /// `a` (board mm, y up → pixels, y down): each circle's ellipse is the image of the
+    /// board circle, from the singular value decomposition of `a`.
+    fn affine_lattice(a: Matrix2<f64>, reach: i32) -> (Vec<Circle>, Vec<Hex>) {
+        let board = Board::hex600();
+        let svd = a.svd(true, false);
+        let u = svd.u.unwrap();
+        let (i, j) = if svd.singular_values[0] >= svd.singular_values[1] {
+            (0, 1)
+        } else {
+            (1, 0)
+        };
+        let ellipse = |c: Point2<f64>| Ellipse {
+            center: c,
+            a: board.radius * svd.singular_values[i],
+            b: board.radius * svd.singular_values[j],
+            angle: u[(1, i)].atan2(u[(0, i)]),
+        };
+        let hexes: Vec<Hex> = board
+            .lattice()
+            .into_iter()
+            .filter(|h| h.distance(Hex::new(0, 0)) <= reach)
+            .collect();
+        let circles = hexes
+            .iter()
+            .map(|&h| Circle {
+                ellipse: ellipse(
+                    Point2::from(a * board.position(h).coords)
+                        + nalgebra::Vector2::new(500.0, 400.0),
+                ),
+                score: 0.3,
+                background: 20.0,
+                foreground: 200.0,
+            })
+            .collect();
+        (circles, hexes)
+    }
+
+    /// Slots run counter-clockwise on screen, which is counter-clockwise on the board seen
+    /// from the front (y up flipped to y down): slot j + 1 is the board offset of slot j turned
+    /// by +60°. Checked frontal and at 70° tilt with an in-plane turn, where the plain
+    /// Euclidean nearest neighbours are not the lattice neighbours.
+    #[test]
+    fn slots_are_counter_clockwise_on_the_board() {
+        let flip = Matrix2::new(1.0, 0.0, 0.0, -1.0);
+        let turn = |t: f64| Matrix2::new(t.cos(), -t.sin(), t.sin(), t.cos());
+        let tilt = Matrix2::new(1.0, 0.0, 0.0, 70f64.to_radians().cos());
+        for a in [flip * 0.5, turn(0.4) * tilt * turn(1.0) * flip * 0.5] {
+            let (circles, hexes) = affine_lattice(a, 3);
+            let cells = find_cells(&circles, 20.0 / 6.0, &GridParams::default());
+            let centre = hexes.iter().position(|&h| h == Hex::new(0, 0)).unwrap();
+            let cell = cells[centre].as_ref().expect("the centre has a cell");
+            assert!(cell.is_full() && cell.pairs == 3);
+            let offset = |j: usize| hexes[cell.slots[j % 6].unwrap() as usize];
+            // The six Euclidean nearest (excluding the centre itself).
+            let c0 = circles[centre].ellipse.center;
+            let mut near: Vec<usize> = (0..circles.len()).filter(|&k| k != centre).collect();
+            near.sort_by(|&p, &q| {
+                (circles[p].ellipse.center - c0)
+                    .norm()
+                    .total_cmp(&(circles[q].ellipse.center - c0).norm())
+            });
+            let plain_knn_ok = near[..6]
+                .iter()
+                .all(|&k| hexes[k].distance(Hex::new(0, 0)) == 1);
+            assert_eq!(
+                plain_knn_ok,
+                a == flip * 0.5,
+                "the tilted case must defeat plain k-NN"
+            );
+            for j in 0..6 {
+                assert_eq!(offset(j + 1), offset(j).rotate(1), "slot {j}");
+            }
+            // Every interior circle has a full cell; the rim has none or a partial one.
+            for (k, h) in hexes.iter().enumerate() {
+                if h.distance(Hex::new(0, 0)) < 3 {
+                    assert!(cells[k].as_ref().is_ok_and(Cell::is_full), "{h:?}");
+                }
+            }
+        }
+    }
 }

@@ -102,7 +102,9 @@ impl Default for GridParams {
             slot_tolerance: 15f64.to_radians(),
             pair_affine_tolerance: 0.1,
             affine_tolerance: 0.25,
-            ring_plain_below: 0.2,
+            // Blur alone darkens a plain annulus by ≤ 0.16 of the contrast down to r = 3.5 px
+            // at σ_PSF = 1 px; a ring reads ≥ 0.35 (ring::tests has the model).
+            ring_plain_below: 0.22,
             ring_ringed_above: 0.3,
             min_side_marks: 2,
             max_ring_disagreement: 0.2,
@@ -230,18 +232,20 @@ pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &Grid
     for k in seeds {
         if assembler.can_seed(k) {
             let id = components.len() as u32;
-            components.push(assembler.grow(id, k, 0));
+            components.push(assembler.grow(id, k));
         }
     }
     stats.conflicts = components.iter().map(|c| c.rejected).sum();
 
     let rings = BoardRings::new(board);
+    let markers: Vec<Vec<PlacedMarker>> = components
+        .iter()
+        .map(|comp| placed_markers(comp, &cells, &decoded))
+        .collect();
     let frames: Vec<Frame> = components
         .iter()
-        .map(|comp| {
-            let markers = placed_markers(comp, &cells, &decoded);
-            frame(board, &rings, comp, &markers, &readings, params)
-        })
+        .zip(&markers)
+        .map(|(comp, markers)| frame(board, &rings, comp, markers, &readings, params))
         .collect();
     // The anchored component if any (most agreeing markers), else the largest.
     let Some(best) = (0..components.len()).max_by_key(|&i| {
@@ -287,9 +291,10 @@ pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &Grid
     if frame.anchored {
         stats.ring_disagreements = frame.evidence.rings_disagree;
     }
-    let confirmed: Vec<PlacedMarker> = placed_markers(comp, &cells, &decoded)
-        .into_iter()
+    let confirmed: Vec<PlacedMarker> = markers[best]
+        .iter()
         .filter(|m| frame.confirms(m, &rings, board.marker_spacing))
+        .copied()
         .collect();
     stats.markers = marker_readings(&cells, &decoded, &confirmed);
     Grid {
@@ -322,17 +327,16 @@ fn placed_markers(
     cells: &[cell::Cell],
     decoded: &[Option<(MarkerKind, usize)>],
 ) -> Vec<PlacedMarker> {
-    let position: std::collections::HashMap<u32, Hex> = comp.points.iter().copied().collect();
     comp.cells
         .iter()
-        .filter_map(|&(k, rho)| {
-            let (kind, rotation) = decoded[k]?;
+        .filter_map(|p| {
+            let (kind, rotation) = decoded[p.cell]?;
             Some(PlacedMarker {
-                circle: cells[k].center,
+                circle: cells[p.cell].center,
                 kind,
-                at: position[&cells[k].center],
+                at: p.centre,
                 // Slot j is frame direction j + ρ and board direction j + k.
-                rotation: ((rotation + 6 - rho as usize) % 6) as u8,
+                rotation: ((rotation + 6 - p.rotation as usize) % 6) as u8,
             })
         })
         .collect()

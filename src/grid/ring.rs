@@ -93,6 +93,11 @@ mod tests {
     /// A sharp synthetic circle of radius `r` at (x, y), optionally with a ring, sampled at 4×4
     /// points per pixel; white 200, black 20.
     fn disk(r: f64, ringed: bool, band: [f64; 2]) -> (GrayImage, Circle) {
+        blurred_disk(r, ringed, band, 0.0)
+    }
+
+    /// [`disk`] seen through a Gaussian PSF of `sigma` px (none at 0).
+    fn blurred_disk(r: f64, ringed: bool, band: [f64; 2], sigma: f64) -> (GrayImage, Circle) {
         let (cx, cy) = (20.3, 19.6);
         let img = GrayImage::from_fn(41, 41, |x, y| {
             let mut acc = 0.0;
@@ -107,6 +112,28 @@ mod tests {
             }
             image::Luma([acc / 16.0])
         });
+        let img = if sigma > 0.0 {
+            let n = (4.0 * sigma).ceil() as i32;
+            let k: Vec<f32> = (-n..=n)
+                .map(|i| (-f64::from(i * i) / (2.0 * sigma * sigma)).exp() as f32)
+                .collect();
+            let total: f32 = k.iter().sum();
+            let pass = |src: &GrayImage, dx: i32, dy: i32| {
+                GrayImage::from_fn(41, 41, |x, y| {
+                    let v: f32 = (-n..=n)
+                        .map(|o| {
+                            let xx = (x as i32 + o * dx).clamp(0, 40) as u32;
+                            let yy = (y as i32 + o * dy).clamp(0, 40) as u32;
+                            k[(o + n) as usize] * src.get_pixel(xx, yy).0[0]
+                        })
+                        .sum();
+                    image::Luma([v / total])
+                })
+            };
+            pass(&pass(&img, 1, 0), 0, 1)
+        } else {
+            img
+        };
         let circle = Circle {
             ellipse: Ellipse {
                 center: Point2::new(cx, cy),
@@ -134,6 +161,33 @@ mod tests {
             let plain = ring_contrast(&img, &c, band).unwrap();
             assert!(plain.abs() < 1e-3, "r = {r}: plain contrast {plain}");
         }
+    }
+
+    /// The default thresholds against a model of blur: a plain circle's annulus darkens only
+    /// through the PSF (0.16 at r = 3.5 px, σ = 1 px; 0.24 at σ = 1.3 px), a ring keeps
+    /// ≥ 0.52 of the contrast against the true levels (a foreground measured inside a
+    /// blurred small ringed circle reads lower and brings it down to ≈ 0.35).
+    #[test]
+    fn blurred_circles_classify_down_to_3_5_px() {
+        let band = [0.45, 0.75];
+        let p = crate::grid::GridParams::default();
+        let read = |r, ringed, sigma| {
+            let (img, c) = blurred_disk(r, ringed, band, sigma);
+            classify(
+                ring_contrast(&img, &c, band),
+                p.ring_plain_below,
+                p.ring_ringed_above,
+            )
+        };
+        for sigma in [0.8, 1.0] {
+            for r in [3.5, 4.0, 5.0, 7.0] {
+                assert_eq!(read(r, false, sigma), Ring::Plain, "σ {sigma}, r {r}");
+                assert_eq!(read(r, true, sigma), Ring::Ringed, "σ {sigma}, r {r}");
+            }
+        }
+        // Beyond: r/σ = 2.7 must not read as a ring.
+        assert_ne!(read(3.5, false, 1.3), Ring::Ringed);
+        assert_eq!(read(3.5, true, 1.3), Ring::Ringed);
     }
 
     #[test]
