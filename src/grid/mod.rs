@@ -5,19 +5,21 @@
 //! labelled points: lattice position, side when known, and whether the labels are anchored
 //! in the side's board frame.
 //!
-//! - Pass 1 ([`cell`]): for every circle, its six lattice neighbours from opposing pairs whose
+//! - Pass 1 (`cell`): for every circle, its six lattice neighbours from opposing pairs whose
 //!   chord-normalised length is d/R, ordered counter-clockwise on screen and checked for
 //!   affine consistency; cells with two checked pairs take the third axis from them.
-//! - Rings ([`ring`]): each circle's annulus 0.45R–0.75R is read against its foreground and
+//! - Rings (`ring`): each circle's annulus 0.45R–0.75R is read against its foreground and
 //!   background levels; a full cell whose six neighbours read confidently gives a code, and
 //!   a code that is a rotation of a board code names a marker kind and rotation.
-//! - Pass 2 ([`assemble`]): breadth-first growth from a seed cell, best cells first; a cell is
+//! - Pass 2 (`assemble`): breadth-first growth from a seed cell, best cells first; a cell is
 //!   placed only when its rotation agrees with every neighbour already placed.
-//! - Anchoring ([`anchor`]): a decoded centre cell proposes the side's board frame; it is
+//! - Anchoring (`anchor`): a decoded centre cell proposes the side's board frame; it is
 //!   accepted only when the component's other markers and its ring readings agree with the
-//!   board. Otherwise repeated side marks fix the side and rotation (labels then differ from
-//!   the board frame by a translation (6i, 6j) of the marker lattice), else the frame is
-//!   arbitrary.
+//!   board, and no other centre hypothesis scores as well. Only that makes a grid anchored:
+//!   side marks repeat every 6 steps, so agreeing side marks fix the side and rotation but
+//!   not the origin (the labels then differ from the board frame by a translation (6i, 6j));
+//!   without them the frame is arbitrary. Anchored labels off the board are dropped, and more
+//!   than a few of them refute the anchor.
 //!
 //! When the cells fall into several disconnected components, the grid is the anchored one if
 //! any, else the largest; the points of the others are left unlabelled and counted in
@@ -61,7 +63,8 @@ pub struct GridParams {
     /// Candidates lie within this factor of the nominal neighbour distance d/(2R) (either
     /// way). The next lattice ring sits at √3 times it.
     pub max_neighbour_ratio: f64,
-    /// Largest ratio between a neighbour's radius and the centre's.
+    /// Largest ratio between a neighbour's radius and the centre's (either way); loose
+    /// enough for a ringed circle whose fit caught the ring's inner edge (0.45 R).
     pub radius_ratio: f64,
     /// Relative tolerance of an opposing pair's chord-normalised length ν against d/R
     /// (true pairs: within 5 % at r = 5 px; nearest wrong kinds at −13 % and +32 %).
@@ -77,7 +80,9 @@ pub struct GridParams {
     /// Affine consistency of single neighbour vectors, D(k+1) = D(k) + D(k+2), as a fraction
     /// of the neighbour distance (perspective adds second-order terms here).
     pub affine_tolerance: f64,
-    /// A ring contrast below this reads plain.
+    /// A ring contrast — (foreground − annulus mean)/(foreground − background), with the
+    /// circle's own levels, over the annulus of the scaled outer ellipse — below this reads
+    /// plain.
     pub ring_plain_below: f64,
     /// A ring contrast above this reads ringed; between the two the reading is unsure.
     pub ring_ringed_above: f64,
@@ -96,7 +101,7 @@ impl Default for GridParams {
         GridParams {
             candidates: 12,
             max_neighbour_ratio: 1.5,
-            radius_ratio: 2.0,
+            radius_ratio: 2.5,
             pair_tolerance: 0.07,
             midpoint_tolerance: 0.12,
             slot_tolerance: 15f64.to_radians(),
