@@ -4,6 +4,7 @@
 
 use super::assemble::Component;
 use super::ring::Ring;
+use super::GridParams;
 use crate::board::{Board, Hex, MarkerKind, Side};
 use std::collections::{HashMap, HashSet};
 
@@ -72,9 +73,7 @@ impl BoardRings {
             }),
         }
     }
-}
 
-impl BoardRings {
     /// Whether a placed marker sits, under `map`, on a marker cell of its kind on `side` with
     /// the map's rotation (every marker of a side shares the side's orientation).
     pub(crate) fn agrees(&self, side: Side, map: LatticeMap, m: &PlacedMarker) -> bool {
@@ -124,4 +123,121 @@ pub(crate) fn weigh(
         }
     }
     ev
+}
+
+/// A component's frame after anchoring.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Frame {
+    /// The side, when known.
+    pub side: Option<Side>,
+    /// From the component's frame to the output labels.
+    pub map: LatticeMap,
+    /// Whether the labels are in the side's board frame.
+    pub anchored: bool,
+    /// The accepted centre hypothesis' evidence (default when not anchored).
+    pub evidence: Evidence,
+}
+
+impl Frame {
+    /// Whether a placed marker agrees with this frame: at a marker cell of its kind when
+    /// anchored; on the side, with the rotation and on the marker lattice when only the side
+    /// is fixed.
+    pub(crate) fn confirms(&self, m: &PlacedMarker, rings: &BoardRings, spacing: i32) -> bool {
+        match self.side {
+            Some(side) if self.anchored => rings.agrees(side, self.map, m),
+            Some(side) => {
+                let at = self.map.apply(m.at);
+                m.kind.side() == side
+                    && m.rotation == self.map.rotation
+                    && !m.kind.is_center()
+                    && at.q.rem_euclid(spacing.max(1)) == 0
+                    && at.r.rem_euclid(spacing.max(1)) == 0
+            }
+            None => false,
+        }
+    }
+}
+
+/// Anchor a component: an accepted centre hypothesis, else agreeing side marks, else its own
+/// frame.
+pub(crate) fn frame(
+    board: &Board,
+    rings: &BoardRings,
+    comp: &Component,
+    markers: &[PlacedMarker],
+    readings: &[Ring],
+    params: &GridParams,
+) -> Frame {
+    // Centre hypotheses not refuted by the rings or the board's outline, scored by marker
+    // agreement; the best is accepted when more markers agree than disagree and no other
+    // hypothesis scores as well (one false ring can make two locally symmetric readings).
+    let mut centre: Vec<(Side, LatticeMap, Evidence)> = markers
+        .iter()
+        .filter(|m| m.kind.is_center())
+        .map(|m| {
+            let map = LatticeMap {
+                rotation: m.rotation,
+                offset: -m.at.rotate(m.rotation as usize),
+            };
+            let side = m.kind.side();
+            let ev = weigh(board, rings, comp, markers, readings, side, map);
+            (side, map, ev)
+        })
+        .filter(|(_, _, ev)| {
+            let bearing = ev.rings_agree + ev.rings_disagree;
+            ev.rings_disagree as f64 <= params.max_ring_disagreement * bearing as f64
+                && ev.off_board <= params.max_off_board
+        })
+        .collect();
+    let score = |ev: &Evidence| ev.markers_agree as i64 - ev.markers_disagree as i64;
+    centre.sort_by_key(|(_, _, ev)| std::cmp::Reverse(score(ev)));
+    let centre = match centre.as_slice() {
+        [best, rest @ ..]
+            if score(&best.2) > 0 && rest.iter().all(|o| score(&o.2) < score(&best.2)) =>
+        {
+            Some(*best)
+        }
+        _ => None,
+    };
+    if let Some((side, map, evidence)) = centre {
+        return Frame {
+            side: Some(side),
+            map,
+            anchored: true,
+            evidence,
+        };
+    }
+    // Side marks: vote for (side, rotation, offset modulo the marker lattice).
+    let s = board.marker_spacing.max(1);
+    let mut votes: HashMap<(Side, u8, Hex), (usize, Hex)> = HashMap::new();
+    for m in markers.iter().filter(|m| !m.kind.is_center()) {
+        let offset = -m.at.rotate(m.rotation as usize);
+        let class = Hex::new(offset.q.rem_euclid(s), offset.r.rem_euclid(s));
+        votes
+            .entry((m.kind.side(), m.rotation, class))
+            .or_insert((0, offset))
+            .0 += 1;
+    }
+    let side_fix = votes
+        .iter()
+        .max_by_key(|(_, (n, _))| *n)
+        .map(|(&(side, rotation, _), &(n, offset))| (side, rotation, n, offset))
+        .filter(|&(_, _, n, _)| n >= params.min_side_marks && 2 * (markers.len() - n) < n);
+    match side_fix {
+        Some((side, rotation, _, offset)) => Frame {
+            side: Some(side),
+            map: LatticeMap { rotation, offset },
+            anchored: false,
+            evidence: Evidence::default(),
+        },
+        None => Frame {
+            side: None,
+            map: LatticeMap {
+                rotation: 0,
+                offset: Hex::new(0, 0),
+            },
+            anchored: false,
+            evidence: Evidence::default(),
+        },
+    }
 }

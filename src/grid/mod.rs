@@ -32,7 +32,7 @@ mod ring;
 
 use crate::board::{Board, Code, Hex, MarkerKind, Side};
 use crate::detect::{Circle, GrayImage};
-use anchor::{BoardRings, Evidence, LatticeMap, PlacedMarker};
+use anchor::{BoardRings, Frame, PlacedMarker};
 use nalgebra::Point2;
 use ring::Ring;
 use serde::{Deserialize, Serialize};
@@ -172,35 +172,6 @@ pub struct Grid {
     pub stats: GridStats,
 }
 
-/// A component's frame after anchoring.
-#[derive(Clone, Copy, Debug)]
-struct Frame {
-    side: Option<Side>,
-    map: LatticeMap,
-    anchored: bool,
-    evidence: Evidence,
-}
-
-impl Frame {
-    /// Whether a placed marker agrees with this frame: at a marker cell of its kind when
-    /// anchored; on the side, with the rotation and on the marker lattice when only the side
-    /// is fixed.
-    fn confirms(&self, m: &PlacedMarker, rings: &BoardRings, spacing: i32) -> bool {
-        match self.side {
-            Some(side) if self.anchored => rings.agrees(side, self.map, m),
-            Some(side) => {
-                let at = self.map.apply(m.at);
-                m.kind.side() == side
-                    && m.rotation == self.map.rotation
-                    && !m.kind.is_center()
-                    && at.q.rem_euclid(spacing.max(1)) == 0
-                    && at.r.rem_euclid(spacing.max(1)) == 0
-            }
-            None => false,
-        }
-    }
-}
-
 /// Build the labelled grid of one image from its detected circles (DESIGN.md §5).
 pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &GridParams) -> Grid {
     let nu = board.pitch / board.radius;
@@ -250,7 +221,7 @@ pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &Grid
     let frames: Vec<Frame> = components
         .iter()
         .zip(&markers)
-        .map(|(comp, markers)| frame(board, &rings, comp, markers, &readings, params))
+        .map(|(comp, markers)| anchor::frame(board, &rings, comp, markers, &readings, params))
         .collect();
     // The anchored component if any (most agreeing markers), else the largest.
     let Some(best) = (0..components.len()).max_by_key(|&i| {
@@ -345,91 +316,6 @@ fn placed_markers(
             })
         })
         .collect()
-}
-
-/// Anchor a component: an accepted centre hypothesis, else agreeing side marks, else its own
-/// frame.
-fn frame(
-    board: &Board,
-    rings: &BoardRings,
-    comp: &assemble::Component,
-    markers: &[PlacedMarker],
-    readings: &[Ring],
-    params: &GridParams,
-) -> Frame {
-    // Centre hypotheses not refuted by the rings or the board's outline, scored by marker
-    // agreement; the best is accepted when more markers agree than disagree and no other
-    // hypothesis scores as well (one false ring can make two locally symmetric readings).
-    let mut centre: Vec<(Side, LatticeMap, Evidence)> = markers
-        .iter()
-        .filter(|m| m.kind.is_center())
-        .map(|m| {
-            let map = LatticeMap {
-                rotation: m.rotation,
-                offset: -m.at.rotate(m.rotation as usize),
-            };
-            let side = m.kind.side();
-            let ev = anchor::weigh(board, rings, comp, markers, readings, side, map);
-            (side, map, ev)
-        })
-        .filter(|(_, _, ev)| {
-            let bearing = ev.rings_agree + ev.rings_disagree;
-            ev.rings_disagree as f64 <= params.max_ring_disagreement * bearing as f64
-                && ev.off_board <= params.max_off_board
-        })
-        .collect();
-    let score = |ev: &Evidence| ev.markers_agree as i64 - ev.markers_disagree as i64;
-    centre.sort_by_key(|(_, _, ev)| std::cmp::Reverse(score(ev)));
-    let centre = match centre.as_slice() {
-        [best, rest @ ..]
-            if score(&best.2) > 0 && rest.iter().all(|o| score(&o.2) < score(&best.2)) =>
-        {
-            Some(*best)
-        }
-        _ => None,
-    };
-    if let Some((side, map, evidence)) = centre {
-        return Frame {
-            side: Some(side),
-            map,
-            anchored: true,
-            evidence,
-        };
-    }
-    // Side marks: vote for (side, rotation, offset modulo the marker lattice).
-    let s = board.marker_spacing.max(1);
-    let mut votes: std::collections::HashMap<(Side, u8, Hex), (usize, Hex)> =
-        std::collections::HashMap::new();
-    for m in markers.iter().filter(|m| !m.kind.is_center()) {
-        let offset = -m.at.rotate(m.rotation as usize);
-        let class = Hex::new(offset.q.rem_euclid(s), offset.r.rem_euclid(s));
-        votes
-            .entry((m.kind.side(), m.rotation, class))
-            .or_insert((0, offset))
-            .0 += 1;
-    }
-    let side_fix = votes
-        .iter()
-        .max_by_key(|(_, (n, _))| *n)
-        .map(|(&(side, rotation, _), &(n, offset))| (side, rotation, n, offset))
-        .filter(|&(_, _, n, _)| n >= params.min_side_marks && 2 * (markers.len() - n) < n);
-    match side_fix {
-        Some((side, rotation, _, offset)) => Frame {
-            side: Some(side),
-            map: LatticeMap { rotation, offset },
-            anchored: false,
-            evidence: Evidence::default(),
-        },
-        None => Frame {
-            side: None,
-            map: LatticeMap {
-                rotation: 0,
-                offset: Hex::new(0, 0),
-            },
-            anchored: false,
-            evidence: Evidence::default(),
-        },
-    }
 }
 
 /// Every decoded cell, marked confirmed when it agrees with the output labelling.
