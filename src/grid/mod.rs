@@ -4,9 +4,37 @@
 //! Takes the detected circles of one image (and the image, to read marker rings) and gives
 //! labelled points: lattice position, side when known, and whether the labels are anchored
 //! in the side's board frame.
+//!
+//! - Pass 1 (`cell`): for every circle, its six lattice neighbours from opposing pairs whose
+//!   chord-normalised length is d/R, ordered counter-clockwise on screen and checked for
+//!   affine consistency; cells with two checked pairs take the third axis from them.
+//! - Rings (`ring`): each circle's annulus 0.45R–0.75R is read against its foreground and
+//!   background levels; a full cell whose six neighbours read confidently gives a code, and
+//!   a code that is a rotation of a board code names a marker kind and rotation.
+//! - Pass 2 (`assemble`): breadth-first growth from a seed cell, best cells first; a cell is
+//!   placed only when its rotation agrees with every neighbour already placed.
+//! - Anchoring (`anchor`): a decoded centre cell proposes the side's board frame; it is
+//!   accepted only when the component's other markers and its ring readings agree with the
+//!   board, and no other centre hypothesis scores as well. Only that makes a grid anchored:
+//!   side marks repeat every 6 steps, so agreeing side marks fix the side and rotation but
+//!   not the origin (the labels then differ from the board frame by a translation (6i, 6j));
+//!   without them the frame is arbitrary. Anchored labels off the board are dropped, and more
+//!   than a few of them refute the anchor.
+//!
+//! When the cells fall into several disconnected components, the grid is the anchored one if
+//! any, else the largest; the points of the others are left unlabelled and counted in
+//! [`GridStats`].
 
-use crate::board::{Hex, Side};
+mod anchor;
+mod assemble;
+mod cell;
+mod ring;
+
+use crate::board::{Board, Code, Hex, MarkerKind, Side};
+use crate::detect::{Circle, GrayImage};
+use anchor::{BoardRings, Frame, PlacedMarker};
 use nalgebra::Point2;
+use ring::Ring;
 use serde::{Deserialize, Serialize};
 
 /// A detected circle with its lattice label.
@@ -23,4 +51,290 @@ pub struct LabelledPoint {
     pub side: Option<Side>,
     /// Whether `hex` and `side` are in that side's own board frame.
     pub anchored: bool,
+}
+
+/// Tolerances of grid building. The defaults follow DESIGN.md §5; the board supplies d/R and
+/// the ring radii.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GridParams {
+    /// Candidate neighbours per cell: the nearest in the centre ellipse's metric.
+    pub candidates: usize,
+    /// Candidates lie within this factor of the nominal neighbour distance d/(2R) (either
+    /// way). The next lattice ring sits at √3 times it.
+    pub max_neighbour_ratio: f64,
+    /// Largest ratio between a neighbour's radius and the centre's (either way); loose
+    /// enough for a ringed circle whose fit caught the ring's inner edge (0.45 R).
+    pub radius_ratio: f64,
+    /// Relative tolerance of an opposing pair's chord-normalised length ν against d/R
+    /// (true pairs: within 5 % at r = 5 px; nearest wrong kinds at −13 % and +32 %).
+    pub pair_tolerance: f64,
+    /// Largest distance of the centre from a pair's midpoint, as a fraction of the pair's
+    /// length, in the whitened frame (a wrong pair 120° apart sits at 0.29).
+    pub midpoint_tolerance: f64,
+    /// Largest angular deviation of a neighbour from its 60° slot in the whitened frame (rad).
+    pub slot_tolerance: f64,
+    /// Affine consistency of the pair half-differences, P(1) = P(0) + P(2), as a fraction of
+    /// the neighbour distance.
+    pub pair_affine_tolerance: f64,
+    /// Affine consistency of single neighbour vectors, D(k+1) = D(k) + D(k+2), as a fraction
+    /// of the neighbour distance (perspective adds second-order terms here).
+    pub affine_tolerance: f64,
+    /// A ring contrast — (foreground − annulus mean)/(foreground − background), with the
+    /// circle's own levels, over the annulus of the scaled outer ellipse — below this reads
+    /// plain.
+    pub ring_plain_below: f64,
+    /// A ring contrast above this reads ringed; between the two the reading is unsure.
+    pub ring_ringed_above: f64,
+    /// Side marks that must agree (side, rotation, marker lattice) to fix the side.
+    pub min_side_marks: usize,
+    /// Largest fraction of contradicting ring readings among the confident readings that
+    /// bear on a hypothesis (ringed on the board or read ringed).
+    pub max_ring_disagreement: f64,
+    /// Labelled points an anchored grid may map off the board (they are dropped); more
+    /// refute the anchor.
+    pub max_off_board: usize,
+}
+
+impl Default for GridParams {
+    fn default() -> Self {
+        GridParams {
+            candidates: 12,
+            max_neighbour_ratio: 1.5,
+            radius_ratio: 2.5,
+            pair_tolerance: 0.07,
+            midpoint_tolerance: 0.12,
+            slot_tolerance: 15f64.to_radians(),
+            pair_affine_tolerance: 0.1,
+            affine_tolerance: 0.25,
+            // Blur alone darkens a plain annulus by ≤ 0.16 of the contrast down to r = 3.5 px
+            // at σ_PSF = 1 px; a ring reads ≥ 0.35 (ring::tests has the model).
+            ring_plain_below: 0.22,
+            ring_ringed_above: 0.3,
+            min_side_marks: 2,
+            max_ring_disagreement: 0.2,
+            max_off_board: 2,
+        }
+    }
+}
+
+/// A decoded marker cell.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MarkerReading {
+    /// The cell's centre circle.
+    pub circle: usize,
+    /// What the ring code decoded as.
+    pub kind: MarkerKind,
+    /// Rotation k of the decode: image slot j is board direction (j + k) mod 6.
+    pub rotation: u8,
+    /// Whether the marker agrees with the labelling that was output (placed in the chosen
+    /// grid at a marker cell of its kind, with the grid's rotation).
+    pub confirmed: bool,
+}
+
+/// What grid building found, for diagnostics.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct GridStats {
+    /// Detections given.
+    pub circles: usize,
+    /// Local cells found in pass 1.
+    pub cells: usize,
+    /// Of these, cells with all six neighbours.
+    pub full_cells: usize,
+    /// Detections whose pairs failed the slot or affine checks.
+    pub inconsistent_cells: usize,
+    /// Circles read ringed.
+    pub ringed: usize,
+    /// Circles whose ring reading was unsure.
+    pub unsure_rings: usize,
+    /// Every decoded marker cell.
+    pub markers: Vec<MarkerReading>,
+    /// Sizes (labelled points) of the connected components, the chosen one first.
+    pub components: Vec<usize>,
+    /// Cells rejected in pass 2 because they disagreed with the labelling around them.
+    pub conflicts: usize,
+    /// Labelled points dropped because the anchored frame put them off the board.
+    pub off_board: usize,
+    /// Ring readings that contradict the output labelling (anchored grids only).
+    pub ring_disagreements: usize,
+}
+
+/// The labelled grid of one image.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Grid {
+    /// One point per labelled circle.
+    pub points: Vec<LabelledPoint>,
+    /// Whether the labels are in the side's board frame.
+    pub anchored: bool,
+    /// The side seen, when known.
+    pub side: Option<Side>,
+    /// Diagnostics.
+    pub stats: GridStats,
+}
+
+/// Build the labelled grid of one image from its detected circles (DESIGN.md §5).
+pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &GridParams) -> Grid {
+    let nu = board.pitch / board.radius;
+    let found = cell::find_cells(circles, nu, params);
+    let mut stats = GridStats {
+        circles: circles.len(),
+        inconsistent_cells: found
+            .iter()
+            .filter(|c| matches!(c, Err(cell::Rejection::Inconsistent)))
+            .count(),
+        ..GridStats::default()
+    };
+    let cells: Vec<cell::Cell> = found.into_iter().filter_map(Result::ok).collect();
+    stats.cells = cells.len();
+    stats.full_cells = cells.iter().filter(|c| c.is_full()).count();
+
+    let readings: Vec<Ring> = circles
+        .iter()
+        .map(|c| {
+            let contrast = ring::ring_contrast(image, c, board.ring);
+            ring::classify(contrast, params.ring_plain_below, params.ring_ringed_above)
+        })
+        .collect();
+    stats.ringed = readings.iter().filter(|&&r| r == Ring::Ringed).count();
+    stats.unsure_rings = readings.iter().filter(|&&r| r == Ring::Unsure).count();
+    let decoded: Vec<Option<(MarkerKind, usize)>> =
+        cells.iter().map(|c| decode(c, &readings, board)).collect();
+
+    // Pass 2: seeds are centre cells first, then the best cells.
+    let mut assembler = assemble::Assembler::new(&cells, circles.len());
+    let mut seeds = assembler.by_quality();
+    seeds.sort_by_key(|&k| !decoded[k].is_some_and(|(kind, _)| kind.is_center()));
+    let mut components = Vec::new();
+    for k in seeds {
+        if assembler.can_seed(k) {
+            let id = components.len() as u32;
+            components.push(assembler.grow(id, k));
+        }
+    }
+    stats.conflicts = components.iter().map(|c| c.rejected).sum();
+
+    let rings = BoardRings::new(board);
+    let markers: Vec<Vec<PlacedMarker>> = components
+        .iter()
+        .map(|comp| placed_markers(comp, &cells, &decoded))
+        .collect();
+    let frames: Vec<Frame> = components
+        .iter()
+        .zip(&markers)
+        .map(|(comp, markers)| anchor::frame(board, &rings, comp, markers, &readings, params))
+        .collect();
+    // The anchored component if any (most agreeing markers), else the largest.
+    let Some(best) = (0..components.len()).max_by_key(|&i| {
+        let f = &frames[i];
+        (
+            f.anchored,
+            f.anchored.then_some(f.evidence.markers_agree),
+            components[i].points.len(),
+        )
+    }) else {
+        stats.markers = marker_readings(&cells, &decoded, &[]);
+        return Grid {
+            stats,
+            ..Grid::default()
+        };
+    };
+    let (comp, frame) = (&components[best], frames[best]);
+    stats.components = std::iter::once(comp.points.len())
+        .chain(
+            components
+                .iter()
+                .enumerate()
+                .filter(|&(i, _)| i != best)
+                .map(|(_, c)| c.points.len()),
+        )
+        .collect();
+    let mut points = Vec::with_capacity(comp.points.len());
+    for &(circle, h) in &comp.points {
+        let hex = frame.map.apply(h);
+        if frame.anchored && !board.contains(hex) {
+            stats.off_board += 1;
+            continue;
+        }
+        points.push(LabelledPoint {
+            circle: circle as usize,
+            image: circles[circle as usize].ellipse.center,
+            hex,
+            side: frame.side,
+            anchored: frame.anchored,
+        });
+    }
+    points.sort_by_key(|p| p.circle);
+    if frame.anchored {
+        stats.ring_disagreements = frame.evidence.rings_disagree;
+    }
+    let confirmed: Vec<PlacedMarker> = markers[best]
+        .iter()
+        .filter(|m| frame.confirms(m, &rings, board.marker_spacing))
+        .copied()
+        .collect();
+    stats.markers = marker_readings(&cells, &decoded, &confirmed);
+    Grid {
+        points,
+        anchored: frame.anchored,
+        side: frame.side,
+        stats,
+    }
+}
+
+/// Decode a full cell whose centre is not ringed and whose six neighbours read confidently.
+fn decode(c: &cell::Cell, readings: &[Ring], board: &Board) -> Option<(MarkerKind, usize)> {
+    if readings[c.center as usize] == Ring::Ringed {
+        return None;
+    }
+    let mut code = 0u8;
+    for (j, slot) in c.slots.iter().enumerate() {
+        match readings[(*slot)? as usize] {
+            Ring::Ringed => code |= 1 << j,
+            Ring::Plain => {}
+            Ring::Unsure => return None,
+        }
+    }
+    board.codes.decode(Code(code))
+}
+
+/// The decoded cells placed in a component, in its frame.
+fn placed_markers(
+    comp: &assemble::Component,
+    cells: &[cell::Cell],
+    decoded: &[Option<(MarkerKind, usize)>],
+) -> Vec<PlacedMarker> {
+    comp.cells
+        .iter()
+        .filter_map(|p| {
+            let (kind, rotation) = decoded[p.cell]?;
+            Some(PlacedMarker {
+                circle: cells[p.cell].center,
+                kind,
+                at: p.centre,
+                // Slot j is frame direction j + ρ and board direction j + k.
+                rotation: ((rotation + 6 - p.rotation as usize) % 6) as u8,
+            })
+        })
+        .collect()
+}
+
+/// Every decoded cell, marked confirmed when it agrees with the output labelling.
+fn marker_readings(
+    cells: &[cell::Cell],
+    decoded: &[Option<(MarkerKind, usize)>],
+    confirmed: &[PlacedMarker],
+) -> Vec<MarkerReading> {
+    cells
+        .iter()
+        .zip(decoded)
+        .filter_map(|(c, d)| {
+            let (kind, rotation) = (*d)?;
+            Some(MarkerReading {
+                circle: c.center as usize,
+                kind,
+                rotation: rotation as u8,
+                confirmed: confirmed.iter().any(|m| m.circle == c.center),
+            })
+        })
+        .collect()
 }
