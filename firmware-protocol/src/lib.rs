@@ -17,6 +17,9 @@ use core::fmt;
 
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
+/// The `heapless` crate, whose `Vec` carries the line list of [`Command::Configure`].
+pub use heapless;
+
 /// The protocol version this crate speaks; exchanged in [`Command::Hello`] / [`Reply::Hello`].
 pub const PROTOCOL_VERSION: u16 = 1;
 
@@ -190,7 +193,8 @@ pub enum ErrorCode {
     NotConfigured,
     /// Fire while no sequence is armed (including after the last frame of one).
     NotArmed,
-    /// The previous frame is still pulsing, or a sequence is running.
+    /// Fire, Configure or Arm while a frame is still pulsing; Fire or Arm while a periodic
+    /// sequence runs; Configure while a sequence is armed.
     Busy,
     /// Arm with 0 frames, or a period shorter than the longest delay + pulse.
     BadArm,
