@@ -15,3 +15,9 @@ rustup component add rustfmt clippy >/dev/null 2>&1 || true
 cargo fmt --all --check
 cargo clippy --workspace --all-targets -- -D warnings
 cargo test --workspace
+# The firmware protocol must stay no_std: build it for the controller's target (RP2040).
+if rustup target add thumbv6m-none-eabi >/dev/null 2>&1; then
+    cargo build -p hexcal-firmware-protocol --target thumbv6m-none-eabi
+else
+    echo "warning: thumbv6m-none-eabi not installable here; firmware-protocol not cross-built" >&2
+fi

@@ -11,3 +11,4 @@ pub mod calib;
 pub mod camera;
 pub mod detect;
 pub mod grid;
+pub mod rig;
