@@ -3,10 +3,11 @@
 //!
 //! The stages, in the order data flows through them:
 //! [`board`] and [`camera`] (the models every stage shares) → [`detect`] (circles) →
-//! [`grid`] (labelled lattice points).
+//! [`grid`] (labelled lattice points); [`sim`] renders board views with ground truth.
 #![warn(missing_docs)]
 
 pub mod board;
 pub mod camera;
 pub mod detect;
 pub mod grid;
+pub mod sim;
