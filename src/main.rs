@@ -1,6 +1,7 @@
 //! The `hexcal` command line.
 
 use clap::{Parser, Subcommand};
+use std::path::PathBuf;
 
 /// Calibrate a structured-light rig of many cameras and projectors.
 #[derive(Parser)]
@@ -14,6 +15,43 @@ struct Cli {
 enum Command {
     /// Print the built-in board's summary.
     Info,
+    /// Render one simulated board view (PNG) with its ground truth (JSON).
+    Simulate {
+        /// Scene file (TOML); the built-in scene when absent.
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Override the scene's noise seed.
+        #[arg(long)]
+        seed: Option<u64>,
+    },
+    /// Speed benchmarks that print figures.
+    Bench {
+        #[command(subcommand)]
+        what: Bench,
+    },
+}
+
+#[derive(Subcommand)]
+enum Bench {
+    /// Render the built-in 1920×1200 scene (or --scene): ray grid, geometry, one frame.
+    Render {
+        /// Scene file (TOML); the built-in scene when absent.
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Repetitions (the median is printed).
+        #[arg(long, default_value_t = 5)]
+        repeat: usize,
+    },
+}
+
+fn load_scene(path: Option<&PathBuf>) -> anyhow::Result<hexcal::sim::Scene> {
+    Ok(match path {
+        Some(p) => hexcal::sim::Scene::load(p)?,
+        None => hexcal::sim::Scene::default_scene(),
+    })
 }
 
 fn main() -> anyhow::Result<()> {
@@ -22,6 +60,46 @@ fn main() -> anyhow::Result<()> {
         Command::Info => {
             let b = hexcal::board::Board::hex600();
             println!("{}: {} circles per side", b.name, b.lattice().len());
+        }
+        Command::Simulate { scene, out, seed } => {
+            let mut scene = load_scene(scene.as_ref())?;
+            scene.seed = seed.unwrap_or(scene.seed);
+            let view = hexcal::sim::render(&scene)?;
+            let [png, json] = hexcal::sim::write_view(&view, &out)?;
+            let whole = view.truth.circles.iter().filter(|c| c.whole).count();
+            println!(
+                "{}: side {}, {} circles imaged ({whole} whole); truth in {}",
+                png.display(),
+                view.truth.side.map_or("none", |s| s.name()),
+                view.truth.circles.len(),
+                json.display()
+            );
+        }
+        Command::Bench {
+            what: Bench::Render { scene, repeat },
+        } => {
+            let scene = load_scene(scene.as_ref())?;
+            let t = hexcal::sim::bench_render(&scene, repeat)?;
+            let (w, h) = (scene.camera.width, scene.camera.height);
+            let threads = rayon::current_num_threads();
+            println!("render {w}x{h}, {threads} threads, median of {repeat} (wall ms, CPU ms all threads):");
+            let row = |name: &str, t: hexcal::sim::StageTime| {
+                let cpu = t.cpu.map_or("-".into(), |c| format!("{:.0}", c * 1e3));
+                println!("  {name:<30} {:8.1} {cpu:>8}", t.wall * 1e3);
+            };
+            row("ray grid (once per camera)", t.ray_grid);
+            row("geometry (once per pose)", t.geometry);
+            row("frame (shade, PSF, noise)", t.frame);
+            let sum = hexcal::sim::StageTime {
+                wall: t.geometry.wall + t.frame.wall,
+                cpu: t.geometry.cpu.zip(t.frame.cpu).map(|(a, b)| a + b),
+            };
+            row("geometry + one frame", sum);
+            row("ground truth", t.truth);
+            println!(
+                "  ({} edge px, {} outline px)",
+                t.edge_pixels, t.outline_pixels
+            );
         }
     }
     Ok(())

@@ -11,7 +11,7 @@
 //!   background — `outline_samples²` point samples of the nearest face or the background.
 
 use crate::lens::{ImageSize, RayGrid};
-use crate::target::{Background, Target, Texel, Texture};
+use crate::target::{Background, BackgroundTable, Target, Texel, Texture};
 use nalgebra::{Isometry3, Matrix3, Point2, Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
@@ -89,7 +89,7 @@ enum Class {
 struct Tracer<'a> {
     rays: &'a RayGrid<'a>,
     faces: Vec<CamFace<'a>>,
-    background: Background,
+    background: BackgroundTable,
     opts: RenderOptions,
 }
 
@@ -128,27 +128,25 @@ impl<'a> Tracer<'a> {
         })
     }
 
-    /// Point-sampled albedo at a sub-pixel position.
-    fn point_albedo(&self, p: Point2<f64>) -> f32 {
-        self.rays
-            .ray(p)
-            .and_then(|d| self.hit(&d))
-            .map_or_else(|| self.background.albedo_at(p), |h| h.texel.albedo)
-    }
-
-    /// Outline integration: n×n point samples.
-    fn outline_albedo(&self, p: Point2<f64>) -> f32 {
+    /// Outline integration of pixel (x, y): n×n point samples of the nearest face or the
+    /// background.
+    fn outline_albedo(&self, x: usize, y: usize, rays: &mut Vec<Option<Vector3<f64>>>) -> f32 {
         let n = self.opts.outline_samples;
         let h = 1.0 / f64::from(n);
+        self.rays.pixel_rays(x, y, n, rays);
         let mut sum = 0.0f64;
-        for j in 0..n {
-            for i in 0..n {
-                let q = Point2::new(
-                    p.x + (f64::from(i) + 0.5) * h - 0.5,
-                    p.y + (f64::from(j) + 0.5) * h - 0.5,
-                );
-                sum += f64::from(self.point_albedo(q));
-            }
+        for (k, r) in rays.iter().enumerate() {
+            let a = match r.and_then(|d| self.hit(&d)) {
+                Some(hit) => hit.texel.albedo,
+                None => {
+                    let (i, j) = ((k as u32 % n) as f64, (k as u32 / n) as f64);
+                    self.background.albedo_at(Point2::new(
+                        x as f64 + (i + 0.5) * h - 0.5,
+                        y as f64 + (j + 0.5) * h - 0.5,
+                    ))
+                }
+            };
+            sum += f64::from(a);
         }
         (sum * h * h) as f32
     }
@@ -156,18 +154,21 @@ impl<'a> Tracer<'a> {
     /// Edge integration over face `k`: n×n sub-pixels, each integrated exactly for its
     /// nearest edge taken as straight. `jac` = [∂u/∂x, ∂u/∂y] of the face point per pixel.
     /// `None` if a sub-pixel leaves the face (the caller then uses outline integration).
-    fn edge_albedo(&self, p: Point2<f64>, k: u8, jac: [Vector2<f64>; 2]) -> Option<f32> {
+    fn edge_albedo(
+        &self,
+        (x, y): (usize, usize),
+        k: u8,
+        jac: [Vector2<f64>; 2],
+        rays: &mut Vec<Option<Vector3<f64>>>,
+    ) -> Option<f32> {
         let n = self.opts.edge_samples;
         let h = 1.0 / f64::from(n);
         let texture = self.faces[k as usize].texture;
+        self.rays.pixel_rays(x, y, n, rays);
         let mut sum = 0.0f64;
-        for j in 0..n {
-            for i in 0..n {
-                let q = Point2::new(
-                    p.x + (f64::from(i) + 0.5) * h - 0.5,
-                    p.y + (f64::from(j) + 0.5) * h - 0.5,
-                );
-                let u = self.face_point(k, &self.rays.ray(q)?)?;
+        for r in rays.iter() {
+            {
+                let u = self.face_point(k, &(*r)?)?;
                 let t = texture.sample(u)?;
                 let mut a = f64::from(t.albedo);
                 if let Some(e) = t.edge {
@@ -250,7 +251,7 @@ pub fn render_geometry(
     let tracer = Tracer {
         rays,
         faces,
-        background: *background,
+        background: background.table(rays.size().width, rays.size().height),
         opts,
     };
     let size = rays.size();
@@ -268,15 +269,16 @@ pub fn render_geometry(
         .zip(point.par_chunks_mut(w))
         .zip(class.par_chunks_mut(w))
         .enumerate()
-        .for_each(|(y, (((alb, fc), pt), cl))| {
+        .for_each_init(Vec::new, |jets, (y, (((alb, fc), pt), cl))| {
+            rays.row_jets(y, jets);
             for x in 0..w {
                 let p = Point2::new(x as f64, y as f64);
-                let Some(jet) = rays.jet(p) else {
-                    alb[x] = background.albedo_at(p);
+                let Some(jet) = jets[x] else {
+                    alb[x] = tracer.background.albedo_at(p);
                     continue;
                 };
                 let Some(hit) = tracer.hit(&jet.dir) else {
-                    alb[x] = background.albedo_at(p);
+                    alb[x] = tracer.background.albedo_at(p);
                     continue;
                 };
                 let f = &tracer.faces[hit.face as usize];
@@ -302,21 +304,25 @@ pub fn render_geometry(
     let counts: Vec<(usize, usize)> = albedo
         .par_chunks_mut(w)
         .enumerate()
-        .map(|(y, alb)| {
+        .map_init(Vec::new, |sub, (y, alb)| {
             let (mut edges, mut outlines) = (0, 0);
             for x in 0..w {
                 let k = y * w + x;
                 let own = face[k];
-                let differs = (y.saturating_sub(1)..(y + 2).min(h)).any(|yy| {
-                    (x.saturating_sub(1)..(x + 2).min(w)).any(|xx| face[yy * w + xx] != own)
-                });
+                let (x0, x1) = (x.saturating_sub(1), (x + 1).min(w - 1));
+                let mut differs = false;
+                for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                    for &f in &face[yy * w + x0..=yy * w + x1] {
+                        differs |= f != own;
+                    }
+                }
                 let p = Point2::new(x as f64, y as f64);
                 let edge = if class[k] == Class::Edge && !differs {
                     rays.jet(p).and_then(|jet| {
                         let f = &tracer.faces[own as usize];
                         let denom = f.normal.dot(&jet.dir);
                         let jac = face_jacobian(f, &jet.dir, f.n_dot_o / denom, &jet.dx, &jet.dy);
-                        tracer.edge_albedo(p, own, jac)
+                        tracer.edge_albedo((x, y), own, jac, sub)
                     })
                 } else {
                     None
@@ -325,7 +331,7 @@ pub fn render_geometry(
                     alb[x] = a;
                     edges += 1;
                 } else if differs || class[k] != Class::Uniform {
-                    alb[x] = tracer.outline_albedo(p);
+                    alb[x] = tracer.outline_albedo(x, y, sub);
                     outlines += 1;
                 }
             }

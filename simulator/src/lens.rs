@@ -55,7 +55,8 @@ pub struct RayGrid<'a> {
     /// Node (i, j) sits at pixel (X0 + i·STEP, X0 + j·STEP).
     nx: usize,
     ny: usize,
-    nodes: Vec<Option<Vector3<f64>>>,
+    /// Unit rays at the nodes (NaN where the lens has none; such cells are never trusted).
+    nodes: Vec<Vector3<f64>>,
     /// Per cell (between nodes i..i+1, j..j+1): whether interpolation is trusted.
     cell_ok: Vec<bool>,
     fallback_cells: usize,
@@ -73,11 +74,12 @@ impl<'a> RayGrid<'a> {
         let size = lens.size();
         let count = |n: u32| ((f64::from(n) - 0.5 + 2.0 * STEP - X0) / STEP).ceil() as usize + 1;
         let (nx, ny) = (count(size.width), count(size.height));
-        let nodes: Vec<Option<Vector3<f64>>> = (0..nx * ny)
+        let nodes: Vec<Vector3<f64>> = (0..nx * ny)
             .into_par_iter()
             .map(|k| {
                 let p = Point2::new(X0 + (k % nx) as f64 * STEP, X0 + (k / nx) as f64 * STEP);
-                lens.ray(p).map(|v| v.normalize())
+                lens.ray(p)
+                    .map_or(Vector3::repeat(f64::NAN), |v| v.normalize())
             })
             .collect();
         let mut grid = RayGrid {
@@ -143,13 +145,54 @@ impl<'a> RayGrid<'a> {
         for b in 0..4 {
             let row = (j as usize + b - 1) * self.nx + i as usize - 1;
             for a in 0..4 {
-                let n = self.nodes[row + a]?;
+                let n = self.nodes[row + a];
                 jet.dir += n * (wx[a] * wy[b]);
                 jet.dx += n * (dwx[a] * wy[b] / STEP);
                 jet.dy += n * (wx[a] * dwy[b] / STEP);
             }
         }
-        Some(jet)
+        jet.dir.x.is_finite().then_some(jet)
+    }
+
+    /// The rays (with derivatives) through the pixel centres of row `y`, written to `out`
+    /// (one per column): the same interpolant as [`RayGrid::jet`], evaluated separably.
+    pub fn row_jets(&self, y: usize, out: &mut Vec<Option<RayJet>>) {
+        out.clear();
+        let v = (y as f64 - X0) / STEP;
+        let j = v.floor() as usize;
+        let (wy, dwy) = lagrange4(v - j as f64);
+        // Interpolate every node column along y first (value and ∂/∂y).
+        let (col, dcol): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) = (0..self.nx)
+            .map(|i| {
+                let (mut c, mut d) = (Vector3::zeros(), Vector3::zeros());
+                for b in 0..4 {
+                    let n = self.nodes[(j + b - 1) * self.nx + i];
+                    c += n * wy[b];
+                    d += n * (dwy[b] / STEP);
+                }
+                (c, d)
+            })
+            .unzip();
+        for x in 0..self.size.width as usize {
+            let u = (x as f64 - X0) / STEP;
+            let i = u.floor() as usize;
+            if !self.cell_ok[j * self.nx + i] {
+                out.push(self.jet(Point2::new(x as f64, y as f64)));
+                continue;
+            }
+            let (wx, dwx) = lagrange4(u - i as f64);
+            let mut jet = RayJet {
+                dir: Vector3::zeros(),
+                dx: Vector3::zeros(),
+                dy: Vector3::zeros(),
+            };
+            for a in 0..4 {
+                jet.dir += col[i + a - 1] * wx[a];
+                jet.dx += col[i + a - 1] * (dwx[a] / STEP);
+                jet.dy += dcol[i + a - 1] * wx[a];
+            }
+            out.push(Some(jet));
+        }
     }
 
     /// The ray through a sub-pixel position with its derivatives; `None` where the lens is
@@ -184,13 +227,51 @@ impl<'a> RayGrid<'a> {
             let mut dir = Vector3::zeros();
             for (b, wyb) in wy.iter().enumerate() {
                 let row = (j + b - 1) * self.nx + i - 1;
+                let mut r = Vector3::zeros();
                 for (a, wxa) in wx.iter().enumerate() {
-                    dir += self.nodes[row + a]? * (wxa * wyb);
+                    r += self.nodes[row + a] * *wxa;
                 }
+                dir += r * *wyb;
             }
             Some(dir)
         } else {
             self.lens.ray(p).map(|v| v / v.norm())
+        }
+    }
+
+    /// The rays through the n×n sub-pixel sample points of pixel (x, y) (at offsets
+    /// (k + ½)/n − ½), row by row, written to `out`. A pixel never straddles two grid cells
+    /// (cell edges fall on pixel edges), so one 4×4 stencil serves all of them.
+    pub fn pixel_rays(&self, x: usize, y: usize, n: u32, out: &mut Vec<Option<Vector3<f64>>>) {
+        out.clear();
+        let h = 1.0 / f64::from(n);
+        let offset = |k: u32| (f64::from(k) + 0.5) * h - 0.5;
+        let (u0, v0) = ((x as f64 - X0) / STEP, (y as f64 - X0) / STEP);
+        let (i, j) = (u0 as usize, v0 as usize);
+        if !self.cell_ok[j * self.nx + i] {
+            for b in 0..n {
+                for a in 0..n {
+                    let p = Point2::new(x as f64 + offset(a), y as f64 + offset(b));
+                    out.push(self.lens.ray(p).map(|v| v / v.norm()));
+                }
+            }
+            return;
+        }
+        let wx: Vec<[f64; 4]> = (0..n)
+            .map(|a| lagrange4((x as f64 + offset(a) - X0) / STEP - i as f64).0)
+            .collect();
+        for b in 0..n {
+            let (wy, _) = lagrange4((y as f64 + offset(b) - X0) / STEP - j as f64);
+            let cols: [Vector3<f64>; 4] = std::array::from_fn(|a| {
+                (0..4).fold(Vector3::zeros(), |acc, bb| {
+                    acc + self.nodes[(j + bb - 1) * self.nx + i + a - 1] * wy[bb]
+                })
+            });
+            for w in &wx {
+                out.push(Some(
+                    cols[0] * w[0] + cols[1] * w[1] + cols[2] * w[2] + cols[3] * w[3],
+                ));
+            }
         }
     }
 
@@ -304,6 +385,33 @@ pub(crate) mod tests {
         // The cell check guarantees TOLERANCE_PX at cell centres; anywhere else the cubic
         // error has the same order.
         assert!(worst < 2.0 * RayGrid::TOLERANCE_PX, "worst {worst} px");
+        // Per-pixel sub-sample evaluation is the same interpolant.
+        let mut sub = Vec::new();
+        for (x, y) in [(0, 0), (13, 77), (319, 239)] {
+            grid.pixel_rays(x, y, 4, &mut sub);
+            for (k, r) in sub.iter().enumerate() {
+                let p = Point2::new(
+                    x as f64 + ((k % 4) as f64 + 0.5) / 4.0 - 0.5,
+                    y as f64 + ((k / 4) as f64 + 0.5) / 4.0 - 0.5,
+                );
+                assert!((r.unwrap() - grid.ray(p).unwrap()).norm() < 1e-14);
+            }
+        }
+        // Row-wise evaluation is the same interpolant.
+        let mut row = Vec::new();
+        for y in [0, 7, 100, 239] {
+            grid.row_jets(y, &mut row);
+            assert_eq!(row.len(), 320);
+            for (x, r) in row.iter().enumerate() {
+                let (a, b) = (
+                    r.unwrap(),
+                    grid.jet(Point2::new(x as f64, y as f64)).unwrap(),
+                );
+                assert!(
+                    (a.dir - b.dir).norm() + (a.dx - b.dx).norm() + (a.dy - b.dy).norm() < 1e-14
+                );
+            }
+        }
     }
 
     #[test]

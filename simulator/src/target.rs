@@ -97,6 +97,11 @@ impl Background {
     /// Albedo at a sub-pixel position: smooth value noise (C¹ cubic blend of seeded lattice
     /// values), so no pixel of the background needs supersampling.
     pub fn albedo_at(&self, p: Point2<f64>) -> f32 {
+        self.blend(p, |i, j| lattice_value(self.seed, i, j))
+    }
+
+    /// [`Background::albedo_at`] with the lattice values taken from `val`.
+    fn blend(&self, p: Point2<f64>, val: impl Fn(i64, i64) -> f64) -> f32 {
         if self.variation == 0.0 {
             return self.albedo;
         }
@@ -105,11 +110,50 @@ impl Background {
         let (fu, fv) = (u - i, v - j);
         let s = |t: f64| t * t * (3.0 - 2.0 * t);
         let (su, sv) = (s(fu), s(fv));
-        let val = |di: f64, dj: f64| lattice_value(self.seed, (i + di) as i64, (j + dj) as i64);
-        let top = val(0.0, 0.0) * (1.0 - su) + val(1.0, 0.0) * su;
-        let bottom = val(0.0, 1.0) * (1.0 - su) + val(1.0, 1.0) * su;
+        let (i, j) = (i as i64, j as i64);
+        let top = val(i, j) * (1.0 - su) + val(i + 1, j) * su;
+        let bottom = val(i, j + 1) * (1.0 - su) + val(i + 1, j + 1) * su;
         let n = top * (1.0 - sv) + bottom * sv; // in [−1, 1]
         self.albedo * (1.0 + self.variation * n as f32)
+    }
+
+    /// The lattice values covering an image, for fast lookups.
+    pub(crate) fn table(&self, width: u32, height: u32) -> BackgroundTable {
+        let nx = (f64::from(width) / self.scale_px).ceil() as usize + 3;
+        let ny = (f64::from(height) / self.scale_px).ceil() as usize + 3;
+        let values = (0..nx * ny)
+            .map(|k| lattice_value(self.seed, (k % nx) as i64 - 1, (k / nx) as i64 - 1))
+            .collect();
+        BackgroundTable {
+            background: *self,
+            nx,
+            ny,
+            values,
+        }
+    }
+}
+
+/// A [`Background`] with its lattice values over an image precomputed (same values).
+pub(crate) struct BackgroundTable {
+    background: Background,
+    nx: usize,
+    ny: usize,
+    /// Value of lattice node (i, j) at ((j + 1)·nx + i + 1).
+    values: Vec<f64>,
+}
+
+impl BackgroundTable {
+    /// As [`Background::albedo_at`].
+    pub(crate) fn albedo_at(&self, p: Point2<f64>) -> f32 {
+        let b = &self.background;
+        b.blend(p, |i, j| {
+            let (a, c) = (i + 1, j + 1);
+            if a >= 0 && c >= 0 && (a as usize) < self.nx && (c as usize) < self.ny {
+                self.values[c as usize * self.nx + a as usize]
+            } else {
+                lattice_value(b.seed, i, j)
+            }
+        })
     }
 }
 

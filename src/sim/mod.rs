@@ -16,10 +16,9 @@ pub use truth::CircleTruth;
 use crate::board::{Board, Side};
 use crate::camera::CameraModel;
 use hexcal_simulator::{
-    render_geometry, Background, Frame, Geometry, ImageSize, Lens, RayGrid, RenderOptions,
-    Sensor,
+    render_geometry, Background, Frame, Geometry, ImageSize, Lens, RayGrid, RenderOptions, Sensor,
 };
-use nalgebra::{Isometry3, Point2, Vector3};
+use nalgebra::{Point2, Vector3};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -231,8 +230,14 @@ pub fn render(scene: &Scene) -> Result<View, SimError> {
 }
 
 /// Write `bytes` to `path` atomically (a temporary file in the same directory, renamed).
-fn write_atomic(path: &Path, write: impl FnOnce(&Path) -> Result<(), SimError>) -> Result<(), SimError> {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+fn write_atomic(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<(), SimError>,
+) -> Result<(), SimError> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let tmp = path.with_file_name(format!(".{name}.tmp{}", std::process::id()));
     write(&tmp)?;
     std::fs::rename(&tmp, path).map_err(|source| SimError::Io {
@@ -247,7 +252,8 @@ pub fn write_png(frame: &Frame, path: &Path) -> Result<(), SimError> {
     write_atomic(path, |tmp| {
         let res = if frame.bits == 8 {
             let data: Vec<u8> = frame.data.iter().map(|&v| v as u8).collect();
-            image::GrayImage::from_raw(w, h, data).map(|img| img.save_with_format(tmp, image::ImageFormat::Png))
+            image::GrayImage::from_raw(w, h, data)
+                .map(|img| img.save_with_format(tmp, image::ImageFormat::Png))
         } else {
             image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, frame.data.clone())
                 .map(|img| img.save_with_format(tmp, image::ImageFormat::Png))
@@ -288,3 +294,89 @@ pub fn write_view(view: &View, dir: &Path) -> Result<[PathBuf; 2], SimError> {
 
 #[cfg(test)]
 mod tests;
+
+/// Wall-clock and CPU (all threads) seconds of one stage, medians over the repeats.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StageTime {
+    /// Elapsed time.
+    pub wall: f64,
+    /// Process CPU time (user + system, all threads; 10 ms resolution); `None` where
+    /// /proc/self/stat is unavailable.
+    pub cpu: Option<f64>,
+}
+
+/// Process CPU seconds from /proc/self/stat (utime + stime at 100 ticks/s, Linux's USER_HZ).
+fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+/// Timings of one view's rendering (the median of the repeats).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderTimings {
+    /// Ray grid of the camera (once per camera).
+    pub ray_grid: StageTime,
+    /// Geometry pass (once per camera and board pose).
+    pub geometry: StageTime,
+    /// One frame: shading, PSF, noise, gamma, quantisation.
+    pub frame: StageTime,
+    /// Ground truth of all circles.
+    pub truth: StageTime,
+    /// Pixels integrated as texture-edge pixels.
+    pub edge_pixels: usize,
+    /// Pixels integrated as outline pixels.
+    pub outline_pixels: usize,
+}
+
+/// Time the stages of [`render`] on a scene, `repeats` times each.
+pub fn bench_render(scene: &Scene, repeats: usize) -> Result<RenderTimings, SimError> {
+    let median = |v: Vec<(f64, Option<f64>)>| {
+        let mid = |mut x: Vec<f64>| {
+            x.sort_by(f64::total_cmp);
+            x[x.len() / 2]
+        };
+        let cpu: Option<Vec<f64>> = v.iter().map(|t| t.1).collect();
+        StageTime {
+            wall: mid(v.iter().map(|t| t.0).collect()),
+            cpu: cpu.map(mid),
+        }
+    };
+    let time = |f: &mut dyn FnMut()| {
+        let (t, c) = (std::time::Instant::now(), process_cpu_seconds());
+        f();
+        let cpu = c.zip(process_cpu_seconds()).map(|(a, b)| b - a);
+        (t.elapsed().as_secs_f64(), cpu)
+    };
+    let repeats = repeats.max(1);
+    let (mut tr, mut tg, mut tf, mut tt) = (vec![], vec![], vec![], vec![]);
+    let (mut edges, mut outlines) = (0, 0);
+    let sensor = sensor(&scene.imaging);
+    for k in 0..repeats {
+        let mut rays = None;
+        tr.push(time(&mut || rays = Some(RayGrid::new(&scene.camera))));
+        let rays = rays.expect("built");
+        let mut geo = None;
+        tg.push(time(&mut || geo = Some(geometry_with(&rays, scene))));
+        let geo = geo.expect("ran")?;
+        (edges, outlines) = (geo.edge_pixels, geo.outline_pixels);
+        tf.push(time(&mut || {
+            let signal = sensor.optics(geo.size, &geo.irradiance(scene.imaging.white_dn as f32));
+            std::hint::black_box(sensor.expose(geo.size, &signal, scene.seed + k as u64));
+        }));
+        tt.push(time(&mut || {
+            std::hint::black_box(ground_truth(scene).map(|t| t.circles.len()).ok());
+        }));
+    }
+    Ok(RenderTimings {
+        ray_grid: median(tr),
+        geometry: median(tg),
+        frame: median(tf),
+        truth: median(tt),
+        edge_pixels: edges,
+        outline_pixels: outlines,
+    })
+}

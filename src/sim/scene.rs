@@ -112,7 +112,9 @@ impl PoseSpec {
                     UnitQuaternion::from_rotation_matrix(&rot),
                 ))
             }
-            _ => Err(bad("give either rvec and tvec, or eye and target (and optionally up)")),
+            _ => Err(bad(
+                "give either rvec and tvec, or eye and target (and optionally up)",
+            )),
         }
     }
 }

@@ -14,7 +14,12 @@ fn sample(name: &str) -> (CameraModel, Isometry3<f64>, Value) {
     let v: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
     let f = |x: &Value| x.as_f64().unwrap();
     let k = &v["camera"]["K"];
-    let dist: Vec<f64> = v["camera"]["dist"].as_array().unwrap().iter().map(f).collect();
+    let dist: Vec<f64> = v["camera"]["dist"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(f)
+        .collect();
     let camera = CameraModel {
         width: v["width"].as_u64().unwrap() as u32,
         height: v["height"].as_u64().unwrap() as u32,
@@ -76,13 +81,22 @@ fn ground_truth_agrees_with_the_shared_samples() {
         let mut checked = 0;
         for (list, whole) in [("circles", true), ("partial", false)] {
             for c in v[list].as_array().unwrap() {
-                let key = (c["q"].as_i64().unwrap() as i32, c["r"].as_i64().unwrap() as i32);
-                let reasons: Vec<&str> = c["reason"].as_array().map_or(vec![], |r| r.iter().map(|x| x.as_str().unwrap()).collect());
+                let key = (
+                    c["q"].as_i64().unwrap() as i32,
+                    c["r"].as_i64().unwrap() as i32,
+                );
+                let reasons: Vec<&str> = c["reason"]
+                    .as_array()
+                    .map_or(vec![], |r| r.iter().map(|x| x.as_str().unwrap()).collect());
                 let Some(o) = ours.get(&key) else {
                     panic!("{name}: circle {key:?} of {list} missing");
                 };
                 assert_eq!(o.side.name(), c["side"].as_str().unwrap());
-                assert_eq!(o.ringed, c["ringed"].as_bool().unwrap(), "{name} {key:?} ringed");
+                assert_eq!(
+                    o.ringed,
+                    c["ringed"].as_bool().unwrap(),
+                    "{name} {key:?} ringed"
+                );
                 // Cut by the frame exactly when the sample says so (radius or occluder reasons
                 // do not concern the frame).
                 if whole || reasons.contains(&"frame") {
@@ -90,13 +104,24 @@ fn ground_truth_agrees_with_the_shared_samples() {
                 }
                 // The samples round to 1e-6 px: |error| ≤ 0.5e-6 per coordinate.
                 let proj = Point2::from(o.proj);
-                assert!((proj - xy(&c["proj"])).norm() < 1e-6, "{name} {key:?} proj {proj} vs {}", c["proj"]);
+                assert!(
+                    (proj - xy(&c["proj"])).norm() < 1e-6,
+                    "{name} {key:?} proj {proj} vs {}",
+                    c["proj"]
+                );
                 if c["ellipse"].is_array() {
                     let e = Point2::from(o.ellipse.unwrap());
-                    assert!((e - xy(&c["ellipse"])).norm() < 1e-6, "{name} {key:?} ellipse {e} vs {}", c["ellipse"]);
+                    assert!(
+                        (e - xy(&c["ellipse"])).norm() < 1e-6,
+                        "{name} {key:?} ellipse {e} vs {}",
+                        c["ellipse"]
+                    );
                     assert!((o.radius.unwrap() - c["radius"].as_f64().unwrap()).abs() < 1e-6);
                     let axes = o.axes.unwrap();
-                    let (a, b) = (c["axes"][0].as_f64().unwrap(), c["axes"][1].as_f64().unwrap());
+                    let (a, b) = (
+                        c["axes"][0].as_f64().unwrap(),
+                        c["axes"][1].as_f64().unwrap(),
+                    );
                     assert!((axes[0] - a).abs() < 1e-6 && (axes[1] - b).abs() < 1e-6);
                     // The angle is defined when the axes differ; its error is ~1e-6/(a − b) rad.
                     if a - b > 0.01 {
@@ -141,7 +166,9 @@ fn renders_correlate_with_the_shared_samples() {
         let (camera, pose, v) = sample(name);
         let scene = sample_scene(camera, &pose, &v);
         let view = render(&scene).unwrap();
-        let theirs = image::open(format!("{SAMPLES}/{name}.png")).unwrap().into_luma8();
+        let theirs = image::open(format!("{SAMPLES}/{name}.png"))
+            .unwrap()
+            .into_luma8();
         let w = camera.width as usize;
         let (mut worst, mut sum, mut n) = (1.0f64, 0.0, 0);
         for c in view.truth.circles.iter().filter(|c| c.whole) {
@@ -182,7 +209,14 @@ fn renders_correlate_with_the_shared_samples() {
 #[test]
 fn explore_ellipse_definitions() {
     let board = Board::hex600();
-    for name in ["g1_frontal_00", "g2_tilted_02", "g3_extreme_01", "g4_partial_04", "g5_back_05", "g6_occluded_01"] {
+    for name in [
+        "g1_frontal_00",
+        "g2_tilted_02",
+        "g3_extreme_01",
+        "g4_partial_04",
+        "g5_back_05",
+        "g6_occluded_01",
+    ] {
         let (camera, pose, v) = sample(name);
         let side = truth::side_seen(&board, &pose).unwrap();
         let face = pose * board.side_transform(side);
@@ -190,8 +224,14 @@ fn explore_ellipse_definitions() {
         let mut maxe = [0.0f64; 4];
         let mut n = 0;
         for c in v["circles"].as_array().unwrap() {
-            let h = Hex::new(c["q"].as_i64().unwrap() as i32, c["r"].as_i64().unwrap() as i32);
-            let e = Point2::new(c["ellipse"][0].as_f64().unwrap(), c["ellipse"][1].as_f64().unwrap());
+            let h = Hex::new(
+                c["q"].as_i64().unwrap() as i32,
+                c["r"].as_i64().unwrap() as i32,
+            );
+            let e = Point2::new(
+                c["ellipse"][0].as_f64().unwrap(),
+                c["ellipse"][1].as_f64().unwrap(),
+            );
             let ctr = board.position(h);
             let rim = truth::outline(&camera, &face, ctr, board.radius, 256).unwrap();
             let fit = truth::fit_ellipse(&rim).unwrap().center;
@@ -199,7 +239,10 @@ fn explore_ellipse_definitions() {
             let poly = truth::polygon_centroid(&rim4);
             let pole = truth::pinhole_outline_centre(&face, ctr, board.radius).unwrap();
             let polep = camera.project(&Point3::new(pole.x, pole.y, 1.0)).unwrap();
-            let fit64 = truth::fit_ellipse(&truth::outline(&camera, &face, ctr, board.radius, 64).unwrap()).unwrap().center;
+            let fit64 =
+                truth::fit_ellipse(&truth::outline(&camera, &face, ctr, board.radius, 64).unwrap())
+                    .unwrap()
+                    .center;
             for (i, p) in [fit, poly, polep, fit64].iter().enumerate() {
                 let d = (p - e).norm();
                 errs[i] += d;

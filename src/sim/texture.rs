@@ -27,7 +27,9 @@ enum Cell {
 /// One side of a board as a [`Texture`] in that side's own frame (mm).
 pub struct BoardTexture {
     pitch: f64,
-    /// Edge radii from the centre out: [R] or [0.45R, 0.75R, R].
+    inv_pitch: f64,
+    /// 1 / row spacing (1 / (pitch·√3/2)).
+    inv_row: f64,
     radius: f64,
     ring: [f64; 2],
     half: Vector2<f64>,
@@ -44,12 +46,12 @@ impl BoardTexture {
     /// The texture of `side` of `board`.
     pub fn new(board: &Board, side: Side, albedo: BoardAlbedo) -> BoardTexture {
         let circles = board.circles(side);
-        let (q0, q1) = circles
-            .iter()
-            .fold((i32::MAX, i32::MIN), |(a, b), c| (a.min(c.hex.q), b.max(c.hex.q)));
-        let (r0, r1) = circles
-            .iter()
-            .fold((i32::MAX, i32::MIN), |(a, b), c| (a.min(c.hex.r), b.max(c.hex.r)));
+        let (q0, q1) = circles.iter().fold((i32::MAX, i32::MIN), |(a, b), c| {
+            (a.min(c.hex.q), b.max(c.hex.q))
+        });
+        let (r0, r1) = circles.iter().fold((i32::MAX, i32::MIN), |(a, b), c| {
+            (a.min(c.hex.r), b.max(c.hex.r))
+        });
         let (nq, nr) = (q1 - q0 + 1, r1 - r0 + 1);
         let mut cells = vec![Cell::Empty; (nq * nr) as usize];
         for c in &circles {
@@ -58,6 +60,8 @@ impl BoardTexture {
         }
         BoardTexture {
             pitch: board.pitch,
+            inv_pitch: 1.0 / board.pitch,
+            inv_row: 1.0 / (board.pitch * 0.75f64.sqrt()),
             radius: board.radius,
             ring: [board.ring[0] * board.radius, board.ring[1] * board.radius],
             half: Vector2::new(board.size[0] / 2.0, board.size[1] / 2.0),
@@ -103,10 +107,12 @@ impl Texture for BoardTexture {
             return None;
         }
         // Nearest lattice point by cube rounding of the axial coordinates (§3).
-        let rf = p.y / (self.pitch * 0.75f64.sqrt());
-        let qf = p.x / self.pitch - 0.5 * rf;
+        let rf = p.y * self.inv_row;
+        let qf = p.x * self.inv_pitch - 0.5 * rf;
         let sf = -qf - rf;
-        let (mut q, mut r, s) = (qf.round(), rf.round(), sf.round());
+        // Round half away from zero with an inline truncation (f64::round is a libm call).
+        let round = |v: f64| (v + 0.5f64.copysign(v)) as i64 as f64;
+        let (mut q, mut r, s) = (round(qf), round(rf), round(sf));
         let (dq, dr, ds) = ((q - qf).abs(), (r - rf).abs(), (s - sf).abs());
         if dq > dr && dq > ds {
             q = -r - s;
@@ -116,11 +122,15 @@ impl Texture for BoardTexture {
         let (q, r) = (q as i32, r as i32);
         // The nearest circle is the nearest lattice point's, else a neighbour's (at the rim
         // of the circle area); farther circles are ≥ 1.5 pitches away: no edge near.
-        let nearest = std::iter::once((q, r))
-            .chain(crate::board::Hex::DIRECTIONS.iter().map(|d| (q + d.q, r + d.r)))
-            .filter(|&(a, b)| self.cell(a, b) != Cell::Empty)
-            .map(|(a, b)| (self.cell(a, b), p.coords - self.centre(a, b)))
-            .min_by(|a, b| a.1.norm_squared().total_cmp(&b.1.norm_squared()));
+        let nearest = match self.cell(q, r) {
+            Cell::Empty => crate::board::Hex::DIRECTIONS
+                .iter()
+                .map(|d| (q + d.q, r + d.r))
+                .filter(|&(a, b)| self.cell(a, b) != Cell::Empty)
+                .map(|(a, b)| (self.cell(a, b), p.coords - self.centre(a, b)))
+                .min_by(|a, b| a.1.norm_squared().total_cmp(&b.1.norm_squared())),
+            cell => Some((cell, p.coords - self.centre(q, r))),
+        };
         let Some((cell, d)) = nearest else {
             return Some(Texel {
                 albedo: self.black,
@@ -130,16 +140,15 @@ impl Texture for BoardTexture {
         };
         let rho = d.norm();
         let out = if rho > 0.0 { d / rho } else { Vector2::x() };
-        let radii: &[f64] = if cell == Cell::Ringed {
-            &[self.ring[0], self.ring[1], self.radius]
+        // The nearest edge radius: R, or for a ringed circle the nearest of 0.45R, 0.75R, R
+        // (midpoints between them split the choice).
+        let re = if cell != Cell::Ringed || rho >= 0.5 * (self.ring[1] + self.radius) {
+            self.radius
+        } else if rho >= 0.5 * (self.ring[0] + self.ring[1]) {
+            self.ring[1]
         } else {
-            &[self.radius]
+            self.ring[0]
         };
-        let re = radii
-            .iter()
-            .copied()
-            .min_by(|a, b| (rho - a).abs().total_cmp(&(rho - b).abs()))
-            .unwrap_or(self.radius);
         let inside = rho <= re;
         // The level just across the edge at radius re.
         let beyond = self.level(cell, if inside { re * (1.0 + 1e-9) } else { re });
@@ -178,10 +187,30 @@ pub fn board_target(board: &Board, albedo: BoardAlbedo) -> Target {
     let (hw, hh, t) = (board.size[0] / 2.0, board.size[1] / 2.0, board.thickness);
     // (outward normal, face x axis, centre, half extents along face x and y).
     let edges = [
-        (Vector3::x(), -Vector3::z(), Vector3::new(hw, 0.0, -t / 2.0), [t / 2.0, hh]),
-        (-Vector3::x(), Vector3::z(), Vector3::new(-hw, 0.0, -t / 2.0), [t / 2.0, hh]),
-        (Vector3::y(), Vector3::x(), Vector3::new(0.0, hh, -t / 2.0), [hw, t / 2.0]),
-        (-Vector3::y(), Vector3::x(), Vector3::new(0.0, -hh, -t / 2.0), [hw, t / 2.0]),
+        (
+            Vector3::x(),
+            -Vector3::z(),
+            Vector3::new(hw, 0.0, -t / 2.0),
+            [t / 2.0, hh],
+        ),
+        (
+            -Vector3::x(),
+            Vector3::z(),
+            Vector3::new(-hw, 0.0, -t / 2.0),
+            [t / 2.0, hh],
+        ),
+        (
+            Vector3::y(),
+            Vector3::x(),
+            Vector3::new(0.0, hh, -t / 2.0),
+            [hw, t / 2.0],
+        ),
+        (
+            -Vector3::y(),
+            Vector3::x(),
+            Vector3::new(0.0, -hh, -t / 2.0),
+            [hw, t / 2.0],
+        ),
     ];
     for (ez, ex, centre, half) in edges {
         let ey = ez.cross(&ex);
@@ -221,7 +250,10 @@ mod tests {
                 let p = board.position(c.hex);
                 let at = |rho: f64| tex.sample(p + Vector2::new(rho, 0.0)).unwrap();
                 assert_eq!(at(0.0).albedo, 1.0);
-                assert_eq!(at(0.6 * 6.0).albedo, if ringed.contains(&c.hex) { 0.1 } else { 1.0 });
+                assert_eq!(
+                    at(0.6 * 6.0).albedo,
+                    if ringed.contains(&c.hex) { 0.1 } else { 1.0 }
+                );
                 assert_eq!(at(5.9).albedo, 1.0);
                 assert_eq!(at(6.1).albedo, 0.1);
                 let e = at(5.5).edge.unwrap();
@@ -258,7 +290,11 @@ mod tests {
             // Its texture spans the thickness: points 4.9 mm either side of the mid-plane
             // are on it, 5.1 mm are not.
             let along_z = f.pose.rotation.inverse() * Vector3::z();
-            let inside = |d: f64| f.texture.sample(Point2::new(along_z.x * d, along_z.y * d)).is_some();
+            let inside = |d: f64| {
+                f.texture
+                    .sample(Point2::new(along_z.x * d, along_z.y * d))
+                    .is_some()
+            };
             assert!(inside(4.9) && inside(-4.9) && !inside(5.1) && !inside(-5.1));
         }
         // Front face normal +z, back face normal −z.

@@ -60,7 +60,12 @@ pub fn outline(
     (0..n)
         .map(|k| {
             let phi = 2.0 * std::f64::consts::PI * k as f64 / n as f64;
-            let x = face * Point3::new(centre.x + radius * phi.cos(), centre.y + radius * phi.sin(), 0.0);
+            let x = face
+                * Point3::new(
+                    centre.x + radius * phi.cos(),
+                    centre.y + radius * phi.sin(),
+                    0.0,
+                );
             let p = camera.project(&x)?;
             let back = camera.ray(p)?;
             ((back.xy() - x.coords.xy() / x.z).norm() < 1e-9).then_some(p)
@@ -73,7 +78,12 @@ pub fn outline(
 pub fn fit_ellipse(points: &[Point2<f64>]) -> Option<Ellipse> {
     let n = points.len() as f64;
     let mean = points.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / n;
-    let scale = (points.iter().map(|p| (p.coords - mean).norm_squared()).sum::<f64>() / n).sqrt();
+    let scale = (points
+        .iter()
+        .map(|p| (p.coords - mean).norm_squared())
+        .sum::<f64>()
+        / n)
+        .sqrt();
     if !(scale > 0.0) {
         return None;
     }
@@ -130,14 +140,23 @@ fn conic_to_ellipse([a, b, c, d, e, f]: [f64; 6]) -> Option<Ellipse> {
 /// Pinhole outline centre: the pole of the vanishing line, −C₂ₓ₂⁻¹·c for the image conic
 /// C = H⁻ᵀ·diag(1, 1, −R²)·H⁻¹ of a circle of radius R centred at the face origin, with
 /// H = K·[r1 r2 t] (DESIGN.md §8). In normalised undistorted coordinates (K = I).
-pub fn pinhole_outline_centre(face: &Isometry3<f64>, centre: Point2<f64>, radius: f64) -> Option<Vector2<f64>> {
+pub fn pinhole_outline_centre(
+    face: &Isometry3<f64>,
+    centre: Point2<f64>,
+    radius: f64,
+) -> Option<Vector2<f64>> {
     let rot = face.rotation.to_rotation_matrix();
     let t = face * Point3::new(centre.x, centre.y, 0.0);
-    let h = Matrix3::from_columns(&[rot.matrix().column(0).into_owned(), rot.matrix().column(1).into_owned(), t.coords]);
+    let h = Matrix3::from_columns(&[
+        rot.matrix().column(0).into_owned(),
+        rot.matrix().column(1).into_owned(),
+        t.coords,
+    ]);
     let hi = h.try_inverse()?;
     let c = hi.transpose() * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, -radius * radius)) * hi;
     let m = c.fixed_view::<2, 2>(0, 0).into_owned();
-    m.try_inverse().map(|mi| -(mi * Vector2::new(c[(0, 2)], c[(1, 2)])))
+    m.try_inverse()
+        .map(|mi| -(mi * Vector2::new(c[(0, 2)], c[(1, 2)])))
 }
 
 /// Area centroid of a closed polygon (Green's theorem).
@@ -155,7 +174,11 @@ pub fn polygon_centroid(points: &[Point2<f64>]) -> Point2<f64> {
 
 /// Ground truth of every imaged circle of the side that faces the camera (none if the
 /// board is seen edge-on).
-pub fn circles(board: &Board, camera: &CameraModel, cam_from_board: &Isometry3<f64>) -> Vec<CircleTruth> {
+pub fn circles(
+    board: &Board,
+    camera: &CameraModel,
+    cam_from_board: &Isometry3<f64>,
+) -> Vec<CircleTruth> {
     let Some(side) = side_seen(board, cam_from_board) else {
         return Vec::new();
     };
