@@ -366,7 +366,11 @@ pub(crate) mod tests {
         let grid = RayGrid::new(&lens);
         // This lens bends strongly in its corners (the ray's 4th derivative grows there):
         // a few corner cells fall back to the lens.
-        assert!(grid.fallback_cells() * 50 < grid.nodes.len(), "{}", grid.fallback_cells());
+        assert!(
+            grid.fallback_cells() * 50 < grid.nodes.len(),
+            "{}",
+            grid.fallback_cells()
+        );
         let mut worst: f64 = 0.0;
         for k in 0..2000 {
             // A quasi-random sub-pixel position anywhere in the image.

@@ -5,7 +5,7 @@
 use crate::board::{Board, Side};
 use crate::camera::CameraModel;
 use crate::detect::Ellipse;
-use nalgebra::{Isometry3, Matrix3, Point2, Point3, SymmetricEigen, Vector2, Vector3};
+use nalgebra::{Isometry3, Point2, Point3, SymmetricEigen, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Rim points projected per circle for its outline ellipse.
@@ -135,41 +135,6 @@ fn conic_to_ellipse([a, b, c, d, e, f]: [f64; 6]) -> Option<Ellipse> {
         b: minor.sqrt(),
         angle: v[1].atan2(v[0]),
     })
-}
-
-/// Pinhole outline centre: the pole of the vanishing line, −C₂ₓ₂⁻¹·c for the image conic
-/// C = H⁻ᵀ·diag(1, 1, −R²)·H⁻¹ of a circle of radius R centred at the face origin, with
-/// H = K·[r1 r2 t] (DESIGN.md §8). In normalised undistorted coordinates (K = I).
-pub fn pinhole_outline_centre(
-    face: &Isometry3<f64>,
-    centre: Point2<f64>,
-    radius: f64,
-) -> Option<Vector2<f64>> {
-    let rot = face.rotation.to_rotation_matrix();
-    let t = face * Point3::new(centre.x, centre.y, 0.0);
-    let h = Matrix3::from_columns(&[
-        rot.matrix().column(0).into_owned(),
-        rot.matrix().column(1).into_owned(),
-        t.coords,
-    ]);
-    let hi = h.try_inverse()?;
-    let c = hi.transpose() * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, -radius * radius)) * hi;
-    let m = c.fixed_view::<2, 2>(0, 0).into_owned();
-    m.try_inverse()
-        .map(|mi| -(mi * Vector2::new(c[(0, 2)], c[(1, 2)])))
-}
-
-/// Area centroid of a closed polygon (Green's theorem).
-pub fn polygon_centroid(points: &[Point2<f64>]) -> Point2<f64> {
-    let (mut a, mut cx, mut cy) = (0.0, 0.0, 0.0);
-    for (i, p) in points.iter().enumerate() {
-        let q = points[(i + 1) % points.len()];
-        let cross = p.x * q.y - q.x * p.y;
-        a += cross;
-        cx += (p.x + q.x) * cross;
-        cy += (p.y + q.y) * cross;
-    }
-    Point2::new(cx / (3.0 * a), cy / (3.0 * a))
 }
 
 /// Ground truth of every imaged circle of the side that faces the camera (none if the
