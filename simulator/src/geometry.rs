@@ -306,7 +306,7 @@ pub fn render_geometry(
         .enumerate()
         .map_init(Vec::new, |sub, (y, alb)| {
             let (mut edges, mut outlines) = (0, 0);
-            for x in 0..w {
+            for (x, out) in alb.iter_mut().enumerate() {
                 let k = y * w + x;
                 let own = face[k];
                 let (x0, x1) = (x.saturating_sub(1), (x + 1).min(w - 1));
@@ -328,10 +328,10 @@ pub fn render_geometry(
                     None
                 };
                 if let Some(a) = edge {
-                    alb[x] = a;
+                    *out = a;
                     edges += 1;
                 } else if differs || class[k] != Class::Uniform {
-                    alb[x] = tracer.outline_albedo(x, y, sub);
+                    *out = tracer.outline_albedo(x, y, sub);
                     outlines += 1;
                 }
             }

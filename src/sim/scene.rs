@@ -184,7 +184,7 @@ impl Imaging {
         if self.bits != 8 && self.bits != 16 {
             return bad(format!("bits = {} (expected 8 or 16)", self.bits));
         }
-        if !(self.white_dn > 0.0) {
+        if self.white_dn.is_nan() || self.white_dn <= 0.0 {
             return bad(format!("white_dn = {} must be positive", self.white_dn));
         }
         for (name, v) in [
@@ -195,11 +195,11 @@ impl Imaging {
             ("shot_gain", self.shot_gain),
             ("read_noise", self.read_noise),
         ] {
-            if !(v >= 0.0) {
+            if v.is_nan() || v < 0.0 {
                 return bad(format!("{name} = {v} must be ≥ 0"));
             }
         }
-        if !(self.gamma > 0.0) || !(self.background_scale_px > 0.0) {
+        if [self.gamma, self.background_scale_px].iter().any(|v| v.is_nan() || *v <= 0.0) {
             return bad("gamma and background_scale_px must be positive".into());
         }
         Ok(())

@@ -497,7 +497,7 @@ fn pixel_coverage_is_the_exact_area_of_the_image_ellipse() {
     let geo = geometry(&s).unwrap();
     let truth = ground_truth(&s).unwrap();
     let w = cam.width as i64;
-    let black = (s.imaging.black_dn / s.imaging.white_dn) as f64;
+    let black = s.imaging.black_dn / s.imaging.white_dn;
     let (mut worst, mut checked) = (0.0f64, 0);
     for c in truth
         .circles

@@ -84,7 +84,7 @@ pub fn fit_ellipse(points: &[Point2<f64>]) -> Option<Ellipse> {
         .sum::<f64>()
         / n)
         .sqrt();
-    if !(scale > 0.0) {
+    if scale.is_nan() || scale <= 0.0 {
         return None;
     }
     let mut s = nalgebra::Matrix6::<f64>::zeros();
@@ -112,7 +112,7 @@ pub fn fit_ellipse(points: &[Point2<f64>]) -> Option<Ellipse> {
 /// The ellipse A x² + B xy + C y² + D x + E y + F = 0 (`None` if not a real ellipse).
 fn conic_to_ellipse([a, b, c, d, e, f]: [f64; 6]) -> Option<Ellipse> {
     let det = 4.0 * a * c - b * b;
-    if !(det > 0.0) {
+    if det.is_nan() || det <= 0.0 {
         return None;
     }
     // Centre: ∇ = 0 → [2A B; B 2C]·x = −(D, E).
