@@ -2,8 +2,8 @@
 //! and read noise → gamma → quantisation (DESIGN.md §9).
 //!
 //! Intensities are in DN of an 8-bit scale (full scale 255) whatever the output depth; a
-//! 16-bit frame stores the same signal times 65535/255, so changing `bits` changes only the
-//! quantisation.
+//! 12- or 16-bit frame stores the same signal times (2^bits − 1)/255, so changing `bits`
+//! changes only the quantisation.
 
 use crate::lens::ImageSize;
 use crate::target::splitmix64;
@@ -29,7 +29,7 @@ pub struct Sensor {
     pub read_noise: f64,
     /// Gamma γ applied after the noise: out = 255·(I/255)^(1/γ).
     pub gamma: f64,
-    /// Output depth: 8 or 16 bits.
+    /// Output depth: 8, 12 or 16 bits.
     pub bits: u8,
 }
 
@@ -38,7 +38,7 @@ pub struct Sensor {
 pub struct Frame {
     /// Image size.
     pub size: ImageSize,
-    /// Bits per pixel (8 or 16); values are < 2^bits.
+    /// Bits per pixel (8, 12 or 16); values are < 2^bits.
     pub bits: u8,
     /// Pixel values.
     pub data: Vec<u16>,
@@ -70,7 +70,7 @@ impl Sensor {
     /// Add noise to a noise-free signal, apply gamma and quantise; `seed` picks the noise.
     pub fn expose(&self, size: ImageSize, signal: &[f32], seed: u64) -> Frame {
         let w = size.width as usize;
-        assert!(self.bits == 8 || self.bits == 16, "8 or 16 bits");
+        assert!(matches!(self.bits, 8 | 12 | 16), "8, 12 or 16 bits");
         let max = f64::from((1u32 << self.bits) - 1);
         let scale = max / FULL_SCALE;
         let mut data = vec![0u16; signal.len()];
@@ -210,21 +210,22 @@ mod tests {
     }
 
     #[test]
-    fn sixteen_bits_quantise_the_same_signal_finer() {
+    fn deeper_frames_quantise_the_same_signal_finer() {
         let img: Vec<f32> = (0..SIZE.pixels()).map(|k| (k % 251) as f32).collect();
         let s8 = sensor();
-        let s16 = Sensor { bits: 16, ..s8 };
-        let (a, b) = (s8.capture(SIZE, &img, 9), s16.capture(SIZE, &img, 9));
-        assert_eq!(b.bits, 16);
-        assert!(b.data.iter().any(|&v| v > 255));
-        // Same noise realisation: the 16-bit code / 257 rounds to the 8-bit code (±1 where
-        // the value sits within 1/514 DN of a rounding boundary).
-        for (x, y) in a.data.iter().zip(&b.data) {
-            let v16 = f64::from(*y) / 257.0;
-            assert!(
-                (v16 - f64::from(*x)).abs() <= 0.5 + 1.0 / 257.0,
-                "{x} vs {y}"
-            );
+        let a = s8.capture(SIZE, &img, 9);
+        for bits in [12u8, 16] {
+            let b = Sensor { bits, ..s8 }.capture(SIZE, &img, 9);
+            assert_eq!(b.bits, bits);
+            let scale = f64::from((1u32 << bits) - 1) / 255.0;
+            let top = b.data.iter().max().copied().unwrap_or(0);
+            assert!(f64::from(top) > 200.0 * scale, "{bits}: max {top}");
+            // Same noise realisation: the deep code / scale is within half an 8-bit step of
+            // the 8-bit code, plus half a deep step of its own rounding.
+            for (x, y) in a.data.iter().zip(&b.data) {
+                let v = f64::from(*y) / scale;
+                assert!((v - f64::from(*x)).abs() <= 0.5 + 0.5 / scale, "{x} vs {y}");
+            }
         }
     }
 

@@ -2,7 +2,7 @@
 //! plugged into the `hexcal-simulator` renderer.
 //!
 //! Takes a [`Scene`] (camera, board pose, imaging conditions, seed) and gives a rendered
-//! 8- or 16-bit image of the board side facing the camera with its [`GroundTruth`]; writes
+//! 8-, 12- or 16-bit image of the board side facing the camera with its [`GroundTruth`]; writes
 //! both atomically as `NAME.png` and `NAME.json`.
 
 pub mod scene;
@@ -246,7 +246,8 @@ fn write_atomic(
     })
 }
 
-/// Write a frame as an 8- or 16-bit grey PNG, atomically.
+/// Write a frame as a grey PNG, atomically: 8-bit frames as 8-bit, 12- and 16-bit frames as
+/// 16-bit (12-bit values stay < 4096).
 pub fn write_png(frame: &Frame, path: &Path) -> Result<(), SimError> {
     let (w, h) = (frame.size.width, frame.size.height);
     write_atomic(path, |tmp| {

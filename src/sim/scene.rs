@@ -119,8 +119,8 @@ impl PoseSpec {
     }
 }
 
-/// Imaging conditions. Intensities in DN of an 8-bit scale (a 16-bit image stores them
-/// ×65535/255).
+/// Imaging conditions. Intensities in DN of an 8-bit scale (a 12- or 16-bit image stores
+/// them ×(2^bits − 1)/255).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Imaging {
@@ -146,7 +146,7 @@ pub struct Imaging {
     pub read_noise: f64,
     /// Camera gamma (out = 255·(I/255)^(1/γ)).
     pub gamma: f64,
-    /// Output depth (8 or 16).
+    /// Output depth: 8, 12 or 16 bits (12 is stored in a 16-bit PNG, values < 4096).
     pub bits: u8,
 }
 
@@ -181,8 +181,8 @@ impl Imaging {
 
     fn check(&self) -> Result<(), SimError> {
         let bad = |m: String| Err(SimError::Scene(format!("[imaging]: {m}")));
-        if self.bits != 8 && self.bits != 16 {
-            return bad(format!("bits = {} (expected 8 or 16)", self.bits));
+        if !matches!(self.bits, 8 | 12 | 16) {
+            return bad(format!("bits = {} (expected 8, 12 or 16)", self.bits));
         }
         if self.white_dn.is_nan() || self.white_dn <= 0.0 {
             return bad(format!("white_dn = {} must be positive", self.white_dn));
@@ -199,7 +199,10 @@ impl Imaging {
                 return bad(format!("{name} = {v} must be ≥ 0"));
             }
         }
-        if [self.gamma, self.background_scale_px].iter().any(|v| v.is_nan() || *v <= 0.0) {
+        if [self.gamma, self.background_scale_px]
+            .iter()
+            .any(|v| v.is_nan() || *v <= 0.0)
+        {
             return bad("gamma and background_scale_px must be positive".into());
         }
         Ok(())
