@@ -41,7 +41,7 @@ pub enum SimError {
         /// The parser's message.
         message: String,
     },
-    /// A scene is inconsistent.
+    /// A scene is inconsistent (the message names the scene file and table).
     #[error("scene {0}")]
     Scene(String),
     /// The image could not be encoded.

@@ -1,5 +1,39 @@
 //! Scene files: one camera looking at the board in one pose, with imaging conditions and a
-//! seed (TOML).
+//! seed (TOML). Every table but `[camera]` and `[pose]` is optional:
+//!
+//! ```toml
+//! name = "view"            # output files NAME.png, NAME.json
+//! seed = 1                 # noise seed
+//!
+//! [camera]                 # hexcal's CameraModel: OpenCV pinhole + distortion
+//! width = 1920
+//! height = 1200
+//! intrinsics = { fx = 1600.0, fy = 1600.0, cx = 962.3, cy = 597.8 }
+//! distortion = { k1 = -0.12, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
+//!
+//! [pose]                   # either rvec + tvec (X_cam = R·X_board + t, mm) …
+//! rvec = [2.73, -0.056, -0.276]
+//! tvec = [0.0, 0.0, 975.0]
+//! # … or a look-at in the board frame (mm): eye, target, optional up (default +y)
+//! # eye = [180.0, -380.0, 880.0]
+//! # target = [0.0, 0.0, 0.0]
+//!
+//! [imaging]                # defaults: DESIGN.md §9, single frames
+//! white_dn = 200.0         # DN on an 8-bit scale, whatever `bits` is
+//! black_dn = 20.0
+//! edge_dn = 40.0           # the board's edge faces
+//! background_dn = 60.0
+//! background_variation = 0.5
+//! background_scale_px = 80.0
+//! psf_sigma = 0.8
+//! vignetting = 0.0         # relative light loss in the image corners
+//! shot_gain = 0.1          # shot noise variance per DN of signal
+//! read_noise = 2.0
+//! gamma = 1.0
+//! bits = 8                 # 8, 12 or 16
+//!
+//! [board]                  # optional: a board description (default hex600)
+//! ```
 
 use super::SimError;
 use crate::board::Board;
@@ -221,8 +255,12 @@ impl Scene {
             path: origin.into(),
             message: e.to_string(),
         })?;
-        scene.imaging.check()?;
-        scene.pose.cam_from_board()?;
+        let named = |e: SimError| match e {
+            SimError::Scene(m) => SimError::Scene(format!("{origin} {m}")),
+            e => e,
+        };
+        scene.imaging.check().map_err(named)?;
+        scene.pose.cam_from_board().map_err(named)?;
         Ok(scene)
     }
 
