@@ -314,6 +314,7 @@ fn images_show_circles_gaps_and_rings_where_the_truth_says() {
             }
         }
         let (mut rings_seen, mut plain_seen) = (0, 0);
+        let (mut whites, mut blacks) = (Vec::new(), Vec::new());
         for c in view
             .truth
             .circles
@@ -325,6 +326,9 @@ fn images_show_circles_gaps_and_rings_where_the_truth_says() {
             // At r ≥ 7 px the white centre (radius ≥ 0.45·7 = 3.15 px) keeps the dark ring
             // ≥ 1.9 px = 2.4 σ_PSF from any part of the centre pixel: < 2 DN of leakage.
             let v = pixel(&view.frame, Point2::from(c.proj));
+            if !c.ringed {
+                whites.push(v);
+            }
             assert!(
                 (v - im.white_dn).abs() < 5.0 * sd(im.white_dn) + 2.0,
                 "{h:?}: centre {v}"
@@ -371,6 +375,7 @@ fn images_show_circles_gaps_and_rings_where_the_truth_says() {
                 / 3.0;
             if let Some(q) = image_of(&scene, side, Point2::from(p)) {
                 let v = pixel(&view.frame, q);
+                blacks.push(v);
                 assert!(
                     (v - im.black_dn).abs() < 5.0 * sd(im.black_dn),
                     "{h:?}: gap {v}"
@@ -379,6 +384,23 @@ fn images_show_circles_gaps_and_rings_where_the_truth_says() {
             }
         }
         assert!(gaps > 500, "{gaps} gaps");
+        // Noise statistics of these flat regions (plain circle centres, gap centres) against
+        // the model σ² = gain·I + read² + 1/12: the sample mean has standard error √(σ²/n),
+        // the sample variance σ²·√(2/n); allow 5 of each.
+        for (values, level) in [(&whites, im.white_dn), (&blacks, im.black_dn)] {
+            let n = values.len() as f64;
+            let mean = values.iter().sum::<f64>() / n;
+            let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+            let model = sd(level).powi(2);
+            assert!(
+                (mean - level).abs() < 5.0 * (model / n).sqrt(),
+                "{side} level {level}: mean {mean}"
+            );
+            assert!(
+                (var - model).abs() < 5.0 * model * (2.0 / n).sqrt(),
+                "{side} level {level}: var {var} vs {model}"
+            );
+        }
     }
 }
 
