@@ -512,10 +512,11 @@ fn ellipse_centres_match_an_independent_fit_of_the_rendered_edge() {
     }
     let mean = sum / n as f64;
     eprintln!("{n} circles: edge-fit centre vs truth mean {mean:.5} px, worst {worst:.5} px; {biased} with |proj − ellipse| > 0.02 px");
-    // Measured here: 0.0014 px mean, 0.0047 worst, the same with 12 instead of 4 sub-pixels
-    // per axis in the renderer (so not the renderer's); the tilted, blurred outline departs
-    // from an ellipse by ~σ²Δκ/2 ≈ 0.05 px, which the conic fit absorbs imperfectly. The
-    // perspective bias |proj − ellipse| here is 0.02–0.2 px, ≫ the tolerance.
+    // Measured here: 0.0014 px mean, 0.0047 worst, unchanged with 12 instead of 4 sub-pixels
+    // per axis in the renderer, so a floor of the instrument, not of the render (likely the
+    // blurred tilted outline, which departs from an ellipse by ~σ²Δκ/2 ≈ 0.05 px; the
+    // per-pixel coverage test below bounds the render itself). The perspective bias
+    // |proj − ellipse| here is 0.02–0.2 px, ≫ the tolerance.
     assert!(n > 100, "{n} circles");
     assert!(mean < 0.0025 && worst < 0.0075, "mean {mean} worst {worst}");
     // The test tells the outline centre from the projected centre: the perspective bias
