@@ -79,27 +79,7 @@ fn main() -> anyhow::Result<()> {
             what: Bench::Render { scene, repeat },
         } => {
             let scene = load_scene(scene.as_ref())?;
-            let t = hexcal::sim::bench_render(&scene, repeat)?;
-            let (w, h) = (scene.camera.width, scene.camera.height);
-            let threads = rayon::current_num_threads();
-            println!("render {w}x{h}, {threads} threads, median of {repeat} (wall ms, CPU ms all threads):");
-            let row = |name: &str, t: hexcal::sim::StageTime| {
-                let cpu = t.cpu.map_or("-".into(), |c| format!("{:.0}", c * 1e3));
-                println!("  {name:<30} {:8.1} {cpu:>8}", t.wall * 1e3);
-            };
-            row("ray grid (once per camera)", t.ray_grid);
-            row("geometry (once per pose)", t.geometry);
-            row("frame (shade, PSF, noise)", t.frame);
-            let sum = hexcal::sim::StageTime {
-                wall: t.geometry.wall + t.frame.wall,
-                cpu: t.geometry.cpu.zip(t.frame.cpu).map(|(a, b)| a + b),
-            };
-            row("geometry + one frame", sum);
-            row("ground truth", t.truth);
-            println!(
-                "  ({} edge px, {} outline px)",
-                t.edge_pixels, t.outline_pixels
-            );
+            println!("{}", hexcal::sim::bench_render(&scene, repeat)?);
         }
     }
     Ok(())

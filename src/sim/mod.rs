@@ -331,6 +331,41 @@ pub struct RenderTimings {
     pub edge_pixels: usize,
     /// Pixels integrated as outline pixels.
     pub outline_pixels: usize,
+    /// Image size.
+    pub size: ImageSize,
+    /// Worker threads.
+    pub threads: usize,
+    /// Repetitions behind the medians.
+    pub repeats: usize,
+}
+
+impl std::fmt::Display for RenderTimings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (w, h) = (self.size.width, self.size.height);
+        writeln!(
+            f,
+            "render {w}x{h}, {} threads, median of {} (wall ms, CPU ms all threads):",
+            self.threads, self.repeats
+        )?;
+        let mut row = |name: &str, t: StageTime| {
+            let cpu = t.cpu.map_or("-".into(), |c| format!("{:.0}", c * 1e3));
+            writeln!(f, "  {name:<30} {:8.1} {cpu:>8}", t.wall * 1e3)
+        };
+        row("ray grid (once per camera)", self.ray_grid)?;
+        row("geometry (once per pose)", self.geometry)?;
+        row("frame (shade, PSF, noise)", self.frame)?;
+        let sum = StageTime {
+            wall: self.geometry.wall + self.frame.wall,
+            cpu: self.geometry.cpu.zip(self.frame.cpu).map(|(a, b)| a + b),
+        };
+        row("geometry + one frame", sum)?;
+        row("ground truth", self.truth)?;
+        write!(
+            f,
+            "  ({} edge px, {} outline px)",
+            self.edge_pixels, self.outline_pixels
+        )
+    }
 }
 
 /// Time the stages of [`render`] on a scene, `repeats` times each.
@@ -379,5 +414,8 @@ pub fn bench_render(scene: &Scene, repeats: usize) -> Result<RenderTimings, SimE
         truth: median(tt),
         edge_pixels: edges,
         outline_pixels: outlines,
+        size: scene.camera.size(),
+        threads: rayon::current_num_threads(),
+        repeats,
     })
 }
