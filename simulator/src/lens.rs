@@ -159,7 +159,8 @@ impl<'a> RayGrid<'a> {
     pub fn row_jets(&self, y: usize, out: &mut Vec<Option<RayJet>>) {
         out.clear();
         let v = (y as f64 - X0) / STEP;
-        let j = v.floor() as usize;
+        // v ≥ 1 for every row: truncation is the floor (f64::floor is a libm call).
+        let j = v as usize;
         let (wy, dwy) = lagrange4(v - j as f64);
         // Interpolate every node column along y first (value and ∂/∂y).
         let (col, dcol): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) = (0..self.nx)
@@ -175,7 +176,7 @@ impl<'a> RayGrid<'a> {
             .unzip();
         for x in 0..self.size.width as usize {
             let u = (x as f64 - X0) / STEP;
-            let i = u.floor() as usize;
+            let i = u as usize;
             if !self.cell_ok[j * self.nx + i] {
                 out.push(self.jet(Point2::new(x as f64, y as f64)));
                 continue;
@@ -221,7 +222,8 @@ impl<'a> RayGrid<'a> {
     pub fn ray(&self, p: Point2<f64>) -> Option<Vector3<f64>> {
         if self.trusted(p) {
             let (u, v) = ((p.x - X0) / STEP, (p.y - X0) / STEP);
-            let (i, j) = (u.floor() as usize, v.floor() as usize);
+            // Trusted positions have u, v ≥ 1: truncation is the floor.
+            let (i, j) = (u as usize, v as usize);
             let (wx, _) = lagrange4(u - i as f64);
             let (wy, _) = lagrange4(v - j as f64);
             let mut dir = Vector3::zeros();

@@ -106,7 +106,16 @@ impl Background {
             return self.albedo;
         }
         let (u, v) = (p.x / self.scale_px, p.y / self.scale_px);
-        let (i, j) = (u.floor(), v.floor());
+        // Inline floor (f64::floor is a libm call on baseline x86-64).
+        let floor = |t: f64| {
+            let k = t as i64 as f64;
+            if k > t {
+                k - 1.0
+            } else {
+                k
+            }
+        };
+        let (i, j) = (floor(u), floor(v));
         let (fu, fv) = (u - i, v - j);
         let s = |t: f64| t * t * (3.0 - 2.0 * t);
         let (su, sv) = (s(fu), s(fv));
