@@ -3,7 +3,7 @@
 //!
 //! The stages, in the order data flows through them:
 //! [`board`] and [`camera`] (the models every stage shares) → [`detect`] (circles) →
-//! [`grid`] (labelled lattice points).
+//! [`grid`] (labelled lattice points); [`sim`] renders board views with ground truth.
 #![warn(missing_docs)]
 
 pub mod board;
@@ -12,3 +12,4 @@ pub mod camera;
 pub mod detect;
 pub mod grid;
 pub mod rig;
+pub mod sim;

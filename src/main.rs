@@ -29,7 +29,45 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Render one simulated board view (PNG) with its ground truth (JSON).
+    Simulate {
+        /// Scene file (TOML); the built-in scene when absent.
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Override the scene's noise seed.
+        #[arg(long)]
+        seed: Option<u64>,
+    },
+    /// Speed benchmarks that print figures.
+    Bench {
+        #[command(subcommand)]
+        what: Bench,
+    },
 }
+
+#[derive(Subcommand)]
+enum Bench {
+    /// Render the built-in 1920×1200 scene (or --scene): ray grid, geometry, one frame.
+    Render {
+        /// Scene file (TOML); the built-in scene when absent.
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Repetitions (the median is printed).
+        #[arg(long, default_value_t = 5)]
+        repeat: usize,
+    },
+}
+
+fn load_scene(path: Option<&PathBuf>) -> anyhow::Result<hexcal::sim::Scene> {
+    Ok(match path {
+        Some(p) => hexcal::sim::Scene::load(p)?,
+        None => hexcal::sim::Scene::default_scene(),
+    })
+}
+
 
 /// Write `bytes` to `path` through a temporary file beside it and a rename, so that `path`
 /// holds either the old or the whole new content.
@@ -65,6 +103,26 @@ fn main() -> anyhow::Result<()> {
             let board = Board::resolve(&board)?;
             write_atomic(&out, board.svg(side).as_bytes())?;
             println!("{} {side} side written to {}", board.name, out.display());
+        }
+        Command::Simulate { scene, out, seed } => {
+            let mut scene = load_scene(scene.as_ref())?;
+            scene.seed = seed.unwrap_or(scene.seed);
+            let view = hexcal::sim::render(&scene)?;
+            let [png, json] = hexcal::sim::write_view(&view, &out)?;
+            let whole = view.truth.circles.iter().filter(|c| c.whole).count();
+            println!(
+                "{}: side {}, {} circles imaged ({whole} whole); truth in {}",
+                png.display(),
+                view.truth.side.map_or("none", |s| s.name()),
+                view.truth.circles.len(),
+                json.display()
+            );
+        }
+        Command::Bench {
+            what: Bench::Render { scene, repeat },
+        } => {
+            let scene = load_scene(scene.as_ref())?;
+            println!("{}", hexcal::sim::bench_render(&scene, repeat)?);
         }
     }
     Ok(())
