@@ -13,12 +13,12 @@
 //!    at the board's border and 2.33× between circles) to the first rising crossing.
 
 use super::filter::View;
-use super::fit::{fit_ellipse, Conic};
+use super::fit::{self, fit_ellipse, Conic};
 use super::{Circle, Ellipse};
 use nalgebra::{Point2, Vector2};
 
-/// Ring inner radius / circle radius (DESIGN.md §3).
-const RING_INNER: f64 = 0.45;
+/// Middle of a marker's white outer annulus (0.75–1 R, DESIGN.md §3) / circle radius.
+const RING_ANNULUS_MID: f64 = 0.875;
 
 /// Settings of the refinement.
 #[derive(Clone, Copy, Debug)]
@@ -38,6 +38,7 @@ pub(crate) struct Settings {
 pub(crate) struct Scratch {
     profile: Vec<f32>,
     values: Vec<f32>,
+    ks: Vec<f32>,
     points: Vec<Point2<f64>>,
     dist: Vec<f64>,
     keep: Vec<Point2<f64>>,
@@ -145,24 +146,19 @@ pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set
     }
     let mut guess = robust_fit(&s.points, &mut s.dist, &mut s.keep)?.ellipse;
 
-    // 2. Ring test: dark at 1.3×, white at 1.95× around → the ring's inner disk.
-    let ringed = (0..n)
-        .filter(|&i| {
-            let o = ellipse_offset(&guess, std::f64::consts::TAU * i as f64 / n as f64);
-            let at = |k: f64| img.bilinear(guess.center.x + k * o.x, guess.center.y + k * o.y);
-            matches!((at(1.3), at(1.95)), (Some(d), Some(w)) if d < mid0 && w >= mid0)
-        })
-        .count();
-    if ringed * 5 > n * 3 {
-        guess.a /= RING_INNER;
-        guess.b /= RING_INNER;
+    // 2. Ring test: is the first ellipse closed in by a white annulus?
+    if let Some(k) = ring_annulus(img, &guess, f0 - b0, s) {
+        // The annulus spans 0.75–1 R: its middle is at 0.875 R.
+        let scale = k / RING_ANNULUS_MID;
+        guess.a *= scale;
+        guess.b *= scale;
     }
 
     // 3. Inward passes from 1.6× the current boundary.
     let mut result = None;
     for _ in 0..2 {
         let c = guess.center;
-        let fg = foreground(img, c, guess.b)?;
+        let centre = foreground(img, c, guess.b)?;
         s.values.clear();
         for i in 0..n {
             let o = ellipse_offset(&guess, std::f64::consts::TAU * i as f64 / n as f64);
@@ -175,6 +171,25 @@ pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set
             }
         }
         let bg = median(&mut s.values)?;
+        if centre - bg < set.min_contrast {
+            return None;
+        }
+        // Foreground: the median over rays of the first maximum inside the outer edge (found
+        // at a quarter of the contrast), i.e. the white outer annulus of a marker circle
+        // that blur has dimmed, so that the level sits on the steep part of the outer edge.
+        let quarter = bg + 0.25 * (centre - bg);
+        s.values.clear();
+        for i in 0..n {
+            let o = ellipse_offset(&guess, std::f64::consts::TAU * i as f64 / n as f64);
+            let rho = o.norm();
+            let u = o / rho;
+            if let Some(t) = inward_crossing(img, c, u, 1.6 * rho, 0.6 * rho, quarter) {
+                if let Some(top) = first_maximum(img, c, u, t, (t - 0.4 * rho).max(0.0), 0.05 * (centre - bg)) {
+                    s.values.push(top);
+                }
+            }
+        }
+        let fg = median(&mut s.values)?;
         if fg - bg < set.min_contrast {
             return None;
         }
@@ -202,9 +217,76 @@ pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set
         && e.b >= 0.12 * e.a
         && radius >= set.radius_range.0
         && radius <= set.radius_range.1
-        && (e.center - c0).norm() <= r_hat.max(2.0)
+        && fit::Conic::from_ellipse(&e).value(c0) < 0.0
         && fit.rms <= set.max_rms.0 + set.max_rms.1 * radius;
     ok.then_some(Circle { ellipse: e, score: score as f64, background: bg, foreground: fg, edge_rms: fit.rms as f32 })
+}
+
+/// Whether the ellipse `e` is the inner disk of a marker circle, closed in by its dark ring
+/// and then the white outer annulus. On each of 48 rays (parametric angles of `e`), the
+/// profile from 1× to 3.5× the boundary gives its largest rise above the lowest value
+/// before it, and the position k where that rise peaks. A ring is a closed curve: every
+/// ray shows a similar rise (15th percentile ≥ 5 % of the contrast and ≥ 0.4 × the median,
+/// so even a ring that blur has made faint) at a consistent k (MAD < 10 %). Around a plain
+/// circle only the ~60 % of the directions that meet a neighbour (at ≥ 2.33×) rise, the
+/// others show noise. Returns the median k of the annulus.
+fn ring_annulus(img: View<'_>, e: &Ellipse, contrast: f32, s: &mut Scratch) -> Option<f64> {
+    const RAYS: usize = 48;
+    s.values.clear();
+    s.ks.clear();
+    for i in 0..RAYS {
+        let o = ellipse_offset(e, std::f64::consts::TAU * i as f64 / RAYS as f64);
+        let dk = (0.5 / o.norm()).min(0.1);
+        let steps = (2.5 / dk).ceil() as usize;
+        // Largest rise above the lowest value before it, and where it peaks.
+        let (mut lo, mut rise, mut rise_k) = (f32::INFINITY, 0.0f32, 0.0);
+        let mut ok = true;
+        for j in 0..=steps {
+            let k = 1.0 + j as f64 * dk;
+            let Some(v) = img.bilinear(e.center.x + k * o.x, e.center.y + k * o.y) else {
+                ok = false;
+                break;
+            };
+            lo = lo.min(v);
+            if v - lo > rise {
+                (rise, rise_k) = (v - lo, k);
+            }
+        }
+        if ok {
+            s.values.push(rise);
+            s.ks.push(rise_k as f32);
+        }
+    }
+    let n = s.values.len();
+    if n < RAYS / 2 {
+        return None;
+    }
+    let p15 = *s.values.select_nth_unstable_by(n * 15 / 100, f32::total_cmp).1;
+    let med = median(&mut s.values)?;
+    if p15 < 0.05 * contrast || p15 < 0.4 * med {
+        return None;
+    }
+    let k = median(&mut s.ks)?;
+    s.values.clear();
+    s.values.extend(s.ks.iter().map(|&x| (x - k).abs()));
+    let mad = median(&mut s.values)?;
+    (mad < 0.1 * k).then_some(k as f64)
+}
+
+/// Walking inward from `c + t_start·u` in steps of 0.25 px down to `t_end`, the highest
+/// value before the profile falls more than `tolerance` below it.
+fn first_maximum(img: View<'_>, c: Point2<f64>, u: Vector2<f64>, t_start: f64, t_end: f64, tolerance: f32) -> Option<f32> {
+    let mut best = img.bilinear(c.x + t_start * u.x, c.y + t_start * u.y)?;
+    let mut t = t_start - 0.25;
+    while t >= t_end {
+        let v = img.bilinear(c.x + t * u.x, c.y + t * u.y)?;
+        if v < best - tolerance {
+            break;
+        }
+        best = best.max(v);
+        t -= 0.25;
+    }
+    Some(best)
 }
 
 /// Walking from `c + t_start·u` towards `c + t_end·u`, the first crossing from below `level`
