@@ -1,9 +1,10 @@
 //! Multi-scale circleness (paper Eqs. 1–4, DESIGN.md §4) and its 3×3 peaks.
 //!
-//! Scale-normalised Hessians σ²·H of the Gaussian-smoothed image on a pyramid: an octave
-//! holds the scales whose σ, in that level's pixels, is at least [`MIN_LEVEL_SIGMA`]; each
-//! level is the previous one blurred to σ = 2 and decimated by 2, so it enters its octave
-//! already smoothed by σ = 1 (its px). Each row band of a level computes every scale of its
+//! Scale-normalised Hessians σ²·H of the Gaussian-smoothed image on a pyramid: each scale
+//! is evaluated on the coarsest level where its σ is at least [`MIN_LEVEL_SIGMA`] level
+//! px; each level is the previous one blurred to σ = 2 and decimated by 2, so it starts
+//! already smoothed by σ = 1 (its px). Central differences at σ ≥ √2 add a variance of
+//! 1/6 px² to the second derivatives (≤ 8 % of σ²): immaterial for detection. Each row band of a level computes every scale of its
 //! octave (vertical then horizontal Gaussian pass, then the Hessian by central differences,
 //! i.e. the discrete Gaussian-derivative filters), keeps the maximum circleness and its
 //! scale, and reports 3×3 local maxima: no full-size intermediate image is written.
@@ -11,8 +12,11 @@
 use super::filter::{horizontal_row, pad_edges, vertical_row, Kernel, View};
 use rayon::prelude::*;
 
-/// Smallest smoothing σ (in a level's own px) evaluated on that level.
-pub(crate) const MIN_LEVEL_SIGMA: f64 = 2.0;
+/// Smallest smoothing σ (in a level's own px) evaluated on that level: √2, so that a level
+/// holds the scales σ ∈ [√2, 2√2) of its px and the first octave (r ≥ 4 px, σ ≥ 2.83) is
+/// already evaluated at half resolution, where the image smoothed by σ ≥ 2.83 px is
+/// band-limited (its spectrum at the half-resolution Nyquist frequency is < 1e-4).
+pub(crate) const MIN_LEVEL_SIGMA: f64 = std::f64::consts::SQRT_2;
 /// Smoothing (own px) of a decimated level.
 pub(crate) const LEVEL_SIGMA: f64 = 1.0;
 /// Rows per parallel job.
@@ -71,18 +75,22 @@ pub(crate) struct Peak {
     pub(crate) score: f32,
 }
 
-/// exp(−x) for x ≥ 0, branch-free so that row loops vectorise (relative error < 4e-6).
+/// exp(−x) for x ≥ 0 (relative error < 2e-6, from rounding x·log2(e) to f32), branch-free
+/// and without float→int casts so
+/// that row loops vectorise: x·log2(e) = n + f with n an integer (rounded by the 1.5·2²³
+/// trick) and |f| ≤ ½, e^(−x) = 2^(−n)·e^(−f·ln2).
 #[inline(always)]
 fn exp_neg(x: f32) -> f32 {
+    const MAGIC: f32 = 12_582_912.0; // 1.5·2²³: adding it rounds to an integer
     let t = (x * std::f32::consts::LOG2_E).min(125.0);
-    let n = t as i32; // floor, t ≥ 0
-    let g = (n as f32 - t) * std::f32::consts::LN_2; // ∈ (−ln2, 0]
-    // e^g by its Taylor series to degree 7 (|g| < 0.7: remainder < 1.4e-6, plus f32 rounding).
-    let p = 1.0
-        + g * (1.0
-            + g * (0.5
-                + g * (1.0 / 6.0 + g * (1.0 / 24.0 + g * (1.0 / 120.0 + g * (1.0 / 720.0 + g * (1.0 / 5040.0)))))));
-    p * f32::from_bits(((127 - n) as u32) << 23)
+    let y = t + MAGIC;
+    let n = y - MAGIC;
+    let g = (n - t) * std::f32::consts::LN_2; // |g| ≤ ½ ln 2
+    // e^g by its Taylor series to degree 6 (|g| ≤ 0.35: remainder < 1.2e-7).
+    let p = 1.0 + g * (1.0 + g * (0.5 + g * (1.0 / 6.0 + g * (1.0 / 24.0 + g * (1.0 / 120.0 + g * (1.0 / 720.0))))));
+    // 2^(−n) from the integer in y's low mantissa bits.
+    let n_int = y.to_bits().wrapping_sub(MAGIC.to_bits());
+    p * f32::from_bits((127u32.wrapping_sub(n_int)) << 23)
 }
 
 /// Circleness along one row from three rows of the smoothed level (Eqs. 1–4): the
@@ -118,7 +126,7 @@ struct Scratch {
     padded: Vec<f32>,
     smooth: Vec<f32>,
     cmax: Vec<f32>,
-    carg: Vec<u8>,
+    carg: Vec<f32>,
     crow: Vec<f32>,
 }
 
@@ -138,7 +146,7 @@ pub(crate) fn octave_peaks(src: View<'_>, step: f64, scales: &[Scale], k: Consta
                 padded: vec![0.0; w + 2 * rmax],
                 smooth: vec![0.0; (BAND + 4) * w],
                 cmax: vec![0.0; (BAND + 2) * w],
-                carg: vec![0; (BAND + 2) * w],
+                carg: vec![0.0; (BAND + 2) * w],
                 crow: vec![0.0; w],
             },
             |s, band| band_peaks(src, step, scales, k, threshold, band, s),
@@ -200,7 +208,7 @@ fn band_peaks_generic(
     let cmax = &mut s.cmax[..(cy1 - cy0) * w];
     let carg = &mut s.carg[..(cy1 - cy0) * w];
     cmax.fill(0.0);
-    carg.fill(0);
+    carg.fill(0.0);
     for (si, sc) in scales.iter().enumerate() {
         let r = sc.kernel.radius();
         for y in ly0..ly1 {
@@ -216,10 +224,11 @@ fn band_peaks_generic(
             circleness_row(row(y - 1), row(y), row(y + 1), s2, k, crow);
             let base = (y - cy0) * w + 1;
             let (cm, ca) = (&mut cmax[base..base + w - 2], &mut carg[base..base + w - 2]);
+            let sif = si as f32;
             for ((m, a), &c) in cm.iter_mut().zip(ca.iter_mut()).zip(crow.iter()) {
                 let better = c > *m;
                 *m = if better { c } else { *m };
-                *a = if better { si as u8 } else { *a };
+                *a = if better { sif } else { *a };
             }
         }
     }
@@ -283,7 +292,7 @@ mod tests {
         for i in 0..2000 {
             let x = i as f32 * 0.01;
             let (got, want) = (exp_neg(x) as f64, (-(x as f64)).exp());
-            assert!((got - want).abs() <= 4e-6 * want + 1e-30, "x {x}: {got} vs {want}");
+            assert!((got - want).abs() <= 2e-6 * want + 1e-30, "x {x}: {got} vs {want}");
         }
         assert!(exp_neg(1e6) < 1e-30);
     }

@@ -20,7 +20,7 @@ impl<'a> View<'a> {
 
     /// Bilinear interpolation at (x, y) (px, (0, 0) = centre of the top-left pixel); `None`
     /// outside the convex hull of the pixel centres.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn bilinear(&self, x: f64, y: f64) -> Option<f32> {
         let (w, h) = (self.width, self.height);
         if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {

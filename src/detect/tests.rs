@@ -71,6 +71,9 @@ fn evaluate(name: &str, min_radius: f64) -> Figures {
             Some(d) if (d.ellipse.radius() / t.radius - 1.0).abs() < 0.2 => {
                 f.found += 1;
                 let e = (d.ellipse.center - t.centre).norm();
+                if e > 0.1 && std::env::var("DBG").is_ok() {
+                    eprintln!("  big error {e} at {:?} r {} ringed {} det {:?} rms {}", t.centre, t.radius, t.ringed, d.ellipse, d.edge_rms);
+                }
                 sq += e * e;
                 f.max = f.max.max(e);
             }
@@ -141,7 +144,15 @@ fn debug_at() {
     let h_ref = circleness::reference_contrast(full);
     eprintln!("h_ref {h_ref}");
     let peaks = circleness_peaks(full, &DetectParams { min_circleness: 0.001, ..params.clone() }, Constants::new(h_ref));
-    for p in peaks.iter().filter(|p| (p.x - x).hypot(p.y - y) < 12.0) {
+    eprintln!("n peaks {}", peaks.len());
+    let crop = image::imageops::crop_imm(&img, (x as u32).saturating_sub(60), (y as u32).saturating_sub(50), 120, 100).to_image();
+    let crop8 = image::ImageBuffer::from_fn(crop.width() * 4, crop.height() * 4, |i, j| image::Luma([crop.get_pixel(i / 4, j / 4).0[0].clamp(0.0, 255.0) as u8]));
+    crop8.save("/tmp/crop.png").unwrap();
+    let det: Vec<Circle> = Vec::new();
+    for d in det.iter().filter(|d| (d.ellipse.center.x - x).hypot(d.ellipse.center.y - y) < 30.0) {
+        eprintln!("det {:?}", d.ellipse);
+    }
+    for p in peaks.iter().filter(|p| (p.x - x).hypot(p.y - y) < 30.0) {
         eprintln!("peak {p:?}");
     }
     let kept = suppress(circleness_peaks(full, &params, Constants::new(h_ref)));
