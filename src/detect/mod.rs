@@ -123,12 +123,7 @@ pub fn detect(image: &GrayImage, params: &DetectParams) -> Vec<Circle> {
     if h_ref.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return Vec::new();
     }
-    let t0 = std::time::Instant::now();
-    let all = circleness_peaks(full, params, Constants::new(h_ref));
-    let t1 = t0.elapsed();
-    let na = all.len();
-    let peaks = suppress(all);
-    if std::env::var("DBG_T").is_ok() { eprintln!("circleness {:?} peaks {} kept {} suppress {:?}", t1, na, peaks.len(), t0.elapsed() - t1); }
+    let peaks = suppress(circleness_peaks(full, params, Constants::new(h_ref)));
     let settings = refine::Settings {
         rays: params.rays.max(12),
         min_contrast: (params.min_contrast as f64 * h_ref) as f32,
@@ -142,10 +137,7 @@ pub fn detect(image: &GrayImage, params: &DetectParams) -> Vec<Circle> {
         })
         .flatten()
         .collect();
-    let t2 = t0.elapsed();
-    let r = remove_duplicates(circles);
-    if std::env::var("DBG_T").is_ok() { eprintln!("refine+dedup {:?} {:?}", t2, t0.elapsed()); }
-    r
+    remove_duplicates(circles)
 }
 
 /// Scales σ_k = σ_min·2^(k/4) over [max(r_min/√2, 1), r_max/√2], grouped into pyramid

@@ -8,12 +8,12 @@
 //!    inner edge of its dark ring (0.45 R), a concentric ellipse of the same shape.
 //! 2. Ring test ([`ring_annulus`]): if that ellipse is closed in by a white annulus, it was
 //!    the ring's inner disk and the guess is scaled out to the annulus.
-//! 3. Levels: background from the dark gap outside the guess (1.3–1.6×, inside the gap that
-//!    reaches ≥ 1.67× at the board's border and 2.33× between circles), foreground from the
-//!    first maximum inside each ray's outer edge.
-//! 4. Two inward passes: rays at evenly spaced parametric angles of the current ellipse,
-//!    walking inward from outside its boundary to the first rising crossing of the level;
-//!    the second from the first pass's ellipse.
+//! 3. Levels ([`levels`]): background from the dark gap outside the current ellipse
+//!    (1.3–1.6×, inside the gap that reaches ≥ 1.67× at the board's border and 2.33×
+//!    between circles), foreground from the first maximum inside each ray's outer edge.
+//! 4. Inward pass: rays at evenly spaced parametric angles of the current ellipse, walking
+//!    inward from outside its boundary to the first rising crossing of the mean level.
+//!    Steps 3–4 run twice, the second time around the first pass's ellipse.
 
 use super::filter::View;
 use super::fit::{self, fit_ellipse, Conic};
@@ -160,46 +160,14 @@ pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set
         guess.b *= scale;
     }
 
-    // 3. Levels.
-    let c = guess.center;
-    let centre = foreground(img, c, guess.b)?;
-    s.values.clear();
-    for &d in &s.dirs {
-        let o = ellipse_offset(&guess, d);
-        let lo = [1.3, 1.45, 1.6].iter().filter_map(|&k| img.bilinear(c.x + k * o.x, c.y + k * o.y)).fold(f32::INFINITY, f32::min);
-        if lo.is_finite() {
-            s.values.push(lo);
-        }
-    }
-    let bg = median(&mut s.values)?;
-    if centre - bg < set.min_contrast {
-        return None;
-    }
-    // Foreground: the median over rays of the first maximum inside the outer edge (found at
-    // a quarter of the contrast), i.e. the white outer annulus of a marker circle that blur
-    // has dimmed, so that the level sits on the steep part of the outer edge.
-    let quarter = bg + 0.25 * (centre - bg);
-    s.values.clear();
-    for &d in s.dirs.iter().step_by(2) {
-        let o = ellipse_offset(&guess, d);
-        let rho = o.norm();
-        let u = o / rho;
-        if let Some(t) = inward_crossing(img, c, u, 1.6 * rho, 0.6 * rho, quarter) {
-            if let Some(top) = first_maximum(img, c, u, t, (t - 0.4 * rho).max(0.0), 0.05 * (centre - bg)) {
-                s.values.push(top);
-            }
-        }
-    }
-    let fg = median(&mut s.values)?;
-    if fg - bg < set.min_contrast {
-        return None;
-    }
-    let mid = 0.5 * (fg + bg);
-
-    // 4. Inward passes: from 1.6× the guess, then from 3 px outside the first fit.
-    let mut fit = None;
+    // 3–4. Levels around the current ellipse, then an inward pass to the crossings of
+    // their mean: from 1.6× the guess, then from 3 px outside the first fit.
+    let mut fit: Option<Fit> = None;
+    let (mut bg, mut fg) = (0.0, 0.0);
     for pass in 0..2 {
-        let g = fit.as_ref().map_or(guess, |f: &Fit| f.ellipse);
+        let g = fit.as_ref().map_or(guess, |f| f.ellipse);
+        (bg, fg) = levels(img, &g, set.min_contrast, s)?;
+        let mid = 0.5 * (fg + bg);
         let c = g.center;
         s.points.clear();
         for &d in &s.dirs {
@@ -229,6 +197,42 @@ pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set
         && fit::Conic::from_ellipse(&e).value(c0) < 0.0
         && fit.rms <= set.max_rms.0 + set.max_rms.1 * radius;
     ok.then_some(Circle { ellipse: e, score: score as f64, background: bg, foreground: fg, edge_rms: fit.rms as f32 })
+}
+
+/// Background and foreground levels around the ellipse `g`: the background is the median
+/// over rays of the lowest value at 1.3–1.6× the boundary; the foreground the median over
+/// rays of the first maximum inside the outer edge (found at a quarter of the contrast to
+/// the centre), i.e. the white outer annulus of a marker circle that blur has dimmed, so
+/// that the mean level sits on the steep part of the outer edge. `None` below `min_contrast`.
+fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Option<(f32, f32)> {
+    let c = g.center;
+    let centre = foreground(img, c, g.b)?;
+    s.values.clear();
+    for &d in &s.dirs {
+        let o = ellipse_offset(g, d);
+        let lo = [1.3, 1.45, 1.6].iter().filter_map(|&k| img.bilinear(c.x + k * o.x, c.y + k * o.y)).fold(f32::INFINITY, f32::min);
+        if lo.is_finite() {
+            s.values.push(lo);
+        }
+    }
+    let bg = median(&mut s.values)?;
+    if centre - bg < min_contrast {
+        return None;
+    }
+    let quarter = bg + 0.25 * (centre - bg);
+    s.values.clear();
+    for &d in s.dirs.iter().step_by(2) {
+        let o = ellipse_offset(g, d);
+        let rho = o.norm();
+        let u = o / rho;
+        if let Some(t) = inward_crossing(img, c, u, 1.6 * rho, 0.6 * rho, quarter) {
+            if let Some(top) = first_maximum(img, c, u, t, (t - 0.4 * rho).max(0.0), 0.05 * (centre - bg)) {
+                s.values.push(top);
+            }
+        }
+    }
+    let fg = median(&mut s.values)?;
+    (fg - bg >= min_contrast).then_some((bg, fg))
 }
 
 /// Outward pass from `c` (value `f0` there): on every other ray the first crossing below
