@@ -41,9 +41,10 @@ fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
     use hexcal::detect::{detect, synth, DetectParams, GrayImage};
     let inputs: Vec<(String, GrayImage)> = if images.is_empty() {
         vec![
-            ("synthetic r=8 px, tilt 40°".into(), synth::lattice_image(1920, 1200, 8.0, 40.0, 1)),
-            ("synthetic r=12 px, tilt 40°".into(), synth::lattice_image(4096, 3000, 12.0, 40.0, 2)),
-            ("synthetic r=30 px, frontal".into(), synth::lattice_image(4096, 3000, 30.0, 0.0, 3)),
+            ("synthetic board, r=10 px, tilt 40°".into(), synth::lattice_image(1920, 1200, 10.0, 40.0, 1)),
+            ("synthetic board, r=4 px, frontal".into(), synth::lattice_image(1920, 1200, 4.0, 0.0, 2)),
+            ("synthetic board, r=24 px, tilt 40°".into(), synth::lattice_image(4096, 3000, 24.0, 40.0, 3)),
+            ("synthetic board, r=10 px, frontal".into(), synth::lattice_image(4096, 3000, 10.0, 0.0, 4)),
         ]
     } else {
         images

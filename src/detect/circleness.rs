@@ -266,8 +266,10 @@ fn band_peaks_generic(
     peaks
 }
 
-/// Reference contrast h_ref = 0.3·(P95 − P5) of the image intensities (DESIGN.md §4), from
-/// a regular subsample of at most ~250 000 pixels.
+/// Reference contrast h_ref (DESIGN.md §4): 0.3·(P95 − P5) of the image intensities, but
+/// at least 10 σ_noise, so that an image of mostly flat background does not make noise
+/// look contrasted (a disk of contrast 3 σ_noise then scores C < 0.02). From a regular
+/// subsample of at most ~250 000 pixels.
 pub(crate) fn reference_contrast(img: View<'_>) -> f64 {
     let n = img.data.len();
     let stride = (n / 250_000).max(1);
@@ -280,7 +282,26 @@ pub(crate) fn reference_contrast(img: View<'_>) -> f64 {
     let i95 = (m * 95 / 100).min(m - 1);
     let p95 = *v.select_nth_unstable_by(i95, f32::total_cmp).1;
     let p5 = *v[..i95.max(1)].select_nth_unstable_by(i5.min(i95.max(1) - 1), f32::total_cmp).1;
-    0.3 * (p95 - p5) as f64
+    (0.3 * (p95 - p5) as f64).max(10.0 * noise_sigma(img, stride))
+}
+
+/// Noise σ from horizontal neighbour differences: 1.4826·MAD/√2 (edges are outliers).
+fn noise_sigma(img: View<'_>, stride: usize) -> f64 {
+    let w = img.width;
+    if w < 2 {
+        return 0.0;
+    }
+    let mut d: Vec<f32> = (0..img.data.len() / stride)
+        .map(|i| i * stride)
+        .filter(|&i| i % w + 1 < w)
+        .map(|i| (img.data[i + 1] - img.data[i]).abs())
+        .collect();
+    if d.is_empty() {
+        return 0.0;
+    }
+    let mid = d.len() / 2;
+    let mad = *d.select_nth_unstable_by(mid, f32::total_cmp).1;
+    1.4826 * mad as f64 / std::f64::consts::SQRT_2
 }
 
 #[cfg(test)]
@@ -332,6 +353,16 @@ mod tests {
         assert!((c - 0.5 * (1.0 - (-(k.alpha as f64)).exp())).abs() < 1e-6);
         assert!((c - 0.1516).abs() < 1e-3);
         assert_eq!(k.circleness(-1.0, 0.0, 0.5), 0.0);
+    }
+
+    #[test]
+    fn noise_floor_of_the_reference_contrast() {
+        // White noise of σ = 2 on a flat image: h_ref = 10 σ within the MAD's sampling error.
+        let mut img = crate::detect::GrayImage::new(400, 300);
+        crate::detect::synth::add_noise(&mut img, 2.0, 3);
+        let v = View { data: img.as_raw(), width: 400, height: 300 };
+        let h = reference_contrast(v);
+        assert!((h - 20.0).abs() < 0.6, "h_ref {h}");
     }
 
     #[test]

@@ -81,7 +81,8 @@ pub struct DetectParams {
     /// Circleness a peak needs. C ≤ 0.303 (an ideal disk), ≈ 0.15 for a disk of the
     /// reference contrast, and less for tilted (elongated) circles. Default 0.02.
     pub min_circleness: f32,
-    /// Reference contrast h_ref for β (image units); `None`: 0.3·(P95 − P5) of the image.
+    /// Reference contrast h_ref for β (image units); `None`: 0.3·(P95 − P5) of the image,
+    /// at least 10 σ of its noise.
     pub contrast_ref: Option<f32>,
     /// Smallest foreground − background contrast of a circle, as a fraction of h_ref.
     /// Default 0.25.
@@ -123,21 +124,16 @@ pub fn detect(image: &GrayImage, params: &DetectParams) -> Vec<Circle> {
     if h_ref.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return Vec::new();
     }
+    let t0 = std::time::Instant::now();
     let peaks = suppress(circleness_peaks(full, params, Constants::new(h_ref)));
+    eprintln!("TMP peaks {} in {:?}", peaks.len(), t0.elapsed());
     let settings = refine::Settings {
         rays: params.rays.max(12),
         min_contrast: (params.min_contrast as f64 * h_ref) as f32,
         radius_range: (0.5 * params.min_radius, 1.5 * params.max_radius),
         max_rms: (params.max_edge_rms, params.max_edge_rms_per_px),
     };
-    let circles: Vec<Circle> = peaks
-        .par_iter()
-        .map_init(refine::Scratch::default, |s, p| {
-            refine::refine(full, Point2::new(p.x, p.y), SQRT_2 * p.sigma, p.score, &settings, s)
-        })
-        .flatten()
-        .collect();
-    remove_duplicates(circles)
+    remove_duplicates(refine_all(full, &peaks, &settings))
 }
 
 /// Scales σ_k = σ_min·2^(k/4) over [max(r_min/√2, 1), r_max/√2], grouped into pyramid
@@ -199,6 +195,13 @@ impl Buckets {
         self.items[r * self.cols + c].push(item);
     }
 
+    /// Items in the cells that overlap the box [x0, x1] × [y0, y1].
+    fn in_box(&self, x0: f64, y0: f64, x1: f64, y1: f64) -> impl Iterator<Item = usize> + '_ {
+        let (c0, r0) = self.index(Point2::new(x0, y0));
+        let (c1, r1) = self.index(Point2::new(x1, y1));
+        (r0..=r1).flat_map(move |rr| (c0..=c1).flat_map(move |cc| self.items[rr * self.cols + cc].iter().copied()))
+    }
+
     /// Items in the 3×3 cells around p (all within `cell` of p, and more).
     fn near(&self, p: Point2<f64>) -> impl Iterator<Item = usize> + '_ {
         let (c, r) = self.index(p);
@@ -208,8 +211,8 @@ impl Buckets {
     }
 }
 
-/// Non-maximum suppression by radius: strongest first, a peak within r̂ = √2·σ* of a
-/// stronger kept one is dropped.
+/// Non-maximum suppression by radius (DESIGN.md §4): strongest first, a peak within
+/// r̂ = √2·σ* of a stronger kept one is dropped.
 fn suppress(mut peaks: Vec<Peak>) -> Vec<Peak> {
     peaks.sort_by(|a, b| b.score.total_cmp(&a.score));
     let cell = peaks.iter().map(|p| SQRT_2 * p.sigma).fold(1.0, f64::max);
@@ -219,16 +222,59 @@ fn suppress(mut peaks: Vec<Peak>) -> Vec<Peak> {
     let mut kept: Vec<Peak> = Vec::new();
     for p in peaks {
         let at = Point2::new(p.x, p.y);
-        let covered = grid.near(at).any(|i| {
-            let q = &kept[i];
-            (Point2::new(q.x, q.y) - at).norm() < SQRT_2 * q.sigma
-        });
-        if !covered {
+        if !grid.near(at).any(|i| (Point2::new(kept[i].x, kept[i].y) - at).norm() < SQRT_2 * kept[i].sigma) {
             grid.insert(at, kept.len());
             kept.push(p);
         }
     }
     kept
+}
+
+/// Refines the peaks (strongest first) in parallel waves; after each wave, the peaks that
+/// lie inside a circle found so far are skipped: one circle can hold several peaks that
+/// NMS keeps (a marker's inner disk and points on its white annulus, the curved inner side
+/// of a large disk's edge), and refining them would only find it again.
+fn refine_all(full: View<'_>, peaks: &[Peak], settings: &refine::Settings) -> Vec<Circle> {
+    const WAVE_PER_THREAD: usize = 16;
+    let wave = WAVE_PER_THREAD * rayon::current_num_threads();
+    let max_x = peaks.iter().map(|p| p.x).fold(0.0, f64::max);
+    let max_y = peaks.iter().map(|p| p.y).fold(0.0, f64::max);
+    const CELL: f64 = 32.0;
+    let mut grid = Buckets::new(CELL, max_x, max_y);
+    for (i, p) in peaks.iter().enumerate() {
+        grid.insert(Point2::new(p.x, p.y), i);
+    }
+    let mut skip = vec![false; peaks.len()];
+    let mut circles = Vec::new();
+    let mut next = 0;
+    while next < peaks.len() {
+        let mut batch = Vec::with_capacity(wave);
+        while next < peaks.len() && batch.len() < wave {
+            if !skip[next] {
+                batch.push(next);
+            }
+            next += 1;
+        }
+        let found: Vec<Circle> = batch
+            .par_iter()
+            .map_init(refine::Scratch::default, |s, &i| {
+                let p = &peaks[i];
+                refine::refine(full, Point2::new(p.x, p.y), SQRT_2 * p.sigma, p.score, settings, s)
+            })
+            .flatten()
+            .collect();
+        for c in &found {
+            let conic = fit::Conic::from_ellipse(&c.ellipse);
+            let e = &c.ellipse;
+            for i in grid.in_box(e.center.x - e.a, e.center.y - e.a, e.center.x + e.a, e.center.y + e.a) {
+                if i >= next && conic.value(Point2::new(peaks[i].x, peaks[i].y)) < 0.0 {
+                    skip[i] = true;
+                }
+            }
+        }
+        circles.extend(found);
+    }
+    circles
 }
 
 /// Several peaks can refine to the same circle (e.g. a marker's inner disk and the whole

@@ -175,7 +175,7 @@ pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set
             let rho = o.norm();
             let u = o / rho;
             let start = if pass == 0 { 1.6 * rho } else { rho + 3.0 };
-            if let Some(t) = inward_crossing(img, c, u, start, 0.6 * rho, mid) {
+            if let Some(t) = inward_crossing(img, c, u, start, 0.6 * rho, rho / 16.0, mid) {
                 s.points.push(c + t * u);
             }
         }
@@ -225,8 +225,8 @@ fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Opt
         let o = ellipse_offset(g, d);
         let rho = o.norm();
         let u = o / rho;
-        if let Some(t) = inward_crossing(img, c, u, 1.6 * rho, 0.6 * rho, quarter) {
-            if let Some(top) = first_maximum(img, c, u, t, (t - 0.4 * rho).max(0.0), 0.05 * (centre - bg)) {
+        if let Some(t) = inward_crossing(img, c, u, 1.6 * rho, 0.6 * rho, rho / 16.0, quarter) {
+            if let Some(top) = first_maximum(img, c, u, t, (t - 0.4 * rho).max(0.0), (rho / 32.0).max(0.25), 0.05 * (centre - bg)) {
                 s.values.push(top);
             }
         }
@@ -301,7 +301,7 @@ fn ring_annulus(img: View<'_>, e: &Ellipse, contrast: f32, s: &mut Scratch) -> O
     s.ks.clear();
     for i in 0..RAYS {
         let o = ellipse_offset(e, s.dirs[i * s.dirs.len() / RAYS]);
-        let dk = (0.75 / o.norm()).min(0.1);
+        let dk = (0.75 / o.norm()).clamp(0.04, 0.1);
         let steps = (2.5 / dk).ceil() as usize;
         // Largest rise above the lowest value before it, and where it peaks.
         let (mut lo, mut rise, mut rise_k) = (f32::INFINITY, 0.0f32, 0.0);
@@ -338,38 +338,39 @@ fn ring_annulus(img: View<'_>, e: &Ellipse, contrast: f32, s: &mut Scratch) -> O
     (mad < 0.1 * k).then_some(k as f64)
 }
 
-/// Walking inward from `c + t_start·u` in steps of 0.25 px down to `t_end`, the highest
+/// Walking inward from `c + t_start·u` in steps of `step` px down to `t_end`, the highest
 /// value before the profile falls more than `tolerance` below it.
-fn first_maximum(img: View<'_>, c: Point2<f64>, u: Vector2<f64>, t_start: f64, t_end: f64, tolerance: f32) -> Option<f32> {
+fn first_maximum(img: View<'_>, c: Point2<f64>, u: Vector2<f64>, t_start: f64, t_end: f64, step: f64, tolerance: f32) -> Option<f32> {
     let mut best = img.bilinear(c.x + t_start * u.x, c.y + t_start * u.y)?;
-    let mut t = t_start - 0.25;
+    let mut t = t_start - step;
     while t >= t_end {
         let v = img.bilinear(c.x + t * u.x, c.y + t * u.y)?;
         if v < best - tolerance {
             break;
         }
         best = best.max(v);
-        t -= 0.25;
+        t -= step;
     }
     Some(best)
 }
 
 /// Walking from `c + t_start·u` towards `c + t_end·u`, the first crossing from below `level`
-/// to at or above it: steps of 0.5 px, then two bisections of the bracket, and linear
-/// interpolation inside the final 0.125 px (where the bilinear profile is linear to
+/// to at or above it: steps of `step` px (≥ 0.5), bisections of the bracket down to
+/// ≤ 0.125 px, and linear interpolation there (where the bilinear profile is linear to
 /// ≲ 0.002 px). Returns t.
-fn inward_crossing(img: View<'_>, c: Point2<f64>, u: Vector2<f64>, t_start: f64, t_end: f64, level: f32) -> Option<f64> {
+fn inward_crossing(img: View<'_>, c: Point2<f64>, u: Vector2<f64>, t_start: f64, t_end: f64, step: f64, level: f32) -> Option<f64> {
     let at = |t: f64| img.bilinear(c.x + t * u.x, c.y + t * u.y);
-    const STEP: f64 = 0.5;
+    let step = step.max(0.5);
+    let bisections = (step / 0.125).log2().ceil() as usize;
     let mut t = t_start;
     let mut prev = at(t)?;
     while t > t_end {
-        let tn = t - STEP;
+        let tn = t - step;
         let v = at(tn)?;
         if prev < level && v >= level {
             // Bracket [lo (below), hi (at or above)] in t order: hi < lo.
             let (mut t_lo, mut v_lo, mut t_hi, mut v_hi) = (t, prev, tn, v);
-            for _ in 0..2 {
+            for _ in 0..bisections {
                 let tm = 0.5 * (t_lo + t_hi);
                 let vm = at(tm)?;
                 if vm >= level {

@@ -123,27 +123,28 @@ pub fn quantise8(img: &mut GrayImage) {
     }
 }
 
-/// A hexagonal lattice of circles of radius `radius` (px) and pitch 10/3·radius (the
-/// hex600 proportions) filling a `width`×`height` image, foreshortened by `tilt_deg` along
-/// y; every seventh circle is ringed. Levels 30 (background) and 200 (circles).
+/// The hex600 board's circles (DESIGN.md §3: pitch 20 mm, radius 6 mm, |x| ≤ 290 mm,
+/// |y| ≤ 230 mm, 797 circles) at `radius` px, centred in a `width`×`height` image and
+/// foreshortened by `tilt_deg` along y; circles not wholly inside the image are left out,
+/// and every seventh is ringed. Levels 30 (background) and 200 (circles).
 pub fn lattice(width: u32, height: u32, radius: f64, tilt_deg: f64) -> Scene {
-    let pitch = radius * 10.0 / 3.0;
+    let px_per_mm = radius / 6.0;
     let cos_t = tilt_deg.to_radians().cos();
-    let (dx, dy) = (pitch, pitch * 3f64.sqrt() / 2.0 * cos_t);
-    let margin = radius + 2.0;
+    let (cx, cy) = (width as f64 / 2.0, height as f64 / 2.0);
     let mut blobs = Vec::new();
-    let rows = ((height as f64 - 2.0 * margin) / dy).floor() as i64;
-    let cols = ((width as f64 - 2.0 * margin) / dx).floor() as i64;
-    for r in 0..=rows {
-        for q in 0..=cols {
-            let x = margin + q as f64 * dx + if r % 2 == 1 { dx / 2.0 } else { 0.0 };
-            let y = margin + r as f64 * dy;
-            if x > width as f64 - margin {
+    for r in -13i64..=13 {
+        for q in -30i64..=30 {
+            let (x, y) = (20.0 * (q as f64 + r as f64 / 2.0), 20.0 * 3f64.sqrt() / 2.0 * r as f64);
+            if x.abs() > 290.0 || y.abs() > 230.0 {
+                continue;
+            }
+            let (u, v) = (cx + px_per_mm * x, cy - px_per_mm * y * cos_t);
+            if u < radius + 2.0 || v < radius + 2.0 || u > width as f64 - radius - 2.0 || v > height as f64 - radius - 2.0 {
                 continue;
             }
             blobs.push(Blob {
-                ellipse: Ellipse { center: Point2::new(x, y), a: radius, b: radius * cos_t, angle: 0.0 },
-                ringed: (q * 3 + r * 5) % 7 == 0,
+                ellipse: Ellipse { center: Point2::new(u, v), a: radius, b: radius * cos_t, angle: 0.0 },
+                ringed: (q * 3 + r * 5).rem_euclid(7) == 0,
             });
         }
     }

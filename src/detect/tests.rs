@@ -299,3 +299,24 @@ fn clutter_gives_few_detections() {
     }
     assert!(det.len() <= 5, "{} detections in clutter", det.len());
 }
+
+#[test]
+fn tmp_peaks() {
+    let scene = synth::lattice(1200, 900, 24.0, 40.0);
+    let img = synth::lattice_image(1200, 900, 24.0, 40.0, 3);
+    let full = View { data: img.as_raw(), width: 1200, height: 900 };
+    let h_ref = circleness::reference_contrast(full);
+    let peaks = suppress(circleness_peaks(full, &DetectParams::default(), Constants::new(h_ref)));
+    let mut hist = std::collections::BTreeMap::new();
+    for p in &peaks {
+        let at = Point2::new(p.x, p.y);
+        let b = scene.blobs.iter().min_by(|a, b| (a.ellipse.center - at).norm().total_cmp(&(b.ellipse.center - at).norm())).unwrap();
+        let d = (b.ellipse.center - at).norm() / 24.0;
+        let key = (b.ringed, (d * 10.0).round() as i32, ((SQRT_2 * p.sigma / 24.0) * 10.0).round() as i32);
+        *hist.entry(key).or_insert(0) += 1;
+    }
+    eprintln!("h_ref {h_ref} peaks {} blobs {}", peaks.len(), scene.blobs.len());
+    for (k, v) in hist {
+        eprintln!("ringed {} dist/r {:.1} rhat/r {:.1}: {v}", k.0, k.1 as f64 / 10.0, k.2 as f64 / 10.0);
+    }
+}
