@@ -2,9 +2,10 @@
 //! coarse centre, each the crossing of the local (background + foreground)/2 level on the
 //! circle's *outer* boundary, and a robust direct ellipse fit to them.
 //!
-//! 1. Outward pass: on every other ray the first falling crossing, or the next one when the
-//!    profile rises again soon after (a marker's white annulus), gives a first ellipse. That
-//!    is the outer boundary, or for a marker circle whose annulus blur has made faint the
+//! 1. Outward passes: on every third ray the first falling crossing gives a first
+//!    ellipse. From its centre, again on every other ray, but now stepping over a marker's
+//!    white annulus when the profile rises again soon after (see [`outward_fit`]). That is
+//!    the outer boundary, or for a marker circle whose annulus blur has made faint, the
 //!    inner edge of its dark ring (0.45 R), a concentric ellipse of the same shape.
 //! 2. Ring test ([`ring_annulus`]): if that ellipse is closed in by a white annulus, it was
 //!    the ring's inner disk and the guess is scaled out to the annulus.
@@ -23,7 +24,7 @@ use nalgebra::{Point2, Vector2};
 /// Middle of a marker's white outer annulus (0.75–1 R, DESIGN.md §3) / circle radius.
 const RING_ANNULUS_MID: f64 = 0.875;
 /// Rays of the outward pass that also measure the background along their whole length.
-const BACKGROUND_RAYS: usize = 8;
+const BACKGROUND_RAYS: usize = 6;
 
 /// Settings of the refinement.
 #[derive(Clone, Copy, Debug)]
@@ -120,14 +121,14 @@ pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set
     let min_points = (n * 3 / 5).max(6);
 
     // 1. Outward pass to the first falling crossing, within 3 r̂; the background is the
-    //    median over a few rays of their lowest value.
+    //    median over a few rays of their lowest value within 2 r̂ (in the gap).
     let f0 = foreground(img, c0, r_hat)?;
     let step = (r_hat / 10.0).clamp(0.25, 1.0);
     let m = (3.0 * r_hat / step).ceil() as usize + 1;
     s.values.clear();
     for i in 0..BACKGROUND_RAYS {
         let (dx, dy) = s.dirs[i * n / BACKGROUND_RAYS];
-        let lo = (0..m)
+        let lo = (0..(2 * m) / 3)
             .filter_map(|j| img.bilinear(c0.x + j as f64 * step * dx, c0.y + j as f64 * step * dy))
             .fold(f32::INFINITY, f32::min);
         if lo.is_finite() {
@@ -161,7 +162,7 @@ pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set
     }
 
     // 3–4. Levels around the current ellipse, then an inward pass to the crossings of
-    // their mean: from 1.6× the guess, then from 3 px outside the first fit.
+    // their mean: from 1.6× the guess, then from 2.5 px outside the first fit.
     let mut fit: Option<Fit> = None;
     let (mut bg, mut fg) = (0.0, 0.0);
     for pass in 0..2 {
@@ -174,7 +175,7 @@ pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set
             let o = ellipse_offset(&g, d);
             let rho = o.norm();
             let u = o / rho;
-            let start = if pass == 0 { 1.6 * rho } else { rho + 3.0 };
+            let start = if pass == 0 { 1.6 * rho } else { rho + 2.5 };
             if let Some(t) = inward_crossing(img, c, u, start, 0.6 * rho, rho / 16.0, mid) {
                 s.points.push(c + t * u);
             }
@@ -208,7 +209,7 @@ fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Opt
     let c = g.center;
     let centre = foreground(img, c, g.b)?;
     s.values.clear();
-    for &d in &s.dirs {
+    for &d in s.dirs.iter().step_by(3) {
         let o = ellipse_offset(g, d);
         let lo = [1.3, 1.45, 1.6].iter().filter_map(|&k| img.bilinear(c.x + k * o.x, c.y + k * o.y)).fold(f32::INFINITY, f32::min);
         if lo.is_finite() {
@@ -221,7 +222,7 @@ fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Opt
     }
     let quarter = bg + 0.25 * (centre - bg);
     s.values.clear();
-    for &d in s.dirs.iter().step_by(2) {
+    for &d in s.dirs.iter().step_by(3) {
         let o = ellipse_offset(g, d);
         let rho = o.norm();
         let u = o / rho;
@@ -235,7 +236,8 @@ fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Opt
     (fg - bg >= min_contrast).then_some((bg, fg))
 }
 
-/// Outward pass from `c` (value `f0` there): on every other ray the first crossing below
+/// Outward pass from `c` (value `f0` there): on every third ray (every other one with
+/// `annulus`) the first crossing below
 /// `mid0` within `m` steps of `step` px; with `annulus`, a rise above the level before 2.2×
 /// that crossing and a fall again within 1× of it is taken as a marker's white annulus
 /// (0.75–1 R seen from its ring's inner edge at 0.45 R: 1.67–2.22×), and that fall as the
@@ -244,7 +246,8 @@ fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Opt
 #[allow(clippy::too_many_arguments)]
 fn outward_fit(img: View<'_>, c: Point2<f64>, f0: f32, mid0: f32, step: f64, m: usize, annulus: bool, s: &mut Scratch) -> Option<Fit> {
     s.points.clear();
-    for &(dx, dy) in s.dirs.iter().step_by(2) {
+    let rays = s.dirs.len().div_ceil(if annulus { 2 } else { 3 });
+    for &(dx, dy) in s.dirs.iter().step_by(if annulus { 2 } else { 3 }) {
         let (mut p, mut t1, mut rise) = (f0, None::<f64>, None::<f64>);
         for j in 1..m {
             let t = j as f64 * step;
@@ -278,7 +281,7 @@ fn outward_fit(img: View<'_>, c: Point2<f64>, f0: f32, mid0: f32, step: f64, m: 
             s.points.push(Point2::new(c.x + t * dx, c.y + t * dy));
         }
     }
-    if s.points.len() < s.dirs.len() * 3 / 10 {
+    if s.points.len() * 5 < rays * 3 {
         return None;
     }
     let points = std::mem::take(&mut s.points);
@@ -288,23 +291,27 @@ fn outward_fit(img: View<'_>, c: Point2<f64>, f0: f32, mid0: f32, step: f64, m: 
 }
 
 /// Whether the ellipse `e` is the inner disk of a marker circle, closed in by its dark ring
-/// and then the white outer annulus. On each of 30 rays (parametric angles of `e`), the
+/// and then the white outer annulus. On each of 24 rays (parametric angles of `e`), the
 /// profile from 1× to 3.5× the boundary gives its largest rise above the lowest value
-/// before it, and the position k where that rise peaks. A ring is a closed curve: every
-/// ray shows a similar rise (15th percentile ≥ 5 % of the contrast and ≥ 0.4 × the median,
-/// so even a ring that blur has made faint) at a consistent k (MAD < 10 %). Around a plain
-/// circle only the ~60 % of the directions that meet a neighbour (at ≥ 2.33×) rise, the
-/// others show noise. Returns the median k of the annulus.
+/// before it, the position k where that rise peaks, and how far the profile falls again
+/// after it. A marker's annulus (0.75–1 R seen from the ring's inner edge at 0.45 R: k ≈
+/// 1.7–2.2) is a closed, narrow bump: every ray shows a similar rise (15th percentile ≥ 5 %
+/// of the contrast and ≥ 0.4 × the median, so even a ring that blur has made faint), falling
+/// back by at least half of it, at a consistent k (MAD < 10 %) between 1.4 and 2.6. A plain
+/// circle's neighbours start at 2.33× and are 2× wide: they rise without falling back
+/// within 3.5×, and only in the ~60 % of directions that meet one. Returns the median k.
 fn ring_annulus(img: View<'_>, e: &Ellipse, contrast: f32, s: &mut Scratch) -> Option<f64> {
-    const RAYS: usize = 30;
+    const RAYS: usize = 24;
     s.values.clear();
     s.ks.clear();
+    let mut falls_back = 0;
     for i in 0..RAYS {
         let o = ellipse_offset(e, s.dirs[i * s.dirs.len() / RAYS]);
         let dk = (0.75 / o.norm()).clamp(0.04, 0.1);
         let steps = (2.5 / dk).ceil() as usize;
-        // Largest rise above the lowest value before it, and where it peaks.
-        let (mut lo, mut rise, mut rise_k) = (f32::INFINITY, 0.0f32, 0.0);
+        // Largest rise above the lowest value before it, where it peaks, and the lowest
+        // value after that peak.
+        let (mut lo, mut rise, mut rise_k, mut peak, mut after) = (f32::INFINITY, 0.0f32, 0.0, 0.0f32, f32::INFINITY);
         let mut ok = true;
         for j in 0..=steps {
             let k = 1.0 + j as f64 * dk;
@@ -313,17 +320,19 @@ fn ring_annulus(img: View<'_>, e: &Ellipse, contrast: f32, s: &mut Scratch) -> O
                 break;
             };
             lo = lo.min(v);
+            after = after.min(v);
             if v - lo > rise {
-                (rise, rise_k) = (v - lo, k);
+                (rise, rise_k, peak, after) = (v - lo, k, v, v);
             }
         }
         if ok {
             s.values.push(rise);
             s.ks.push(rise_k as f32);
+            falls_back += usize::from(peak - after >= 0.5 * rise);
         }
     }
     let n = s.values.len();
-    if n < RAYS / 2 {
+    if n < RAYS / 2 || falls_back * 100 < n * 85 {
         return None;
     }
     let p15 = *s.values.select_nth_unstable_by(n * 15 / 100, f32::total_cmp).1;
@@ -335,7 +344,7 @@ fn ring_annulus(img: View<'_>, e: &Ellipse, contrast: f32, s: &mut Scratch) -> O
     s.values.clear();
     s.values.extend(s.ks.iter().map(|&x| (x - k).abs()));
     let mad = median(&mut s.values)?;
-    (mad < 0.1 * k).then_some(k as f64)
+    (mad < 0.1 * k && (1.4..=2.6).contains(&k)).then_some(k as f64)
 }
 
 /// Walking inward from `c + t_start·u` in steps of `step` px down to `t_end`, the highest

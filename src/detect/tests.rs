@@ -57,7 +57,11 @@ fn score(det: &[Circle], truth: &[Truth], others: &[Point2<f64>], min_radius: f6
                 f.max = f.max.max(e);
             }
             Some(_) => f.wrong_size += 1,
-            None => {}
+            None => {
+                if std::env::var("DBG").is_ok() {
+                    eprintln!("missed {:?} r {}", t.centre, t.radius);
+                }
+            }
         }
     }
     f.rms = (sq / f.found.max(1) as f64).sqrt();
@@ -318,5 +322,30 @@ fn tmp_peaks() {
     eprintln!("h_ref {h_ref} peaks {} blobs {}", peaks.len(), scene.blobs.len());
     for (k, v) in hist {
         eprintln!("ringed {} dist/r {:.1} rhat/r {:.1}: {v}", k.0, k.1 as f64 / 10.0, k.2 as f64 / 10.0);
+    }
+}
+
+#[test]
+fn tmp_write() {
+    let img = synth::lattice_image(1920, 1200, 4.0, 0.0, 2);
+    let img8 = image::ImageBuffer::from_fn(img.width(), img.height(), |x, y| image::Luma([img.get_pixel(x, y).0[0] as u8]));
+    img8.save("/tmp/r4.png").unwrap();
+}
+
+#[test]
+fn tmp_debug_at() {
+    let Ok(spec) = std::env::var("DBG_AT") else { return };
+    let parts: Vec<&str> = spec.split(',').collect();
+    let img = load_gray(&samples_dir().join(format!("{}.png", parts[0]))).unwrap();
+    let (x, y): (f64, f64) = (parts[1].parse().unwrap(), parts[2].parse().unwrap());
+    let params = DetectParams::default();
+    let full = View { data: img.as_raw(), width: img.width() as usize, height: img.height() as usize };
+    let h_ref = circleness::reference_contrast(full);
+    let kept = suppress(circleness_peaks(full, &params, Constants::new(h_ref)));
+    let settings = refine::Settings { rays: 90, min_contrast: (0.25 * h_ref) as f32, radius_range: (2.0, 60.0), max_rms: (0.15, 0.01) };
+    for p in kept.iter().filter(|p| (p.x - x).hypot(p.y - y) < 12.0) {
+        eprintln!("kept {p:?}");
+        let r = refine::refine(full, Point2::new(p.x, p.y), SQRT_2 * p.sigma, p.score, &settings, &mut refine::Scratch::default());
+        eprintln!("  -> {r:?}");
     }
 }
