@@ -22,17 +22,19 @@ impl<'a> View<'a> {
     /// outside the convex hull of the pixel centres.
     #[inline(always)]
     pub(crate) fn bilinear(&self, x: f64, y: f64) -> Option<f32> {
-        let (w, h) = (self.width, self.height);
+        // Signed conversions: one instruction each, unlike usize ↔ f64.
+        let (w, h) = (self.width as i64, self.height as i64);
         if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
             return None;
         }
-        let x0 = (x as usize).min(w.saturating_sub(2));
-        let y0 = (y as usize).min(h.saturating_sub(2));
+        let x0 = (x as i64).min(w - 2).max(0);
+        let y0 = (y as i64).min(h - 2).max(0);
         let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
-        let i = y0 * w + x0;
-        let d = self.data;
-        let top = d[i] + fx * (d[i + 1] - d[i]);
-        let bot = d[i + w] + fx * (d[i + w + 1] - d[i + w]);
+        let i = (y0 * w + x0) as usize;
+        let w = self.width;
+        let d = &self.data[i..i + w + 2];
+        let top = d[0] + fx * (d[1] - d[0]);
+        let bot = d[w] + fx * (d[w + 1] - d[w]);
         Some(top + fy * (bot - top))
     }
 }

@@ -94,7 +94,8 @@ fn foreground(img: View<'_>, c: Point2<f64>, b: f64) -> Option<f32> {
     Some(sum / pts.len() as f32)
 }
 
-/// Direct fit, then twice: drop points farther than max(4·1.4826·MAD, 0.1 px) and refit.
+/// Direct fit, then up to twice: drop points farther than max(4·1.4826·MAD, 0.1 px) and
+/// refit.
 fn robust_fit(points: &[Point2<f64>], s: &mut Scratch) -> Option<Fit> {
     let mut conic: Conic = fit_ellipse(points)?;
     for _ in 0..2 {
@@ -107,6 +108,9 @@ fn robust_fit(points: &[Point2<f64>], s: &mut Scratch) -> Option<Fit> {
         let thr = (4.0 * 1.4826 * med).max(0.1);
         s.keep.clear();
         s.keep.extend(points.iter().zip(s.dist.iter()).filter(|(_, &d)| d <= thr).map(|(&p, _)| p));
+        if s.keep.len() == points.len() {
+            break; // no outliers: the fit stands
+        }
         conic = fit_ellipse(&s.keep)?;
     }
     let ellipse = conic.to_ellipse()?;
@@ -249,30 +253,34 @@ fn outward_fit(img: View<'_>, c: Point2<f64>, f0: f32, mid0: f32, step: f64, m: 
     let rays = s.dirs.len().div_ceil(if annulus { 2 } else { 3 });
     for &(dx, dy) in s.dirs.iter().step_by(if annulus { 2 } else { 3 }) {
         let (mut p, mut t1, mut rise) = (f0, None::<f64>, None::<f64>);
+        // Crossing of mid0 between samples j − 1 (value p) and j (value q).
+        let cross = |j: usize, p: f32, q: f32| step * ((j - 1) as f64 + ((p - mid0) / (p - q)) as f64);
         for j in 1..m {
             let t = j as f64 * step;
             let Some(q) = img.bilinear(c.x + t * dx, c.y + t * dy) else { break };
-            let tc = step * ((j - 1) as f64 + ((p - mid0) / (p - q)) as f64);
             match (t1, rise) {
                 (None, _) if q < mid0 => {
-                    t1 = Some(tc);
+                    t1 = Some(cross(j, p, q));
                     if !annulus {
                         break;
                     }
                 }
                 (Some(first), None) if q >= mid0 => {
+                    let tc = cross(j, p, q);
                     if tc > 2.2 * first {
                         break;
                     }
                     rise = Some(tc);
                 }
                 (Some(first), Some(r)) if q < mid0 => {
+                    let tc = cross(j, p, q);
                     if tc - r <= first {
                         t1 = Some(tc);
                     }
                     break;
                 }
                 (Some(first), Some(r)) if t - r > first => break,
+                (Some(first), None) if t > 2.2 * first => break,
                 _ => {}
             }
             p = q;
@@ -370,7 +378,10 @@ fn first_maximum(img: View<'_>, c: Point2<f64>, u: Vector2<f64>, t_start: f64, t
 fn inward_crossing(img: View<'_>, c: Point2<f64>, u: Vector2<f64>, t_start: f64, t_end: f64, step: f64, level: f32) -> Option<f64> {
     let at = |t: f64| img.bilinear(c.x + t * u.x, c.y + t * u.y);
     let step = step.max(0.5);
-    let bisections = (step / 0.125).log2().ceil() as usize;
+    let mut bisections = 0;
+    while step / f64::from(1 << bisections) > 0.125 {
+        bisections += 1;
+    }
     let mut t = t_start;
     let mut prev = at(t)?;
     while t > t_end {
