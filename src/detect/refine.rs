@@ -3,7 +3,7 @@
 //! circle's *outer* boundary, and a robust direct ellipse fit to them.
 //!
 //! 1. Outward passes: on every third ray the first falling crossing gives a first
-//!    ellipse. From its centre, again on every other ray, but now stepping over a marker's
+//!    ellipse. From its centre, again, but now stepping over a marker's
 //!    white annulus when the profile rises again soon after (see [`outward_fit`]). That is
 //!    the outer boundary, or for a marker circle whose annulus blur has made faint, the
 //!    inner edge of its dark ring (0.45 R), a concentric ellipse of the same shape.
@@ -12,9 +12,9 @@
 //! 3. Levels ([`levels`]): background from the dark gap outside the current ellipse
 //!    (1.3–1.6×, inside the gap that reaches ≥ 1.67× at the board's border and 2.33×
 //!    between circles), foreground from the first maximum inside each ray's outer edge.
-//! 4. Inward pass: rays at evenly spaced parametric angles of the current ellipse, walking
-//!    inward from outside its boundary to the first rising crossing of the mean level.
-//!    Steps 3–4 run twice, the second time around the first pass's ellipse.
+//! 4. Inward passes: rays at evenly spaced parametric angles of the current ellipse,
+//!    walking inward from outside its boundary to the first rising crossing of the mean
+//!    level; twice, the second time around the first pass's ellipse.
 
 use super::filter::View;
 use super::fit::{self, fit_ellipse, Conic};
@@ -165,14 +165,15 @@ pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set
         guess.b *= scale;
     }
 
-    // 3–4. Levels around the current ellipse, then an inward pass to the crossings of
-    // their mean: from 1.6× the guess, then from 2.5 px outside the first fit.
+    // 3. Levels around the guess.
+    let (bg, fg) = levels(img, &guess, set.min_contrast, s)?;
+    let mid = 0.5 * (fg + bg);
+
+    // 4. Inward passes to the crossings of the mean level: from 1.6× the guess, then from
+    //    2.5 px outside the first fit.
     let mut fit: Option<Fit> = None;
-    let (mut bg, mut fg) = (0.0, 0.0);
     for pass in 0..2 {
         let g = fit.as_ref().map_or(guess, |f| f.ellipse);
-        (bg, fg) = levels(img, &g, set.min_contrast, s)?;
-        let mid = 0.5 * (fg + bg);
         let c = g.center;
         s.points.clear();
         for &d in &s.dirs {
@@ -240,8 +241,7 @@ fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Opt
     (fg - bg >= min_contrast).then_some((bg, fg))
 }
 
-/// Outward pass from `c` (value `f0` there): on every third ray (every other one with
-/// `annulus`) the first crossing below
+/// Outward pass from `c` (value `f0` there): on every third ray the first crossing below
 /// `mid0` within `m` steps of `step` px; with `annulus`, a rise above the level before 2.2×
 /// that crossing and a fall again within 1× of it is taken as a marker's white annulus
 /// (0.75–1 R seen from its ring's inner edge at 0.45 R: 1.67–2.22×), and that fall as the
@@ -250,8 +250,8 @@ fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Opt
 #[allow(clippy::too_many_arguments)]
 fn outward_fit(img: View<'_>, c: Point2<f64>, f0: f32, mid0: f32, step: f64, m: usize, annulus: bool, s: &mut Scratch) -> Option<Fit> {
     s.points.clear();
-    let rays = s.dirs.len().div_ceil(if annulus { 2 } else { 3 });
-    for &(dx, dy) in s.dirs.iter().step_by(if annulus { 2 } else { 3 }) {
+    let rays = s.dirs.len().div_ceil(3);
+    for &(dx, dy) in s.dirs.iter().step_by(3) {
         let (mut p, mut t1, mut rise) = (f0, None::<f64>, None::<f64>);
         // Crossing of mid0 between samples j − 1 (value p) and j (value q).
         let cross = |j: usize, p: f32, q: f32| step * ((j - 1) as f64 + ((p - mid0) / (p - q)) as f64);
