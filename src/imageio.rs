@@ -25,11 +25,20 @@ pub enum ImageIoError {
 /// Reads an image file as grey levels on the file's own scale (see the module doc).
 pub fn load_gray(path: &Path) -> Result<GrayImage, ImageIoError> {
     let img = image::ImageReader::open(path)
-        .map_err(|e| ImageIoError::Read { path: path.to_owned(), source: image::ImageError::IoError(e) })?
+        .map_err(|e| ImageIoError::Read {
+            path: path.to_owned(),
+            source: image::ImageError::IoError(e),
+        })?
         .with_guessed_format()
-        .map_err(|e| ImageIoError::Read { path: path.to_owned(), source: image::ImageError::IoError(e) })?
+        .map_err(|e| ImageIoError::Read {
+            path: path.to_owned(),
+            source: image::ImageError::IoError(e),
+        })?
         .decode()
-        .map_err(|source| ImageIoError::Read { path: path.to_owned(), source })?;
+        .map_err(|source| ImageIoError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
     Ok(to_gray(&img))
 }
 
@@ -42,13 +51,29 @@ pub fn to_gray(img: &DynamicImage) -> GrayImage {
         DynamicImage::ImageLuma16(i) => i.as_raw().iter().map(|&v| v as f32).collect(),
         DynamicImage::ImageLumaA8(i) => i.pixels().map(|p| p.0[0] as f32).collect(),
         DynamicImage::ImageLumaA16(i) => i.pixels().map(|p| p.0[0] as f32).collect(),
-        DynamicImage::ImageRgb8(i) => i.pixels().map(|p| luma(p.0[0] as f32, p.0[1] as f32, p.0[2] as f32)).collect(),
-        DynamicImage::ImageRgba8(i) => i.pixels().map(|p| luma(p.0[0] as f32, p.0[1] as f32, p.0[2] as f32)).collect(),
-        DynamicImage::ImageRgb16(i) => i.pixels().map(|p| luma(p.0[0] as f32, p.0[1] as f32, p.0[2] as f32)).collect(),
-        DynamicImage::ImageRgba16(i) => i.pixels().map(|p| luma(p.0[0] as f32, p.0[1] as f32, p.0[2] as f32)).collect(),
+        DynamicImage::ImageRgb8(i) => i
+            .pixels()
+            .map(|p| luma(p.0[0] as f32, p.0[1] as f32, p.0[2] as f32))
+            .collect(),
+        DynamicImage::ImageRgba8(i) => i
+            .pixels()
+            .map(|p| luma(p.0[0] as f32, p.0[1] as f32, p.0[2] as f32))
+            .collect(),
+        DynamicImage::ImageRgb16(i) => i
+            .pixels()
+            .map(|p| luma(p.0[0] as f32, p.0[1] as f32, p.0[2] as f32))
+            .collect(),
+        DynamicImage::ImageRgba16(i) => i
+            .pixels()
+            .map(|p| luma(p.0[0] as f32, p.0[1] as f32, p.0[2] as f32))
+            .collect(),
         DynamicImage::ImageRgb32F(i) => i.pixels().map(|p| luma(p.0[0], p.0[1], p.0[2])).collect(),
         DynamicImage::ImageRgba32F(i) => i.pixels().map(|p| luma(p.0[0], p.0[1], p.0[2])).collect(),
-        other => other.to_rgb32f().pixels().map(|p| luma(p.0[0], p.0[1], p.0[2])).collect(),
+        other => other
+            .to_rgb32f()
+            .pixels()
+            .map(|p| luma(p.0[0], p.0[1], p.0[2]))
+            .collect(),
     };
     GrayImage::from_raw(w, h, data).expect("one value per pixel")
 }
@@ -67,11 +92,28 @@ mod tests {
         let g8 = ImageBuffer::from_fn(5, 3, |x, y| Luma([(x * 40 + y) as u8]));
         let g16 = ImageBuffer::from_fn(5, 3, |x, y| Luma([(x * 10_000 + y) as u16]));
         let rgb = ImageBuffer::from_fn(5, 3, |x, _| Rgb([(x * 50) as u8, 100u8, 0u8]));
-        let cases: Vec<(&str, DynamicImage, Box<dyn Fn(u32, u32) -> f32>)> = vec![
-            ("g8.png", DynamicImage::ImageLuma8(g8), Box::new(|x, y| (x * 40 + y) as f32)),
-            ("g16.png", DynamicImage::ImageLuma16(g16.clone()), Box::new(|x, y| (x * 10_000 + y) as f32)),
-            ("g16.tiff", DynamicImage::ImageLuma16(g16), Box::new(|x, y| (x * 10_000 + y) as f32)),
-            ("rgb.png", DynamicImage::ImageRgb8(rgb), Box::new(|x, _| 0.2126 * (x * 50) as f32 + 0.7152 * 100.0)),
+        type Expected = Box<dyn Fn(u32, u32) -> f32>;
+        let cases: Vec<(&str, DynamicImage, Expected)> = vec![
+            (
+                "g8.png",
+                DynamicImage::ImageLuma8(g8),
+                Box::new(|x, y| (x * 40 + y) as f32),
+            ),
+            (
+                "g16.png",
+                DynamicImage::ImageLuma16(g16.clone()),
+                Box::new(|x, y| (x * 10_000 + y) as f32),
+            ),
+            (
+                "g16.tiff",
+                DynamicImage::ImageLuma16(g16),
+                Box::new(|x, y| (x * 10_000 + y) as f32),
+            ),
+            (
+                "rgb.png",
+                DynamicImage::ImageRgb8(rgb),
+                Box::new(|x, _| 0.2126 * (x * 50) as f32 + 0.7152 * 100.0),
+            ),
         ];
         for (name, img, want) in cases {
             let path = temp_path(name);
@@ -80,7 +122,12 @@ mod tests {
             std::fs::remove_file(&path).ok();
             assert_eq!(got.dimensions(), (5, 3));
             for (x, y, p) in got.enumerate_pixels() {
-                assert!((p.0[0] - want(x, y)).abs() < 1e-3, "{name} ({x},{y}): {} vs {}", p.0[0], want(x, y));
+                assert!(
+                    (p.0[0] - want(x, y)).abs() < 1e-3,
+                    "{name} ({x},{y}): {} vs {}",
+                    p.0[0],
+                    want(x, y)
+                );
             }
         }
     }

@@ -41,10 +41,22 @@ fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
     use hexcal::detect::{detect, synth, DetectParams, GrayImage};
     let inputs: Vec<(String, GrayImage)> = if images.is_empty() {
         vec![
-            ("synthetic board, r=10 px, tilt 40°".into(), synth::lattice_image(1920, 1200, 10.0, 40.0, 1)),
-            ("synthetic board, r=4 px, frontal".into(), synth::lattice_image(1920, 1200, 4.0, 0.0, 2)),
-            ("synthetic board, r=24 px, tilt 40°".into(), synth::lattice_image(4096, 3000, 24.0, 40.0, 3)),
-            ("synthetic board, r=10 px, frontal".into(), synth::lattice_image(4096, 3000, 10.0, 0.0, 4)),
+            (
+                "synthetic board, r=10 px, tilt 40°".into(),
+                synth::lattice_image(1920, 1200, 10.0, 40.0, 1),
+            ),
+            (
+                "synthetic board, r=4 px, frontal".into(),
+                synth::lattice_image(1920, 1200, 4.0, 0.0, 2),
+            ),
+            (
+                "synthetic board, r=24 px, tilt 40°".into(),
+                synth::lattice_image(4096, 3000, 24.0, 40.0, 3),
+            ),
+            (
+                "synthetic board, r=10 px, frontal".into(),
+                synth::lattice_image(4096, 3000, 10.0, 0.0, 4),
+            ),
         ]
     } else {
         images
@@ -54,7 +66,10 @@ fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
     };
     let params = DetectParams::default();
     println!("threads: {}", rayon::current_num_threads());
-    println!("{:>11} {:>6} {:>8} {:>10} {:>10} {:>8}  image", "size", "MP", "circles", "median ms", "min ms", "MP/s");
+    println!(
+        "{:>11} {:>6} {:>8} {:>10} {:>10} {:>8}  image",
+        "size", "MP", "circles", "median ms", "min ms", "MP/s"
+    );
     for (name, img) in &inputs {
         let n = detect(img, &params).len();
         let mut ms: Vec<f64> = (0..runs.max(1))
@@ -87,7 +102,9 @@ fn main() -> anyhow::Result<()> {
             let b = hexcal::board::Board::hex600();
             println!("{}: {} circles per side", b.name, b.lattice().len());
         }
-        Command::Bench { what: Bench::Detect { images, runs } } => bench_detect(&images, runs)?,
+        Command::Bench {
+            what: Bench::Detect { images, runs },
+        } => bench_detect(&images, runs)?,
     }
     Ok(())
 }

@@ -36,7 +36,10 @@ impl Constants {
     pub(crate) fn new(h_ref: f64) -> Constants {
         let ln2 = std::f64::consts::LN_2;
         let e2 = std::f64::consts::E * std::f64::consts::E;
-        Constants { alpha: (1.0 / (4.0 * ln2)) as f32, beta: (e2 * ln2 / (2.0 * h_ref * h_ref)) as f32 }
+        Constants {
+            alpha: (1.0 / (4.0 * ln2)) as f32,
+            beta: (e2 * ln2 / (2.0 * h_ref * h_ref)) as f32,
+        }
     }
 
     /// Circleness of a scale-normalised Hessian (Eqs. 3–4), scalar reference form.
@@ -86,8 +89,11 @@ fn exp_neg(x: f32) -> f32 {
     let y = t + MAGIC;
     let n = y - MAGIC;
     let g = (n - t) * std::f32::consts::LN_2; // |g| ≤ ½ ln 2
-    // e^g by its Taylor series to degree 6 (|g| ≤ 0.35: remainder < 1.2e-7).
-    let p = 1.0 + g * (1.0 + g * (0.5 + g * (1.0 / 6.0 + g * (1.0 / 24.0 + g * (1.0 / 120.0 + g * (1.0 / 720.0))))));
+                                              // e^g by its Taylor series to degree 6 (|g| ≤ 0.35: remainder < 1.2e-7).
+    let p = 1.0
+        + g * (1.0
+            + g * (0.5
+                + g * (1.0 / 6.0 + g * (1.0 / 24.0 + g * (1.0 / 120.0 + g * (1.0 / 720.0))))));
     // 2^(−n) from the integer in y's low mantissa bits.
     let n_int = y.to_bits().wrapping_sub(MAGIC.to_bits());
     p * f32::from_bits((127u32.wrapping_sub(n_int)) << 23)
@@ -132,7 +138,13 @@ struct Scratch {
 
 /// Circleness peaks of one octave: `src` is the level (sampled every `step` full-resolution
 /// px), `scales` its scales; peaks ≥ `threshold`.
-pub(crate) fn octave_peaks(src: View<'_>, step: f64, scales: &[Scale], k: Constants, threshold: f32) -> Vec<Peak> {
+pub(crate) fn octave_peaks(
+    src: View<'_>,
+    step: f64,
+    scales: &[Scale],
+    k: Constants,
+    threshold: f32,
+) -> Vec<Peak> {
     let (w, h) = (src.width, src.height);
     if w < 3 || h < 3 || scales.is_empty() {
         return Vec::new();
@@ -215,7 +227,11 @@ fn band_peaks_generic(
             let padded = &mut s.padded[..w + 2 * r];
             vertical_row(src, y, &sc.kernel, &mut padded[r..r + w]);
             pad_edges(padded, r, w);
-            horizontal_row(padded, &sc.kernel, &mut s.smooth[(y - ly0) * w..(y - ly0 + 1) * w]);
+            horizontal_row(
+                padded,
+                &sc.kernel,
+                &mut s.smooth[(y - ly0) * w..(y - ly0 + 1) * w],
+            );
         }
         let s2 = (sc.sigma * sc.sigma) as f32;
         for y in cy0.max(1)..cy1.min(h - 1) {
@@ -241,8 +257,18 @@ fn band_peaks_generic(
             if c < threshold {
                 continue;
             }
-            let before = [at(x - 1, y - 1), at(x, y - 1), at(x + 1, y - 1), at(x - 1, y)];
-            let after = [at(x + 1, y), at(x - 1, y + 1), at(x, y + 1), at(x + 1, y + 1)];
+            let before = [
+                at(x - 1, y - 1),
+                at(x, y - 1),
+                at(x + 1, y - 1),
+                at(x - 1, y),
+            ];
+            let after = [
+                at(x + 1, y),
+                at(x - 1, y + 1),
+                at(x, y + 1),
+                at(x + 1, y + 1),
+            ];
             if before.iter().any(|&v| v >= c) || after.iter().any(|&v| v > c) {
                 continue;
             }
@@ -254,7 +280,10 @@ fn band_peaks_generic(
                     0.0
                 }
             };
-            let (dx, dy) = (sub(at(x - 1, y), at(x + 1, y)), sub(at(x, y - 1), at(x, y + 1)));
+            let (dx, dy) = (
+                sub(at(x - 1, y), at(x + 1, y)),
+                sub(at(x, y - 1), at(x, y + 1)),
+            );
             peaks.push(Peak {
                 x: (x as f64 + dx) * step,
                 y: (y as f64 + dy) * step,
@@ -281,7 +310,9 @@ pub(crate) fn reference_contrast(img: View<'_>) -> f64 {
     let i5 = m * 5 / 100;
     let i95 = (m * 95 / 100).min(m - 1);
     let p95 = *v.select_nth_unstable_by(i95, f32::total_cmp).1;
-    let p5 = *v[..i95.max(1)].select_nth_unstable_by(i5.min(i95.max(1) - 1), f32::total_cmp).1;
+    let p5 = *v[..i95.max(1)]
+        .select_nth_unstable_by(i5.min(i95.max(1) - 1), f32::total_cmp)
+        .1;
     (0.3 * (p95 - p5) as f64).max(10.0 * noise_sigma(img, stride))
 }
 
@@ -313,7 +344,10 @@ mod tests {
         for i in 0..2000 {
             let x = i as f32 * 0.01;
             let (got, want) = (exp_neg(x) as f64, (-(x as f64)).exp());
-            assert!((got - want).abs() <= 2e-6 * want + 1e-30, "x {x}: {got} vs {want}");
+            assert!(
+                (got - want).abs() <= 2e-6 * want + 1e-30,
+                "x {x}: {got} vs {want}"
+            );
         }
         assert!(exp_neg(1e6) < 1e-30);
     }
@@ -323,20 +357,33 @@ mod tests {
     fn row_kernel_matches_scalar_formula() {
         let k = Constants::new(40.0);
         let n = 64;
-        let f = |x: f32, y: f32| 100.0 * (-(x * x * 0.02 + 0.01 * x * y + y * y * 0.05)).exp() + 3.0 * x;
-        let rows: Vec<Vec<f32>> = (0..3).map(|y| (0..n + 2).map(|x| f(x as f32 - 30.0, y as f32 - 1.2)).collect()).collect();
+        let f = |x: f32, y: f32| {
+            100.0 * (-(x * x * 0.02 + 0.01 * x * y + y * y * 0.05)).exp() + 3.0 * x
+        };
+        let rows: Vec<Vec<f32>> = (0..3)
+            .map(|y| {
+                (0..n + 2)
+                    .map(|x| f(x as f32 - 30.0, y as f32 - 1.2))
+                    .collect()
+            })
+            .collect();
         let mut out = vec![0.0; n];
         let s2 = 4.0f32;
         circleness_row(&rows[0], &rows[1], &rows[2], s2, k, &mut out);
         for (i, &got) in out.iter().enumerate() {
             let (x, y) = (i + 1, 1);
-            let v = |dx: isize, dy: isize| rows[(y as isize + dy) as usize][(x as isize + dx) as usize] as f64;
+            let v = |dx: isize, dy: isize| {
+                rows[(y as isize + dy) as usize][(x as isize + dx) as usize] as f64
+            };
             let s2 = s2 as f64;
             let lxx = s2 * (v(-1, 0) + v(1, 0) - 2.0 * v(0, 0));
             let lyy = s2 * (v(0, -1) + v(0, 1) - 2.0 * v(0, 0));
             let lxy = 0.25 * s2 * (v(1, 1) - v(-1, 1) - v(1, -1) + v(-1, -1));
             let want = k.circleness(lxx, lxy, lyy);
-            assert!((got as f64 - want).abs() < 1e-5, "column {x}: {got} vs {want}");
+            assert!(
+                (got as f64 - want).abs() < 1e-5,
+                "column {x}: {got} vs {want}"
+            );
         }
         assert!(out.iter().any(|&c| c > 0.01), "the blob must register");
     }
@@ -360,7 +407,11 @@ mod tests {
         // White noise of σ = 2 on a flat image: h_ref = 10 σ within the MAD's sampling error.
         let mut img = crate::detect::GrayImage::new(400, 300);
         crate::detect::synth::add_noise(&mut img, 2.0, 3);
-        let v = View { data: img.as_raw(), width: 400, height: 300 };
+        let v = View {
+            data: img.as_raw(),
+            width: 400,
+            height: 300,
+        };
         let h = reference_contrast(v);
         assert!((h - 20.0).abs() < 0.6, "h_ref {h}");
     }
@@ -369,7 +420,11 @@ mod tests {
     fn reference_contrast_of_a_two_level_image() {
         let mut d = vec![10.0f32; 10_000];
         d[..3000].fill(110.0);
-        let v = View { data: &d, width: 100, height: 100 };
+        let v = View {
+            data: &d,
+            width: 100,
+            height: 100,
+        };
         assert!((reference_contrast(v) - 30.0).abs() < 1e-9);
     }
 }

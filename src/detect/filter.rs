@@ -50,7 +50,11 @@ pub(crate) struct Plane {
 impl Plane {
     /// Borrow as a [`View`].
     pub(crate) fn view(&self) -> View<'_> {
-        View { data: &self.data, width: self.width, height: self.height }
+        View {
+            data: &self.data,
+            width: self.width,
+            height: self.height,
+        }
     }
 }
 
@@ -68,9 +72,13 @@ impl Kernel {
             return Kernel { half: vec![1.0] };
         }
         let r = (truncate * sigma).ceil().max(1.0) as usize;
-        let w: Vec<f64> = (0..=r).map(|j| (-((j * j) as f64) / (2.0 * sigma * sigma)).exp()).collect();
+        let w: Vec<f64> = (0..=r)
+            .map(|j| (-((j * j) as f64) / (2.0 * sigma * sigma)).exp())
+            .collect();
         let sum = w[0] + 2.0 * w[1..].iter().sum::<f64>();
-        Kernel { half: w.iter().map(|v| (v / sum) as f32).collect() }
+        Kernel {
+            half: w.iter().map(|v| (v / sum) as f32).collect(),
+        }
     }
 
     /// Half-width R (taps −R..=R).
@@ -142,7 +150,11 @@ pub(crate) fn blur(src: View<'_>, sigma: f64, truncate: f64) -> Plane {
             }
         },
     );
-    Plane { data, width: w, height: h }
+    Plane {
+        data,
+        width: w,
+        height: h,
+    }
 }
 
 /// Gaussian blur by `sigma` followed by taking every other row and column (pixel (i, j) of
@@ -169,7 +181,11 @@ pub(crate) fn blur_decimate(src: View<'_>, sigma: f64) -> Plane {
             }
         },
     );
-    Plane { data, width: w2, height: h2 }
+    Plane {
+        data,
+        width: w2,
+        height: h2,
+    }
 }
 
 #[cfg(test)]
@@ -180,11 +196,20 @@ mod tests {
     fn kernel_is_normalised_with_the_right_variance() {
         for sigma in [0.8, 1.7, 2.83, 6.0] {
             let k = Kernel::gaussian(sigma, 4.0);
-            let sum: f64 = k.half[0] as f64 + 2.0 * k.half[1..].iter().map(|&v| v as f64).sum::<f64>();
-            let var: f64 = 2.0 * k.half.iter().enumerate().map(|(j, &v)| (j * j) as f64 * v as f64).sum::<f64>();
+            let sum: f64 =
+                k.half[0] as f64 + 2.0 * k.half[1..].iter().map(|&v| v as f64).sum::<f64>();
+            let var: f64 = 2.0
+                * k.half
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &v)| (j * j) as f64 * v as f64)
+                    .sum::<f64>();
             assert!((sum - 1.0).abs() < 1e-6);
             // A sampled Gaussian of σ ≥ 0.8 has variance σ² to < 1e-4 relative.
-            assert!((var - sigma * sigma).abs() < 1e-3 * sigma * sigma, "σ {sigma}: var {var}");
+            assert!(
+                (var - sigma * sigma).abs() < 1e-3 * sigma * sigma,
+                "σ {sigma}: var {var}"
+            );
         }
     }
 
@@ -192,12 +217,18 @@ mod tests {
     fn blur_matches_direct_convolution_and_keeps_constants() {
         let (w, h) = (37, 23);
         let data: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 101) as f32).collect();
-        let src = View { data: &data, width: w, height: h };
+        let src = View {
+            data: &data,
+            width: w,
+            height: h,
+        };
         let sigma = 1.6;
         let out = blur(src, sigma, 3.0);
         let k = Kernel::gaussian(sigma, 3.0);
         let r = k.radius() as isize;
-        let at = |x: isize, y: isize| data[(y.clamp(0, h as isize - 1) as usize) * w + x.clamp(0, w as isize - 1) as usize];
+        let at = |x: isize, y: isize| {
+            data[(y.clamp(0, h as isize - 1) as usize) * w + x.clamp(0, w as isize - 1) as usize]
+        };
         for (x, y) in [(0, 0), (5, 7), (36, 22), (18, 0), (20, 11)] {
             let mut direct = 0.0f64;
             for dy in -r..=r {
@@ -210,7 +241,14 @@ mod tests {
             assert!((got - direct).abs() < 1e-3, "({x},{y}): {got} vs {direct}");
         }
         let flat = vec![3.5f32; w * h];
-        let d = blur_decimate(View { data: &flat, width: w, height: h }, 2.0);
+        let d = blur_decimate(
+            View {
+                data: &flat,
+                width: w,
+                height: h,
+            },
+            2.0,
+        );
         assert_eq!((d.width, d.height), (19, 12));
         assert!(d.data.iter().all(|&v| (v - 3.5).abs() < 1e-5));
     }
@@ -218,8 +256,14 @@ mod tests {
     #[test]
     fn bilinear_interpolates_a_plane_exactly() {
         let (w, h) = (6, 5);
-        let data: Vec<f32> = (0..w * h).map(|i| (i % w) as f32 * 2.0 + (i / w) as f32 * 3.0).collect();
-        let v = View { data: &data, width: w, height: h };
+        let data: Vec<f32> = (0..w * h)
+            .map(|i| (i % w) as f32 * 2.0 + (i / w) as f32 * 3.0)
+            .collect();
+        let v = View {
+            data: &data,
+            width: w,
+            height: h,
+        };
         for (x, y) in [(0.0, 0.0), (2.25, 3.5), (5.0, 4.0), (4.9, 0.1)] {
             let got = v.bilinear(x, y).unwrap() as f64;
             assert!((got - (2.0 * x + 3.0 * y)).abs() < 1e-5);

@@ -28,7 +28,7 @@ impl Conic {
     }
 
     /// The ellipse this conic describes, if it is a real ellipse.
-    pub(crate) fn to_ellipse(&self) -> Option<Ellipse> {
+    pub(crate) fn to_ellipse(self) -> Option<Ellipse> {
         let [a, b, c, d, e, f] = self.c;
         let det = 4.0 * a * c - b * b;
         if det.abs() < 1e-300 {
@@ -42,19 +42,29 @@ impl Conic {
         let (tr, df) = (a + c, ((a - c) * (a - c) + b * b).sqrt());
         let (q1, q2) = (0.5 * (tr - df), 0.5 * (tr + df));
         let (s1, s2) = (-f0 / q1, -f0 / q2);
-        if !(s1 > 0.0 && s2 > 0.0) || !s1.is_finite() || !s2.is_finite() {
+        if !(s1 > 0.0 && s2 > 0.0 && s1.is_finite() && s2.is_finite()) {
             return None;
         }
         // The major axis is the eigenvector of the smaller eigenvalue (larger −f0/q).
         let (major, minor, q_major) = if s1 >= s2 { (s1, s2, q1) } else { (s2, s1, q2) };
         // Eigenvector of Q for q_major: (B/2, q − A) or (q − C, B/2).
-        let (vx, vy) = if (q_major - a).abs() + (b * 0.5).abs() > (q_major - c).abs() + (b * 0.5).abs() {
-            (0.5 * b, q_major - a)
+        let (vx, vy) =
+            if (q_major - a).abs() + (b * 0.5).abs() > (q_major - c).abs() + (b * 0.5).abs() {
+                (0.5 * b, q_major - a)
+            } else {
+                (q_major - c, 0.5 * b)
+            };
+        let angle = if vx == 0.0 && vy == 0.0 {
+            0.0
         } else {
-            (q_major - c, 0.5 * b)
+            vy.atan2(vx)
         };
-        let angle = if vx == 0.0 && vy == 0.0 { 0.0 } else { vy.atan2(vx) };
-        Some(Ellipse { center: Point2::new(x0, y0), a: major.sqrt(), b: minor.sqrt(), angle })
+        Some(Ellipse {
+            center: Point2::new(x0, y0),
+            a: major.sqrt(),
+            b: minor.sqrt(),
+            angle,
+        })
     }
 
     /// The conic of an ellipse.
@@ -86,13 +96,22 @@ pub(crate) fn fit_ellipse(points: &[Point2<f64>]) -> Option<Conic> {
         return None;
     }
     let mean = points.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / n as f64;
-    let spread = (points.iter().map(|p| (p.coords - mean).norm_squared()).sum::<f64>() / n as f64).sqrt();
+    let spread = (points
+        .iter()
+        .map(|p| (p.coords - mean).norm_squared())
+        .sum::<f64>()
+        / n as f64)
+        .sqrt();
     if spread <= 0.0 {
         return None;
     }
     let k = 1.0 / spread;
     // Scatter blocks: D1 = [x², xy, y²], D2 = [x, y, 1].
-    let (mut s1, mut s2, mut s3) = (Matrix3::<f64>::zeros(), Matrix3::<f64>::zeros(), Matrix3::<f64>::zeros());
+    let (mut s1, mut s2, mut s3) = (
+        Matrix3::<f64>::zeros(),
+        Matrix3::<f64>::zeros(),
+        Matrix3::<f64>::zeros(),
+    );
     for p in points {
         let (x, y) = ((p.x - mean.x) * k, (p.y - mean.y) * k);
         let d1 = Vector3::new(x * x, x * y, y * y);
@@ -111,7 +130,9 @@ pub(crate) fn fit_ellipse(points: &[Point2<f64>]) -> Option<Conic> {
         if l.im.abs() > 1e-9 * (1.0 + l.re.abs()) {
             continue;
         }
-        let Some(v) = null_vector(&(mp - Matrix3::identity() * l.re)) else { continue };
+        let Some(v) = null_vector(&(mp - Matrix3::identity() * l.re)) else {
+            continue;
+        };
         let cond = 4.0 * v[0] * v[2] - v[1] * v[1];
         if cond > 0.0 && best.is_none_or(|(b, _)| cond / v.norm_squared() > b) {
             best = Some((cond / v.norm_squared(), v));
@@ -138,9 +159,15 @@ pub(crate) fn fit_ellipse(points: &[Point2<f64>]) -> Option<Conic> {
 
 /// A unit vector v with M v ≈ 0 for a rank-2 3×3 M: the largest cross product of two rows.
 fn null_vector(m: &Matrix3<f64>) -> Option<Vector3<f64>> {
-    let r = [m.row(0).transpose(), m.row(1).transpose(), m.row(2).transpose()];
+    let r = [
+        m.row(0).transpose(),
+        m.row(1).transpose(),
+        m.row(2).transpose(),
+    ];
     let cands = [r[0].cross(&r[1]), r[0].cross(&r[2]), r[1].cross(&r[2])];
-    let v = cands.into_iter().max_by(|a, b| a.norm_squared().total_cmp(&b.norm_squared()))?;
+    let v = cands
+        .into_iter()
+        .max_by(|a, b| a.norm_squared().total_cmp(&b.norm_squared()))?;
     let n = v.norm();
     (n > 0.0).then(|| v / n)
 }
@@ -163,9 +190,24 @@ mod tests {
     #[test]
     fn fits_exact_points_exactly() {
         for e in [
-            Ellipse { center: Point2::new(812.3, 91.7), a: 12.0, b: 3.1, angle: 0.7 },
-            Ellipse { center: Point2::new(3.3, 2000.1), a: 40.0, b: 39.0, angle: -2.0 },
-            Ellipse { center: Point2::new(0.0, 0.0), a: 4.0, b: 4.0, angle: 0.0 },
+            Ellipse {
+                center: Point2::new(812.3, 91.7),
+                a: 12.0,
+                b: 3.1,
+                angle: 0.7,
+            },
+            Ellipse {
+                center: Point2::new(3.3, 2000.1),
+                a: 40.0,
+                b: 39.0,
+                angle: -2.0,
+            },
+            Ellipse {
+                center: Point2::new(0.0, 0.0),
+                a: 4.0,
+                b: 4.0,
+                angle: 0.0,
+            },
         ] {
             let conic = fit_ellipse(&points_on(&e, 30)).expect("fit");
             let got = conic.to_ellipse().expect("ellipse");
@@ -178,13 +220,20 @@ mod tests {
             // Conversion round trip and distances of points on the curve.
             let back = Conic::from_ellipse(&got).to_ellipse().unwrap();
             assert!((back.center - got.center).norm() < 1e-9 && (back.a - got.a).abs() < 1e-9);
-            assert!(points_on(&e, 7).iter().all(|&p| conic.sampson_distance(p) < 1e-7));
+            assert!(points_on(&e, 7)
+                .iter()
+                .all(|&p| conic.sampson_distance(p) < 1e-7));
         }
     }
 
     #[test]
     fn sampson_distance_is_the_radial_gap_on_a_circle() {
-        let e = Ellipse { center: Point2::new(5.0, -2.0), a: 10.0, b: 10.0, angle: 0.0 };
+        let e = Ellipse {
+            center: Point2::new(5.0, -2.0),
+            a: 10.0,
+            b: 10.0,
+            angle: 0.0,
+        };
         let c = Conic::from_ellipse(&e);
         // For a circle Q = (r² − R²)/R², |∇Q| = 2r/R²: Sampson = (r² − R²)/(2r) ≈ r − R.
         let d = c.sampson_distance(Point2::new(15.1, -2.0));

@@ -119,14 +119,18 @@ pub fn detect(image: &GrayImage, params: &DetectParams) -> Vec<Circle> {
     if w < 8 || h < 8 {
         return Vec::new();
     }
-    let full = View { data: image.as_raw(), width: w, height: h };
-    let h_ref = params.contrast_ref.map_or_else(|| circleness::reference_contrast(full), |c| c as f64);
+    let full = View {
+        data: image.as_raw(),
+        width: w,
+        height: h,
+    };
+    let h_ref = params
+        .contrast_ref
+        .map_or_else(|| circleness::reference_contrast(full), |c| c as f64);
     if h_ref.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return Vec::new();
     }
-    let t0 = std::time::Instant::now();
     let peaks = suppress(circleness_peaks(full, params, Constants::new(h_ref)));
-    eprintln!("TMP peaks {} in {:?}", peaks.len(), t0.elapsed());
     let settings = refine::Settings {
         rays: params.rays.max(12),
         min_contrast: (params.min_contrast as f64 * h_ref) as f32,
@@ -141,9 +145,15 @@ pub fn detect(image: &GrayImage, params: &DetectParams) -> Vec<Circle> {
 fn circleness_peaks(full: View<'_>, params: &DetectParams, k: Constants) -> Vec<Peak> {
     let sigma_min = (params.min_radius / SQRT_2).max(1.0);
     let sigma_max = (params.max_radius / SQRT_2).max(sigma_min);
-    let n_scales = (4.0 * (sigma_max / sigma_min).log2() - 1e-9).ceil().max(0.0) as usize + 1;
-    let octave_of = |sigma: f64| ((sigma / MIN_LEVEL_SIGMA).log2() + 1e-9).floor().max(0.0) as usize;
-    let sigmas: Vec<f64> = (0..n_scales).map(|i| sigma_min * 2f64.powf(i as f64 / 4.0)).collect();
+    let n_scales = (4.0 * (sigma_max / sigma_min).log2() - 1e-9)
+        .ceil()
+        .max(0.0) as usize
+        + 1;
+    let octave_of =
+        |sigma: f64| ((sigma / MIN_LEVEL_SIGMA).log2() + 1e-9).floor().max(0.0) as usize;
+    let sigmas: Vec<f64> = (0..n_scales)
+        .map(|i| sigma_min * 2f64.powf(i as f64 / 4.0))
+        .collect();
     let n_octaves = octave_of(sigmas[n_scales - 1]) + 1;
     let mut peaks = Vec::new();
     let mut level: Option<Plane> = None; // None: the input itself
@@ -155,11 +165,20 @@ fn circleness_peaks(full: View<'_>, params: &DetectParams, k: Constants) -> Vec<
             .filter(|&&s| octave_of(s) == o)
             .map(|&s| {
                 let sigma = s / step;
-                Scale { sigma, kernel: Kernel::gaussian((sigma * sigma - src_sigma * src_sigma).sqrt(), 3.0) }
+                Scale {
+                    sigma,
+                    kernel: Kernel::gaussian((sigma * sigma - src_sigma * src_sigma).sqrt(), 3.0),
+                }
             })
             .collect();
         let view = level.as_ref().map_or(full, Plane::view);
-        peaks.extend(circleness::octave_peaks(view, step, &scales, k, params.min_circleness));
+        peaks.extend(circleness::octave_peaks(
+            view,
+            step,
+            &scales,
+            k,
+            params.min_circleness,
+        ));
         if o + 1 < n_octaves {
             let blur = (4.0 * LEVEL_SIGMA * LEVEL_SIGMA - src_sigma * src_sigma).sqrt();
             let next = blur_decimate(view, blur);
@@ -181,7 +200,12 @@ impl Buckets {
     fn new(cell: f64, max_x: f64, max_y: f64) -> Buckets {
         let cols = (max_x / cell).floor() as usize + 2;
         let rows = (max_y / cell).floor() as usize + 2;
-        Buckets { cell, cols, rows, items: vec![Vec::new(); cols * rows] }
+        Buckets {
+            cell,
+            cols,
+            rows,
+            items: vec![Vec::new(); cols * rows],
+        }
     }
 
     fn index(&self, p: Point2<f64>) -> (usize, usize) {
@@ -199,7 +223,9 @@ impl Buckets {
     fn in_box(&self, x0: f64, y0: f64, x1: f64, y1: f64) -> impl Iterator<Item = usize> + '_ {
         let (c0, r0) = self.index(Point2::new(x0, y0));
         let (c1, r1) = self.index(Point2::new(x1, y1));
-        (r0..=r1).flat_map(move |rr| (c0..=c1).flat_map(move |cc| self.items[rr * self.cols + cc].iter().copied()))
+        (r0..=r1).flat_map(move |rr| {
+            (c0..=c1).flat_map(move |cc| self.items[rr * self.cols + cc].iter().copied())
+        })
     }
 
     /// Items in the 3×3 cells around p (all within `cell` of p, and more).
@@ -207,7 +233,9 @@ impl Buckets {
         let (c, r) = self.index(p);
         let (c0, r0) = (c.saturating_sub(1), r.saturating_sub(1));
         let (c1, r1) = ((c + 1).min(self.cols - 1), (r + 1).min(self.rows - 1));
-        (r0..=r1).flat_map(move |rr| (c0..=c1).flat_map(move |cc| self.items[rr * self.cols + cc].iter().copied()))
+        (r0..=r1).flat_map(move |rr| {
+            (c0..=c1).flat_map(move |cc| self.items[rr * self.cols + cc].iter().copied())
+        })
     }
 }
 
@@ -222,7 +250,10 @@ fn suppress(mut peaks: Vec<Peak>) -> Vec<Peak> {
     let mut kept: Vec<Peak> = Vec::new();
     for p in peaks {
         let at = Point2::new(p.x, p.y);
-        if !grid.near(at).any(|i| (Point2::new(kept[i].x, kept[i].y) - at).norm() < SQRT_2 * kept[i].sigma) {
+        if !grid
+            .near(at)
+            .any(|i| (Point2::new(kept[i].x, kept[i].y) - at).norm() < SQRT_2 * kept[i].sigma)
+        {
             grid.insert(at, kept.len());
             kept.push(p);
         }
@@ -259,14 +290,26 @@ fn refine_all(full: View<'_>, peaks: &[Peak], settings: &refine::Settings) -> Ve
             .par_iter()
             .map_init(refine::Scratch::default, |s, &i| {
                 let p = &peaks[i];
-                refine::refine(full, Point2::new(p.x, p.y), SQRT_2 * p.sigma, p.score, settings, s)
+                refine::refine(
+                    full,
+                    Point2::new(p.x, p.y),
+                    SQRT_2 * p.sigma,
+                    p.score,
+                    settings,
+                    s,
+                )
             })
             .flatten()
             .collect();
         for c in &found {
             let conic = fit::Conic::from_ellipse(&c.ellipse);
             let e = &c.ellipse;
-            for i in grid.in_box(e.center.x - e.a, e.center.y - e.a, e.center.x + e.a, e.center.y + e.a) {
+            for i in grid.in_box(
+                e.center.x - e.a,
+                e.center.y - e.a,
+                e.center.x + e.a,
+                e.center.y + e.a,
+            ) {
                 if i >= next && conic.value(Point2::new(peaks[i].x, peaks[i].y)) < 0.0 {
                     skip[i] = true;
                 }
@@ -283,14 +326,22 @@ fn refine_all(full: View<'_>, peaks: &[Peak], settings: &refine::Settings) -> Ve
 fn remove_duplicates(mut circles: Vec<Circle>) -> Vec<Circle> {
     circles.sort_by(|a, b| b.score.total_cmp(&a.score));
     let cell = circles.iter().map(|c| c.ellipse.a).fold(1.0, f64::max);
-    let max_x = circles.iter().map(|c| c.ellipse.center.x).fold(0.0, f64::max);
-    let max_y = circles.iter().map(|c| c.ellipse.center.y).fold(0.0, f64::max);
+    let max_x = circles
+        .iter()
+        .map(|c| c.ellipse.center.x)
+        .fold(0.0, f64::max);
+    let max_y = circles
+        .iter()
+        .map(|c| c.ellipse.center.y)
+        .fold(0.0, f64::max);
     let mut grid = Buckets::new(cell, max_x, max_y);
     let inside = |e: &Ellipse, p: Point2<f64>| fit::Conic::from_ellipse(e).value(p) < 0.0;
     let mut kept: Vec<Circle> = Vec::new();
     for c in circles {
         let at = c.ellipse.center;
-        let dup = grid.near(at).any(|i| inside(&kept[i].ellipse, at) || inside(&c.ellipse, kept[i].ellipse.center));
+        let dup = grid
+            .near(at)
+            .any(|i| inside(&kept[i].ellipse, at) || inside(&c.ellipse, kept[i].ellipse.center));
         if !dup {
             grid.insert(at, kept.len());
             kept.push(c);

@@ -55,7 +55,10 @@ pub(crate) struct Scratch {
 impl Scratch {
     fn directions(&mut self, n: usize) {
         if self.dirs.len() != n {
-            self.dirs = (0..n).map(|i| (std::f64::consts::TAU * i as f64 / n as f64).sin_cos()).map(|(s, c)| (c, s)).collect();
+            self.dirs = (0..n)
+                .map(|i| (std::f64::consts::TAU * i as f64 / n as f64).sin_cos())
+                .map(|(s, c)| (c, s))
+                .collect();
         }
     }
 }
@@ -100,26 +103,48 @@ fn robust_fit(points: &[Point2<f64>], s: &mut Scratch) -> Option<Fit> {
     let mut conic: Conic = fit_ellipse(points)?;
     for _ in 0..2 {
         s.dist.clear();
-        s.dist.extend(points.iter().map(|&p| conic.sampson_distance(p)));
+        s.dist
+            .extend(points.iter().map(|&p| conic.sampson_distance(p)));
         s.sorted.clear();
         s.sorted.extend_from_slice(&s.dist);
         let m = s.sorted.len() / 2;
         let med = *s.sorted.select_nth_unstable_by(m, f64::total_cmp).1;
         let thr = (4.0 * 1.4826 * med).max(0.1);
         s.keep.clear();
-        s.keep.extend(points.iter().zip(s.dist.iter()).filter(|(_, &d)| d <= thr).map(|(&p, _)| p));
+        s.keep.extend(
+            points
+                .iter()
+                .zip(s.dist.iter())
+                .filter(|(_, &d)| d <= thr)
+                .map(|(&p, _)| p),
+        );
         if s.keep.len() == points.len() {
             break; // no outliers: the fit stands
         }
         conic = fit_ellipse(&s.keep)?;
     }
     let ellipse = conic.to_ellipse()?;
-    let ss: f64 = s.keep.iter().map(|&p| conic.sampson_distance(p).powi(2)).sum();
-    Some(Fit { ellipse, rms: (ss / s.keep.len() as f64).sqrt(), inliers: s.keep.len() })
+    let ss: f64 = s
+        .keep
+        .iter()
+        .map(|&p| conic.sampson_distance(p).powi(2))
+        .sum();
+    Some(Fit {
+        ellipse,
+        rms: (ss / s.keep.len() as f64).sqrt(),
+        inliers: s.keep.len(),
+    })
 }
 
 /// Refines a peak at `c0` with radius estimate `r_hat` into a circle, or rejects it.
-pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set: &Settings, s: &mut Scratch) -> Option<Circle> {
+pub(crate) fn refine(
+    img: View<'_>,
+    c0: Point2<f64>,
+    r_hat: f64,
+    score: f32,
+    set: &Settings,
+    s: &mut Scratch,
+) -> Option<Circle> {
     let n = set.rays;
     s.directions(n);
     let min_points = (n * 3 / 5).max(6);
@@ -202,7 +227,13 @@ pub(crate) fn refine(img: View<'_>, c0: Point2<f64>, r_hat: f64, score: f32, set
         && radius <= set.radius_range.1
         && fit::Conic::from_ellipse(&e).value(c0) < 0.0
         && fit.rms <= set.max_rms.0 + set.max_rms.1 * radius;
-    ok.then_some(Circle { ellipse: e, score: score as f64, background: bg, foreground: fg, edge_rms: fit.rms as f32 })
+    ok.then_some(Circle {
+        ellipse: e,
+        score: score as f64,
+        background: bg,
+        foreground: fg,
+        edge_rms: fit.rms as f32,
+    })
 }
 
 /// Background and foreground levels around the ellipse `g`: the background is the median
@@ -216,7 +247,10 @@ fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Opt
     s.values.clear();
     for &d in s.dirs.iter().step_by(3) {
         let o = ellipse_offset(g, d);
-        let lo = [1.3, 1.45, 1.6].iter().filter_map(|&k| img.bilinear(c.x + k * o.x, c.y + k * o.y)).fold(f32::INFINITY, f32::min);
+        let lo = [1.3, 1.45, 1.6]
+            .iter()
+            .filter_map(|&k| img.bilinear(c.x + k * o.x, c.y + k * o.y))
+            .fold(f32::INFINITY, f32::min);
         if lo.is_finite() {
             s.values.push(lo);
         }
@@ -232,7 +266,15 @@ fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Opt
         let rho = o.norm();
         let u = o / rho;
         if let Some(t) = inward_crossing(img, c, u, 1.6 * rho, 0.6 * rho, rho / 16.0, quarter) {
-            if let Some(top) = first_maximum(img, c, u, t, (t - 0.4 * rho).max(0.0), (rho / 32.0).max(0.25), 0.05 * (centre - bg)) {
+            if let Some(top) = first_maximum(
+                img,
+                c,
+                u,
+                t,
+                (t - 0.4 * rho).max(0.0),
+                (rho / 32.0).max(0.25),
+                0.05 * (centre - bg),
+            ) {
                 s.values.push(top);
             }
         }
@@ -248,16 +290,28 @@ fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Opt
 /// outer edge (a plain circle's neighbours start at 2.33 R and are 2 R wide). The robust
 /// ellipse through the crossings.
 #[allow(clippy::too_many_arguments)]
-fn outward_fit(img: View<'_>, c: Point2<f64>, f0: f32, mid0: f32, step: f64, m: usize, annulus: bool, s: &mut Scratch) -> Option<Fit> {
+fn outward_fit(
+    img: View<'_>,
+    c: Point2<f64>,
+    f0: f32,
+    mid0: f32,
+    step: f64,
+    m: usize,
+    annulus: bool,
+    s: &mut Scratch,
+) -> Option<Fit> {
     s.points.clear();
     let rays = s.dirs.len().div_ceil(3);
     for &(dx, dy) in s.dirs.iter().step_by(3) {
         let (mut p, mut t1, mut rise) = (f0, None::<f64>, None::<f64>);
         // Crossing of mid0 between samples j − 1 (value p) and j (value q).
-        let cross = |j: usize, p: f32, q: f32| step * ((j - 1) as f64 + ((p - mid0) / (p - q)) as f64);
+        let cross =
+            |j: usize, p: f32, q: f32| step * ((j - 1) as f64 + ((p - mid0) / (p - q)) as f64);
         for j in 1..m {
             let t = j as f64 * step;
-            let Some(q) = img.bilinear(c.x + t * dx, c.y + t * dy) else { break };
+            let Some(q) = img.bilinear(c.x + t * dx, c.y + t * dy) else {
+                break;
+            };
             match (t1, rise) {
                 (None, _) if q < mid0 => {
                     t1 = Some(cross(j, p, q));
@@ -319,7 +373,8 @@ fn ring_annulus(img: View<'_>, e: &Ellipse, contrast: f32, s: &mut Scratch) -> O
         let steps = (2.5 / dk).ceil() as usize;
         // Largest rise above the lowest value before it, where it peaks, and the lowest
         // value after that peak.
-        let (mut lo, mut rise, mut rise_k, mut peak, mut after) = (f32::INFINITY, 0.0f32, 0.0, 0.0f32, f32::INFINITY);
+        let (mut lo, mut rise, mut rise_k, mut peak, mut after) =
+            (f32::INFINITY, 0.0f32, 0.0, 0.0f32, f32::INFINITY);
         let mut ok = true;
         for j in 0..=steps {
             let k = 1.0 + j as f64 * dk;
@@ -343,7 +398,10 @@ fn ring_annulus(img: View<'_>, e: &Ellipse, contrast: f32, s: &mut Scratch) -> O
     if n < RAYS / 2 || falls_back * 100 < n * 85 {
         return None;
     }
-    let p15 = *s.values.select_nth_unstable_by(n * 15 / 100, f32::total_cmp).1;
+    let p15 = *s
+        .values
+        .select_nth_unstable_by(n * 15 / 100, f32::total_cmp)
+        .1;
     let med = median(&mut s.values)?;
     if p15 < 0.05 * contrast || p15 < 0.4 * med {
         return None;
@@ -357,7 +415,15 @@ fn ring_annulus(img: View<'_>, e: &Ellipse, contrast: f32, s: &mut Scratch) -> O
 
 /// Walking inward from `c + t_start·u` in steps of `step` px down to `t_end`, the highest
 /// value before the profile falls more than `tolerance` below it.
-fn first_maximum(img: View<'_>, c: Point2<f64>, u: Vector2<f64>, t_start: f64, t_end: f64, step: f64, tolerance: f32) -> Option<f32> {
+fn first_maximum(
+    img: View<'_>,
+    c: Point2<f64>,
+    u: Vector2<f64>,
+    t_start: f64,
+    t_end: f64,
+    step: f64,
+    tolerance: f32,
+) -> Option<f32> {
     let mut best = img.bilinear(c.x + t_start * u.x, c.y + t_start * u.y)?;
     let mut t = t_start - step;
     while t >= t_end {
@@ -375,7 +441,15 @@ fn first_maximum(img: View<'_>, c: Point2<f64>, u: Vector2<f64>, t_start: f64, t
 /// to at or above it: steps of `step` px (≥ 0.5), bisections of the bracket down to
 /// ≤ 0.125 px, and linear interpolation there (where the bilinear profile is linear to
 /// ≲ 0.002 px). Returns t.
-fn inward_crossing(img: View<'_>, c: Point2<f64>, u: Vector2<f64>, t_start: f64, t_end: f64, step: f64, level: f32) -> Option<f64> {
+fn inward_crossing(
+    img: View<'_>,
+    c: Point2<f64>,
+    u: Vector2<f64>,
+    t_start: f64,
+    t_end: f64,
+    step: f64,
+    level: f32,
+) -> Option<f64> {
     let at = |t: f64| img.bilinear(c.x + t * u.x, c.y + t * u.y);
     let step = step.max(0.5);
     let mut bisections = 0;

@@ -94,7 +94,11 @@ pub fn render(scene: &Scene) -> GrayImage {
 
 /// Gaussian point-spread function of standard deviation `sigma` (px), edges replicated.
 pub fn blur_psf(img: &GrayImage, sigma: f64) -> GrayImage {
-    let v = View { data: img.as_raw(), width: img.width() as usize, height: img.height() as usize };
+    let v = View {
+        data: img.as_raw(),
+        width: img.width() as usize,
+        height: img.height() as usize,
+    };
     let out = blur(v, sigma, 4.0);
     GrayImage::from_raw(img.width(), img.height(), out.data).expect("same size")
 }
@@ -134,21 +138,39 @@ pub fn lattice(width: u32, height: u32, radius: f64, tilt_deg: f64) -> Scene {
     let mut blobs = Vec::new();
     for r in -13i64..=13 {
         for q in -30i64..=30 {
-            let (x, y) = (20.0 * (q as f64 + r as f64 / 2.0), 20.0 * 3f64.sqrt() / 2.0 * r as f64);
+            let (x, y) = (
+                20.0 * (q as f64 + r as f64 / 2.0),
+                20.0 * 3f64.sqrt() / 2.0 * r as f64,
+            );
             if x.abs() > 290.0 || y.abs() > 230.0 {
                 continue;
             }
             let (u, v) = (cx + px_per_mm * x, cy - px_per_mm * y * cos_t);
-            if u < radius + 2.0 || v < radius + 2.0 || u > width as f64 - radius - 2.0 || v > height as f64 - radius - 2.0 {
+            if u < radius + 2.0
+                || v < radius + 2.0
+                || u > width as f64 - radius - 2.0
+                || v > height as f64 - radius - 2.0
+            {
                 continue;
             }
             blobs.push(Blob {
-                ellipse: Ellipse { center: Point2::new(u, v), a: radius, b: radius * cos_t, angle: 0.0 },
+                ellipse: Ellipse {
+                    center: Point2::new(u, v),
+                    a: radius,
+                    b: radius * cos_t,
+                    angle: 0.0,
+                },
                 ringed: (q * 3 + r * 5).rem_euclid(7) == 0,
             });
         }
     }
-    Scene { width, height, background: 30.0, foreground: 200.0, blobs }
+    Scene {
+        width,
+        height,
+        background: 30.0,
+        foreground: 200.0,
+        blobs,
+    }
 }
 
 /// [`lattice`] rendered with a PSF of σ = 0.9 px, 2 DN noise, 8-bit quantisation.
@@ -166,11 +188,26 @@ mod tests {
     /// Area integration: the image sum over a blob equals its area × contrast.
     #[test]
     fn rendered_area_matches_the_ellipse_area() {
-        let e = Ellipse { center: Point2::new(20.3, 17.8), a: 9.0, b: 5.5, angle: 0.4 };
+        let e = Ellipse {
+            center: Point2::new(20.3, 17.8),
+            a: 9.0,
+            b: 5.5,
+            angle: 0.4,
+        };
         for ringed in [false, true] {
-            let scene = Scene { width: 48, height: 40, background: 0.0, foreground: 1.0, blobs: vec![Blob { ellipse: e, ringed }] };
+            let scene = Scene {
+                width: 48,
+                height: 40,
+                background: 0.0,
+                foreground: 1.0,
+                blobs: vec![Blob { ellipse: e, ringed }],
+            };
             let sum: f64 = render(&scene).pixels().map(|p| p.0[0] as f64).sum();
-            let ring = if ringed { 0.75f64.powi(2) - 0.45f64.powi(2) } else { 0.0 };
+            let ring = if ringed {
+                0.75f64.powi(2) - 0.45f64.powi(2)
+            } else {
+                0.0
+            };
             let area = std::f64::consts::PI * e.a * e.b * (1.0 - ring);
             // 16×16 samples on ~2πr edge pixels: error ≲ 2·perimeter/256 px² at most.
             assert!((sum - area).abs() < 0.1, "ringed {ringed}: {sum} vs {area}");

@@ -45,11 +45,21 @@ struct Figures {
 /// Matches detections to ground truth: a detection belongs to a circle when its centre is
 /// within half the circle's radius (neighbours are ≥ 3.33 radii apart).
 fn score(det: &[Circle], truth: &[Truth], others: &[Point2<f64>], min_radius: f64) -> Figures {
-    let mut f = Figures { whole: 0, found: 0, wrong_size: 0, rms: 0.0, max: 0.0, extra: 0 };
+    let mut f = Figures {
+        whole: 0,
+        found: 0,
+        wrong_size: 0,
+        rms: 0.0,
+        max: 0.0,
+        extra: 0,
+    };
     let mut sq = 0.0;
     for t in truth.iter().filter(|t| t.radius >= min_radius) {
         f.whole += 1;
-        match det.iter().find(|d| (d.ellipse.center - t.centre).norm() < 0.5 * t.radius) {
+        match det
+            .iter()
+            .find(|d| (d.ellipse.center - t.centre).norm() < 0.5 * t.radius)
+        {
             Some(d) if (d.ellipse.radius() / t.radius - 1.0).abs() < 0.2 => {
                 f.found += 1;
                 let e = (d.ellipse.center - t.centre).norm();
@@ -57,11 +67,7 @@ fn score(det: &[Circle], truth: &[Truth], others: &[Point2<f64>], min_radius: f6
                 f.max = f.max.max(e);
             }
             Some(_) => f.wrong_size += 1,
-            None => {
-                if std::env::var("DBG").is_ok() {
-                    eprintln!("missed {:?} r {}", t.centre, t.radius);
-                }
-            }
+            None => {}
         }
     }
     f.rms = (sq / f.found.max(1) as f64).sqrt();
@@ -70,7 +76,9 @@ fn score(det: &[Circle], truth: &[Truth], others: &[Point2<f64>], min_radius: f6
         .filter(|d| {
             let c = d.ellipse.center;
             !truth.iter().any(|t| (t.centre - c).norm() < 0.5 * t.radius)
-                && !others.iter().any(|p| (p - c).norm() < 0.5 * d.ellipse.radius().max(3.0))
+                && !others
+                    .iter()
+                    .any(|p| (p - c).norm() < 0.5 * d.ellipse.radius().max(3.0))
         })
         .count();
     f
@@ -87,9 +95,17 @@ fn evaluate_sample(name: &str, min_radius: f64) -> Figures {
         .as_array()
         .unwrap()
         .iter()
-        .map(|c| Truth { centre: pt(&c["ellipse"]), radius: c["radius"].as_f64().unwrap() })
+        .map(|c| Truth {
+            centre: pt(&c["ellipse"]),
+            radius: c["radius"].as_f64().unwrap(),
+        })
         .collect();
-    let partial: Vec<Point2<f64>> = json["partial"].as_array().unwrap().iter().map(|c| pt(&c["proj"])).collect();
+    let partial: Vec<Point2<f64>> = json["partial"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| pt(&c["proj"]))
+        .collect();
     let det = detect(&img, &DetectParams::default());
     let f = score(&det, &truth, &partial, min_radius);
     let all = score(&det, &truth, &partial, 0.0);
@@ -115,10 +131,21 @@ fn evaluate_sample(name: &str, min_radius: f64) -> Figures {
 fn check_sample(name: &str, min_recall: f64, max_rms: f64) {
     let f = evaluate_sample(name, 4.0);
     let recall = f.found as f64 / f.whole as f64;
-    assert!(recall >= min_recall, "{name}: recall {recall:.4} < {min_recall}");
-    assert!(f.rms <= max_rms, "{name}: centre RMS {:.4} px > {max_rms}", f.rms);
+    assert!(
+        recall >= min_recall,
+        "{name}: recall {recall:.4} < {min_recall}"
+    );
+    assert!(
+        f.rms <= max_rms,
+        "{name}: centre RMS {:.4} px > {max_rms}",
+        f.rms
+    );
     assert_eq!(f.wrong_size, 0, "{name}: circles found with the wrong size");
-    assert!(f.extra * 20 <= f.whole, "{name}: {} detections off the board's circles", f.extra);
+    assert!(
+        f.extra * 20 <= f.whole,
+        "{name}: {} detections off the board's circles",
+        f.extra
+    );
 }
 
 // Issue 3 acceptance: recall ≥ 99.5 % of whole circles with r ≥ 4 px at tilt ≤ 60°,
@@ -177,12 +204,29 @@ fn ellipse_sheet(r: f64, rng: &mut rand::rngs::StdRng) -> Scene {
                 pitch * (j as f64 + 0.75) + rng.random_range(-0.5..0.5),
                 pitch * (i as f64 + 0.75) + rng.random_range(-0.5..0.5),
             );
-            let e = Ellipse { center: centre, a: r / cos_t.sqrt(), b: r * cos_t.sqrt(), angle: rng.random_range(0.0..std::f64::consts::PI) };
-            blobs.push(Blob { ellipse: e, ringed: (i * cols + j) % 3 == 0 });
+            let e = Ellipse {
+                center: centre,
+                a: r / cos_t.sqrt(),
+                b: r * cos_t.sqrt(),
+                angle: rng.random_range(0.0..std::f64::consts::PI),
+            };
+            blobs.push(Blob {
+                ellipse: e,
+                ringed: (i * cols + j) % 3 == 0,
+            });
         }
     }
-    let (w, h) = ((pitch * (cols as f64 + 0.5)) as u32, (pitch * (rows as f64 + 0.5)) as u32);
-    Scene { width: w, height: h, background: 30.0, foreground: 200.0, blobs }
+    let (w, h) = (
+        (pitch * (cols as f64 + 0.5)) as u32,
+        (pitch * (rows as f64 + 0.5)) as u32,
+    );
+    Scene {
+        width: w,
+        height: h,
+        background: 30.0,
+        foreground: 200.0,
+        blobs,
+    }
 }
 
 /// Renders a scene as an 8-bit camera would: area-integrated, Gaussian PSF, noise, rounding.
@@ -205,7 +249,10 @@ fn camera_image(scene: &Scene, psf: f64, noise: f32, seed: u64) -> GrayImage {
 #[test]
 fn synthetic_centres_and_outer_ellipses() {
     let mut rng = rand::rngs::StdRng::seed_from_u64(7);
-    for (k, r) in [4.0, 5.0, 6.5, 8.0, 11.0, 15.0, 20.0, 28.0, 40.0].into_iter().enumerate() {
+    for (k, r) in [4.0, 5.0, 6.5, 8.0, 11.0, 15.0, 20.0, 28.0, 40.0]
+        .into_iter()
+        .enumerate()
+    {
         let psf = 0.8 + 0.2 * (k % 2) as f64;
         let scene = ellipse_sheet(r, &mut rng);
         let img = camera_image(&scene, psf, 2.0, 100 + k as u64);
@@ -216,7 +263,12 @@ fn synthetic_centres_and_outer_ellipses() {
             let d = det
                 .iter()
                 .find(|d| (d.ellipse.center - e.center).norm() < 0.5 * r)
-                .unwrap_or_else(|| panic!("r {r}: ellipse at {:?} (ringed {}) not found", e.center, blob.ringed));
+                .unwrap_or_else(|| {
+                    panic!(
+                        "r {r}: ellipse at {:?} (ringed {}) not found",
+                        e.center, blob.ringed
+                    )
+                });
             // The outer ellipse, not a marker's inner disk (0.45 R): a crossing of any level
             // between 10 % and 90 % of a blurred edge lies within 1.3 σ_psf of the outline
             // (a marker's dimmed annulus lowers the level), while the inner disk is
@@ -234,10 +286,24 @@ fn synthetic_centres_and_outer_ellipses() {
             sq += (d.ellipse.center - e.center).norm_squared();
         }
         let rms = (sq / scene.blobs.len() as f64).sqrt();
-        eprintln!("r {r:4.1} px, PSF {psf}: centre RMS {rms:.4} px over {} ellipses", scene.blobs.len());
+        eprintln!(
+            "r {r:4.1} px, PSF {psf}: centre RMS {rms:.4} px over {} ellipses",
+            scene.blobs.len()
+        );
         assert!(rms <= 0.03, "r {r}: centre RMS {rms:.4} px");
-        let extra = det.iter().filter(|d| !scene.blobs.iter().any(|b| (b.ellipse.center - d.ellipse.center).norm() < 0.5 * r)).count();
-        assert_eq!(extra, 0, "r {r}: detections that are no ellipse of the scene");
+        let extra = det
+            .iter()
+            .filter(|d| {
+                !scene
+                    .blobs
+                    .iter()
+                    .any(|b| (b.ellipse.center - d.ellipse.center).norm() < 0.5 * r)
+            })
+            .count();
+        assert_eq!(
+            extra, 0,
+            "r {r}: detections that are no ellipse of the scene"
+        );
     }
 }
 
@@ -259,7 +325,10 @@ fn clutter_gives_few_detections() {
     }
     let shapes: Vec<Shape> = (0..40)
         .map(|_| Shape {
-            c: (rng.random_range(0.0..w as f64), rng.random_range(0.0..h as f64)),
+            c: (
+                rng.random_range(0.0..w as f64),
+                rng.random_range(0.0..h as f64),
+            ),
             angle: rng.random_range(0.0..std::f64::consts::PI),
             half: (rng.random_range(3.0..60.0), rng.random_range(2.0..60.0)),
             kind: rng.random_range(0..3),
@@ -274,9 +343,17 @@ fn clutter_gives_few_detections() {
             let (sn, cs) = s.angle.sin_cos();
             let (u, q) = (cs * dx + sn * dy, -sn * dx + cs * dy);
             let inside = match s.kind {
-                0 => u.abs() <= s.half.0 && q.abs() <= s.half.1,                         // bar or square
-                1 => q >= -s.half.1 && q <= s.half.1 && u.abs() <= s.half.0 * (s.half.1 - q) / (2.0 * s.half.1), // triangle
-                _ => u.abs() <= s.half.0 && q.abs() <= s.half.1 && (u / s.period).rem_euclid(1.0) < 0.5,   // grating
+                0 => u.abs() <= s.half.0 && q.abs() <= s.half.1, // bar or square
+                1 => {
+                    q >= -s.half.1
+                        && q <= s.half.1
+                        && u.abs() <= s.half.0 * (s.half.1 - q) / (2.0 * s.half.1)
+                } // triangle
+                _ => {
+                    u.abs() <= s.half.0
+                        && q.abs() <= s.half.1
+                        && (u / s.period).rem_euclid(1.0) < 0.5
+                } // grating
             };
             if inside {
                 v = s.level;
@@ -289,7 +366,10 @@ fn clutter_gives_few_detections() {
         let mut sum = 0.0;
         for i in 0..4 {
             for j in 0..4 {
-                sum += value(x as f64 - 0.375 + 0.25 * i as f64, y as f64 - 0.375 + 0.25 * j as f64);
+                sum += value(
+                    x as f64 - 0.375 + 0.25 * i as f64,
+                    y as f64 - 0.375 + 0.25 * j as f64,
+                );
             }
         }
         p.0[0] = sum / 16.0;
@@ -299,53 +379,10 @@ fn clutter_gives_few_detections() {
     quantise8(&mut img);
     let det = detect(&img, &DetectParams::default());
     for d in &det {
-        eprintln!("clutter detection {:?} rms {:.3} score {:.3}", d.ellipse, d.edge_rms, d.score);
+        eprintln!(
+            "clutter detection {:?} rms {:.3} score {:.3}",
+            d.ellipse, d.edge_rms, d.score
+        );
     }
     assert!(det.len() <= 5, "{} detections in clutter", det.len());
-}
-
-#[test]
-fn tmp_peaks() {
-    let scene = synth::lattice(1200, 900, 24.0, 40.0);
-    let img = synth::lattice_image(1200, 900, 24.0, 40.0, 3);
-    let full = View { data: img.as_raw(), width: 1200, height: 900 };
-    let h_ref = circleness::reference_contrast(full);
-    let peaks = suppress(circleness_peaks(full, &DetectParams::default(), Constants::new(h_ref)));
-    let mut hist = std::collections::BTreeMap::new();
-    for p in &peaks {
-        let at = Point2::new(p.x, p.y);
-        let b = scene.blobs.iter().min_by(|a, b| (a.ellipse.center - at).norm().total_cmp(&(b.ellipse.center - at).norm())).unwrap();
-        let d = (b.ellipse.center - at).norm() / 24.0;
-        let key = (b.ringed, (d * 10.0).round() as i32, ((SQRT_2 * p.sigma / 24.0) * 10.0).round() as i32);
-        *hist.entry(key).or_insert(0) += 1;
-    }
-    eprintln!("h_ref {h_ref} peaks {} blobs {}", peaks.len(), scene.blobs.len());
-    for (k, v) in hist {
-        eprintln!("ringed {} dist/r {:.1} rhat/r {:.1}: {v}", k.0, k.1 as f64 / 10.0, k.2 as f64 / 10.0);
-    }
-}
-
-#[test]
-fn tmp_write() {
-    let img = synth::lattice_image(1920, 1200, 4.0, 0.0, 2);
-    let img8 = image::ImageBuffer::from_fn(img.width(), img.height(), |x, y| image::Luma([img.get_pixel(x, y).0[0] as u8]));
-    img8.save("/tmp/r4.png").unwrap();
-}
-
-#[test]
-fn tmp_debug_at() {
-    let Ok(spec) = std::env::var("DBG_AT") else { return };
-    let parts: Vec<&str> = spec.split(',').collect();
-    let img = load_gray(&samples_dir().join(format!("{}.png", parts[0]))).unwrap();
-    let (x, y): (f64, f64) = (parts[1].parse().unwrap(), parts[2].parse().unwrap());
-    let params = DetectParams::default();
-    let full = View { data: img.as_raw(), width: img.width() as usize, height: img.height() as usize };
-    let h_ref = circleness::reference_contrast(full);
-    let kept = suppress(circleness_peaks(full, &params, Constants::new(h_ref)));
-    let settings = refine::Settings { rays: 90, min_contrast: (0.25 * h_ref) as f32, radius_range: (2.0, 60.0), max_rms: (0.15, 0.01) };
-    for p in kept.iter().filter(|p| (p.x - x).hypot(p.y - y) < 12.0) {
-        eprintln!("kept {p:?}");
-        let r = refine::refine(full, Point2::new(p.x, p.y), SQRT_2 * p.sigma, p.score, &settings, &mut refine::Scratch::default());
-        eprintln!("  -> {r:?}");
-    }
 }
