@@ -11,5 +11,6 @@ pub mod calib;
 pub mod camera;
 pub mod detect;
 pub mod grid;
+pub mod imageio;
 pub mod rig;
 pub mod sim;

@@ -1,0 +1,482 @@
+//! Subpixel refinement of one circleness peak (DESIGN.md §4): edge points on rays from the
+//! coarse centre, each the crossing of the local (background + foreground)/2 level on the
+//! circle's *outer* boundary, and a robust direct ellipse fit to them.
+//!
+//! 1. Outward passes: on every third ray the first falling crossing gives a first
+//!    ellipse. From its centre, again, but now stepping over a marker's
+//!    white annulus when the profile rises again soon after (see [`outward_fit`]). That is
+//!    the outer boundary, or for a marker circle whose annulus blur has made faint, the
+//!    inner edge of its dark ring (0.45 R), a concentric ellipse of the same shape.
+//! 2. Ring test ([`ring_annulus`]): if that ellipse is closed in by a white annulus, it was
+//!    the ring's inner disk and the guess is scaled out to the annulus.
+//! 3. Levels ([`levels`]): background from the dark gap outside the current ellipse
+//!    (1.3–1.6×, inside the gap that reaches ≥ 1.67× at the board's border and 2.33×
+//!    between circles), foreground from the first maximum inside each ray's outer edge.
+//! 4. Inward passes: rays at evenly spaced parametric angles of the current ellipse,
+//!    walking inward from outside its boundary to the first rising crossing of the mean
+//!    level; twice, the second time around the first pass's ellipse.
+
+use super::filter::View;
+use super::fit::{self, fit_ellipse, Conic};
+use super::{Circle, Ellipse};
+use nalgebra::{Point2, Vector2};
+
+/// Middle of a marker's white outer annulus (0.75–1 R, DESIGN.md §3) / circle radius.
+const RING_ANNULUS_MID: f64 = 0.875;
+/// Rays of the outward pass that also measure the background along their whole length.
+const BACKGROUND_RAYS: usize = 6;
+
+/// Settings of the refinement.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Settings {
+    /// Rays per circle.
+    pub(crate) rays: usize,
+    /// Smallest foreground − background contrast (image units).
+    pub(crate) min_contrast: f32,
+    /// Accepted radius range √(ab) (px).
+    pub(crate) radius_range: (f64, f64),
+    /// Maximum RMS edge-point distance from the ellipse: `max_rms.0 + max_rms.1 · radius`.
+    pub(crate) max_rms: (f64, f64),
+}
+
+/// Reusable per-worker buffers.
+#[derive(Default)]
+pub(crate) struct Scratch {
+    /// (cos, sin) of the ray angles 2πi/n.
+    dirs: Vec<(f64, f64)>,
+    values: Vec<f32>,
+    ks: Vec<f32>,
+    points: Vec<Point2<f64>>,
+    dist: Vec<f64>,
+    sorted: Vec<f64>,
+    keep: Vec<Point2<f64>>,
+}
+
+impl Scratch {
+    fn directions(&mut self, n: usize) {
+        if self.dirs.len() != n {
+            self.dirs = (0..n)
+                .map(|i| (std::f64::consts::TAU * i as f64 / n as f64).sin_cos())
+                .map(|(s, c)| (c, s))
+                .collect();
+        }
+    }
+}
+
+/// A robust fit: the ellipse, its inliers' RMS Sampson distance, and their count.
+struct Fit {
+    ellipse: Ellipse,
+    rms: f64,
+    inliers: usize,
+}
+
+fn median(v: &mut [f32]) -> Option<f32> {
+    if v.is_empty() {
+        return None;
+    }
+    let m = v.len() / 2;
+    Some(*v.select_nth_unstable_by(m, f32::total_cmp).1)
+}
+
+/// Offset from the centre of the point at parametric angle φ, given (cos φ, sin φ).
+#[inline]
+fn ellipse_offset(e: &Ellipse, (cos, sin): (f64, f64)) -> Vector2<f64> {
+    let (s, c) = e.angle.sin_cos();
+    let (u, v) = (e.a * cos, e.b * sin);
+    Vector2::new(c * u - s * v, s * u + c * v)
+}
+
+/// Foreground: mean of the centre and four points at 0.15 b around it.
+fn foreground(img: View<'_>, c: Point2<f64>, b: f64) -> Option<f32> {
+    let d = 0.15 * b;
+    let pts = [(0.0, 0.0), (d, 0.0), (-d, 0.0), (0.0, d), (0.0, -d)];
+    let mut sum = 0.0;
+    for (dx, dy) in pts {
+        sum += img.bilinear(c.x + dx, c.y + dy)?;
+    }
+    Some(sum / pts.len() as f32)
+}
+
+/// Direct fit, then up to twice: drop points farther than max(4·1.4826·MAD, 0.1 px) and
+/// refit.
+fn robust_fit(points: &[Point2<f64>], s: &mut Scratch) -> Option<Fit> {
+    let mut conic: Conic = fit_ellipse(points)?;
+    for _ in 0..2 {
+        s.dist.clear();
+        s.dist
+            .extend(points.iter().map(|&p| conic.sampson_distance(p)));
+        s.sorted.clear();
+        s.sorted.extend_from_slice(&s.dist);
+        let m = s.sorted.len() / 2;
+        let med = *s.sorted.select_nth_unstable_by(m, f64::total_cmp).1;
+        let thr = (4.0 * 1.4826 * med).max(0.1);
+        s.keep.clear();
+        s.keep.extend(
+            points
+                .iter()
+                .zip(s.dist.iter())
+                .filter(|(_, &d)| d <= thr)
+                .map(|(&p, _)| p),
+        );
+        if s.keep.len() == points.len() {
+            break; // no outliers: the fit stands
+        }
+        conic = fit_ellipse(&s.keep)?;
+    }
+    let ellipse = conic.to_ellipse()?;
+    let ss: f64 = s
+        .keep
+        .iter()
+        .map(|&p| conic.sampson_distance(p).powi(2))
+        .sum();
+    Some(Fit {
+        ellipse,
+        rms: (ss / s.keep.len() as f64).sqrt(),
+        inliers: s.keep.len(),
+    })
+}
+
+/// Refines a peak at `c0` with radius estimate `r_hat` into a circle, or rejects it.
+pub(crate) fn refine(
+    img: View<'_>,
+    c0: Point2<f64>,
+    r_hat: f64,
+    score: f32,
+    set: &Settings,
+    s: &mut Scratch,
+) -> Option<Circle> {
+    let n = set.rays;
+    s.directions(n);
+    let min_points = (n * 3 / 5).max(6);
+
+    // 1. Outward pass to the first falling crossing, within 3 r̂; the background is the
+    //    median over a few rays of their lowest value within 2 r̂ (in the gap).
+    let f0 = foreground(img, c0, r_hat)?;
+    let step = (r_hat / 10.0).clamp(0.25, 1.0);
+    let m = (3.0 * r_hat / step).ceil() as usize + 1;
+    s.values.clear();
+    for i in 0..BACKGROUND_RAYS {
+        let (dx, dy) = s.dirs[i * n / BACKGROUND_RAYS];
+        let lo = (0..(2 * m) / 3)
+            .filter_map(|j| img.bilinear(c0.x + j as f64 * step * dx, c0.y + j as f64 * step * dy))
+            .fold(f32::INFINITY, f32::min);
+        if lo.is_finite() {
+            s.values.push(lo);
+        }
+    }
+    let b0 = median(&mut s.values)?;
+    if f0 - b0 < set.min_contrast {
+        return None;
+    }
+    let mid0 = 0.5 * (f0 + b0);
+    // From the peak, first falling crossings only; then again from that ellipse's centre
+    // (close to the true one even when the ellipse is a marker's inner disk, which is
+    // concentric), now stepping over a white annulus.
+    let first = outward_fit(img, c0, f0, mid0, step, m, false, s)?;
+    let e1 = first.ellipse;
+    let f1 = foreground(img, e1.center, e1.b).unwrap_or(f0);
+    // A marker's outer edge is concentric with its ring: an annulus fit whose centre moved
+    // stepped over something else (e.g. a bright line beyond the board's border).
+    let mut guess = outward_fit(img, e1.center, f1, mid0, step, m, true, s)
+        .map(|f| f.ellipse)
+        .filter(|e| (e.center - e1.center).norm() <= 0.25 * e1.b + 0.25)
+        .unwrap_or(e1);
+
+    // 2. Ring test: is the first ellipse closed in by a white annulus?
+    if let Some(k) = ring_annulus(img, &guess, f0 - b0, s) {
+        // The annulus spans 0.75–1 R: its middle is at 0.875 R.
+        let scale = k / RING_ANNULUS_MID;
+        guess.a *= scale;
+        guess.b *= scale;
+    }
+
+    // 3. Levels around the guess.
+    let (bg, fg) = levels(img, &guess, set.min_contrast, s)?;
+    let mid = 0.5 * (fg + bg);
+
+    // 4. Inward passes to the crossings of the mean level: from 1.6× the guess, then from
+    //    2.5 px outside the first fit.
+    let mut fit: Option<Fit> = None;
+    for pass in 0..2 {
+        let g = fit.as_ref().map_or(guess, |f| f.ellipse);
+        let c = g.center;
+        s.points.clear();
+        for &d in &s.dirs {
+            let o = ellipse_offset(&g, d);
+            let rho = o.norm();
+            let u = o / rho;
+            let start = if pass == 0 { 1.6 * rho } else { rho + 2.5 };
+            if let Some(t) = inward_crossing(img, c, u, start, 0.6 * rho, rho / 16.0, mid) {
+                s.points.push(c + t * u);
+            }
+        }
+        if s.points.len() < min_points {
+            return None;
+        }
+        let points = std::mem::take(&mut s.points);
+        fit = robust_fit(&points, s);
+        s.points = points;
+        fit.as_ref()?;
+    }
+    let fit = fit?;
+    let e = fit.ellipse;
+    let radius = e.radius();
+    let ok = fit.inliers >= min_points
+        && e.b >= 0.12 * e.a
+        && radius >= set.radius_range.0
+        && radius <= set.radius_range.1
+        && fit::Conic::from_ellipse(&e).value(c0) < 0.0
+        && fit.rms <= set.max_rms.0 + set.max_rms.1 * radius;
+    ok.then_some(Circle {
+        ellipse: e,
+        score: score as f64,
+        background: bg,
+        foreground: fg,
+        edge_rms: fit.rms as f32,
+    })
+}
+
+/// Background and foreground levels around the ellipse `g`: the background is the median
+/// over rays of the lowest value at 1.3–1.6× the boundary; the foreground the median over
+/// rays of the first maximum inside the outer edge (found at a quarter of the contrast to
+/// the centre), i.e. the white outer annulus of a marker circle that blur has dimmed, so
+/// that the mean level sits on the steep part of the outer edge. `None` below `min_contrast`.
+fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Option<(f32, f32)> {
+    let c = g.center;
+    let centre = foreground(img, c, g.b)?;
+    s.values.clear();
+    for &d in s.dirs.iter().step_by(3) {
+        let o = ellipse_offset(g, d);
+        let lo = [1.3, 1.45, 1.6]
+            .iter()
+            .filter_map(|&k| img.bilinear(c.x + k * o.x, c.y + k * o.y))
+            .fold(f32::INFINITY, f32::min);
+        if lo.is_finite() {
+            s.values.push(lo);
+        }
+    }
+    let bg = median(&mut s.values)?;
+    if centre - bg < min_contrast {
+        return None;
+    }
+    let quarter = bg + 0.25 * (centre - bg);
+    s.values.clear();
+    for &d in s.dirs.iter().step_by(3) {
+        let o = ellipse_offset(g, d);
+        let rho = o.norm();
+        let u = o / rho;
+        if let Some(t) = inward_crossing(img, c, u, 1.6 * rho, 0.6 * rho, rho / 16.0, quarter) {
+            if let Some(top) = first_maximum(
+                img,
+                c,
+                u,
+                t,
+                (t - 0.4 * rho).max(0.0),
+                (rho / 32.0).max(0.25),
+                0.05 * (centre - bg),
+            ) {
+                s.values.push(top);
+            }
+        }
+    }
+    let fg = median(&mut s.values)?;
+    (fg - bg >= min_contrast).then_some((bg, fg))
+}
+
+/// Outward pass from `c` (value `f0` there): on every third ray the first crossing below
+/// `mid0` within `m` steps of `step` px; with `annulus`, a rise above the level before 2.2×
+/// that crossing and a fall again within 1× of it is taken as a marker's white annulus
+/// (0.75–1 R seen from its ring's inner edge at 0.45 R: 1.67–2.22×), and that fall as the
+/// outer edge (a plain circle's neighbours start at 2.33 R and are 2 R wide). The robust
+/// ellipse through the crossings.
+#[allow(clippy::too_many_arguments)]
+fn outward_fit(
+    img: View<'_>,
+    c: Point2<f64>,
+    f0: f32,
+    mid0: f32,
+    step: f64,
+    m: usize,
+    annulus: bool,
+    s: &mut Scratch,
+) -> Option<Fit> {
+    s.points.clear();
+    let rays = s.dirs.len().div_ceil(3);
+    for &(dx, dy) in s.dirs.iter().step_by(3) {
+        let (mut p, mut t1, mut rise) = (f0, None::<f64>, None::<f64>);
+        // Crossing of mid0 between samples j − 1 (value p) and j (value q).
+        let cross =
+            |j: usize, p: f32, q: f32| step * ((j - 1) as f64 + ((p - mid0) / (p - q)) as f64);
+        for j in 1..m {
+            let t = j as f64 * step;
+            let Some(q) = img.bilinear(c.x + t * dx, c.y + t * dy) else {
+                break;
+            };
+            match (t1, rise) {
+                (None, _) if q < mid0 => {
+                    t1 = Some(cross(j, p, q));
+                    if !annulus {
+                        break;
+                    }
+                }
+                (Some(first), None) if q >= mid0 => {
+                    let tc = cross(j, p, q);
+                    if tc > 2.2 * first {
+                        break;
+                    }
+                    rise = Some(tc);
+                }
+                (Some(first), Some(r)) if q < mid0 => {
+                    let tc = cross(j, p, q);
+                    if tc - r <= first {
+                        t1 = Some(tc);
+                    }
+                    break;
+                }
+                (Some(first), Some(r)) if t - r > first => break,
+                (Some(first), None) if t > 2.2 * first => break,
+                _ => {}
+            }
+            p = q;
+        }
+        if let Some(t) = t1 {
+            s.points.push(Point2::new(c.x + t * dx, c.y + t * dy));
+        }
+    }
+    if s.points.len() * 5 < rays * 3 {
+        return None;
+    }
+    let points = std::mem::take(&mut s.points);
+    let fit = robust_fit(&points, s);
+    s.points = points;
+    fit
+}
+
+/// Whether the ellipse `e` is the inner disk of a marker circle, closed in by its dark ring
+/// and then the white outer annulus. On each of 24 rays (parametric angles of `e`), the
+/// profile from 1× to 3.5× the boundary gives its largest rise above the lowest value
+/// before it, the position k where that rise peaks, and how far the profile falls again
+/// after it. A marker's annulus (0.75–1 R seen from the ring's inner edge at 0.45 R: k ≈
+/// 1.7–2.2) is a closed, narrow bump: every ray shows a similar rise (15th percentile ≥ 5 %
+/// of the contrast and ≥ 0.4 × the median, so even a ring that blur has made faint), falling
+/// back by at least half of it, at a consistent k (MAD < 10 %) between 1.4 and 2.6. A plain
+/// circle's neighbours start at 2.33× and are 2× wide: they rise without falling back
+/// within 3.5×, and only in the ~60 % of directions that meet one. Returns the median k.
+fn ring_annulus(img: View<'_>, e: &Ellipse, contrast: f32, s: &mut Scratch) -> Option<f64> {
+    const RAYS: usize = 24;
+    s.values.clear();
+    s.ks.clear();
+    let mut falls_back = 0;
+    for i in 0..RAYS {
+        let o = ellipse_offset(e, s.dirs[i * s.dirs.len() / RAYS]);
+        let dk = (0.75 / o.norm()).clamp(0.04, 0.1);
+        let steps = (2.5 / dk).ceil() as usize;
+        // Largest rise above the lowest value before it, where it peaks, and the lowest
+        // value after that peak.
+        let (mut lo, mut rise, mut rise_k, mut peak, mut after) =
+            (f32::INFINITY, 0.0f32, 0.0, 0.0f32, f32::INFINITY);
+        let mut ok = true;
+        for j in 0..=steps {
+            let k = 1.0 + j as f64 * dk;
+            let Some(v) = img.bilinear(e.center.x + k * o.x, e.center.y + k * o.y) else {
+                ok = false;
+                break;
+            };
+            lo = lo.min(v);
+            after = after.min(v);
+            if v - lo > rise {
+                (rise, rise_k, peak, after) = (v - lo, k, v, v);
+            }
+        }
+        if ok {
+            s.values.push(rise);
+            s.ks.push(rise_k as f32);
+            falls_back += usize::from(peak - after >= 0.5 * rise);
+        }
+    }
+    let n = s.values.len();
+    if n < RAYS / 2 || falls_back * 100 < n * 85 {
+        return None;
+    }
+    let p15 = *s
+        .values
+        .select_nth_unstable_by(n * 15 / 100, f32::total_cmp)
+        .1;
+    let med = median(&mut s.values)?;
+    if p15 < 0.05 * contrast || p15 < 0.4 * med {
+        return None;
+    }
+    let k = median(&mut s.ks)?;
+    s.values.clear();
+    s.values.extend(s.ks.iter().map(|&x| (x - k).abs()));
+    let mad = median(&mut s.values)?;
+    (mad < 0.1 * k && (1.4..=2.6).contains(&k)).then_some(k as f64)
+}
+
+/// Walking inward from `c + t_start·u` in steps of `step` px down to `t_end`, the highest
+/// value before the profile falls more than `tolerance` below it.
+fn first_maximum(
+    img: View<'_>,
+    c: Point2<f64>,
+    u: Vector2<f64>,
+    t_start: f64,
+    t_end: f64,
+    step: f64,
+    tolerance: f32,
+) -> Option<f32> {
+    let mut best = img.bilinear(c.x + t_start * u.x, c.y + t_start * u.y)?;
+    let mut t = t_start - step;
+    while t >= t_end {
+        let v = img.bilinear(c.x + t * u.x, c.y + t * u.y)?;
+        if v < best - tolerance {
+            break;
+        }
+        best = best.max(v);
+        t -= step;
+    }
+    Some(best)
+}
+
+/// Walking from `c + t_start·u` towards `c + t_end·u`, the first crossing from below `level`
+/// to at or above it: steps of `step` px (≥ 0.5), bisections of the bracket down to
+/// ≤ 0.125 px, and linear interpolation there (where the bilinear profile is linear to
+/// ≲ 0.002 px). Returns t.
+fn inward_crossing(
+    img: View<'_>,
+    c: Point2<f64>,
+    u: Vector2<f64>,
+    t_start: f64,
+    t_end: f64,
+    step: f64,
+    level: f32,
+) -> Option<f64> {
+    let at = |t: f64| img.bilinear(c.x + t * u.x, c.y + t * u.y);
+    let step = step.max(0.5);
+    let mut bisections = 0;
+    while step / f64::from(1 << bisections) > 0.125 {
+        bisections += 1;
+    }
+    let mut t = t_start;
+    let mut prev = at(t)?;
+    while t > t_end {
+        let tn = t - step;
+        let v = at(tn)?;
+        if prev < level && v >= level {
+            // Bracket [lo (below), hi (at or above)] in t order: hi < lo.
+            let (mut t_lo, mut v_lo, mut t_hi, mut v_hi) = (t, prev, tn, v);
+            for _ in 0..bisections {
+                let tm = 0.5 * (t_lo + t_hi);
+                let vm = at(tm)?;
+                if vm >= level {
+                    (t_hi, v_hi) = (tm, vm);
+                } else {
+                    (t_lo, v_lo) = (tm, vm);
+                }
+            }
+            return Some(t_lo - (t_lo - t_hi) * ((level - v_lo) / (v_hi - v_lo)) as f64);
+        }
+        t = tn;
+        prev = v;
+    }
+    None
+}
