@@ -10,3 +10,4 @@ pub mod board;
 pub mod camera;
 pub mod detect;
 pub mod grid;
+pub mod phase;
