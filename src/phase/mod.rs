@@ -12,3 +12,6 @@ mod unwrap;
 pub use decode::*;
 pub use sequence::*;
 pub use unwrap::*;
+
+#[cfg(test)]
+mod tests;

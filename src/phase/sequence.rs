@@ -157,11 +157,10 @@ pub struct FrameCode {
     pub step: u32,
 }
 
-/// Where an aliased harmonic lands.
+/// Where an aliased harmonic lands. (The mean bin needs no case: 2f ≡ 0 is excluded by
+/// f < N/2, and 3f ≡ 0 implies 2f ≡ −f, refused first.)
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum AliasTarget {
-    /// On the DFT's zero bin (the mean, used for the ambient image and the noise estimate).
-    Mean,
     /// On +f or −f of a projector's frequency.
     Frequency {
         /// The projector whose phase it corrupts.
@@ -176,7 +175,6 @@ pub enum AliasTarget {
 impl std::fmt::Display for AliasTarget {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match *self {
-            AliasTarget::Mean => write!(f, "the mean (DC bin)"),
             AliasTarget::Frequency {
                 projector,
                 frequency,
@@ -253,12 +251,13 @@ pub enum SequenceError {
     },
 }
 
-fn signed_residue(x: u32, n: u32) -> i64 {
-    let r = i64::from(x % n);
-    if 2 * r > i64::from(n) {
-        r - i64::from(n)
+/// x mod n as the nearest residue to 0, written with a true minus sign.
+fn signed_residue(x: u32, n: u32) -> String {
+    let r = x % n;
+    if 2 * r > n {
+        format!("−{}", n - r)
     } else {
-        r
+        r.to_string()
     }
 }
 
@@ -405,9 +404,6 @@ impl Sequence {
                     target,
                     steps: n,
                 };
-                if r == 0 {
-                    return Err(alias(AliasTarget::Mean));
-                }
                 for (q, other) in self.projectors.iter().enumerate() {
                     if h == 1 && q == p {
                         continue;
@@ -577,4 +573,194 @@ impl Sequence {
             image::Luma([lut[level as usize]])
         })
     }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn setups(p: usize, response: ProjectorResponse) -> Vec<ProjectorSetup> {
+        vec![
+            ProjectorSetup {
+                width: 1920,
+                height: 1080,
+                response,
+            };
+            p
+        ]
+    }
+
+    const GAMMA: ProjectorResponse = ProjectorResponse::Gamma { gamma: 2.2 };
+
+    #[test]
+    fn default_sequences_follow_the_design_rule() {
+        // DESIGN.md §6: N = 5P, f = {1}, {1,4}, {1,4,6}, {1,4,6,9} for uncorrected gamma.
+        let want = [vec![1], vec![1, 4], vec![1, 4, 6], vec![1, 4, 6, 9]];
+        for (i, f) in want.iter().enumerate() {
+            let p = i + 1;
+            let s = Sequence::default_for(&setups(p, GAMMA)).unwrap();
+            assert_eq!(s.steps(), 5 * p as u32);
+            let got: Vec<u32> = s.projectors().iter().map(|c| c.frequency).collect();
+            assert_eq!(&got, f);
+            assert_eq!(s.frame_count(), 2 * 3 * 5 * p);
+            let lin = ProjectorResponse::Linearised { gamma: 2.2 };
+            let s = Sequence::default_for(&setups(p, lin)).unwrap();
+            assert_eq!(s.steps(), 2 * p as u32 + 1);
+            let got: Vec<u32> = s.projectors().iter().map(|c| c.frequency).collect();
+            assert_eq!(got, (1..=p as u32).collect::<Vec<_>>());
+        }
+        // P = 3 default: 90 frames, columns first, N steps per count.
+        let s = Sequence::default_for(&setups(3, GAMMA)).unwrap();
+        assert_eq!(s.frame_count(), 90);
+        let f = s.frame(16).unwrap();
+        assert_eq!((f.direction, f.count, f.group, f.step), (Direction::Columns, 21, 1, 1));
+        let f = s.frame(89).unwrap();
+        assert_eq!((f.direction, f.count, f.group, f.step), (Direction::Rows, 25, 5, 14));
+        assert!(s.frame(90).is_none());
+    }
+
+    fn code(frequency: u32, response: ProjectorResponse) -> ProjectorCode {
+        ProjectorCode {
+            width: 1920,
+            height: 1080,
+            frequency,
+            response,
+        }
+    }
+
+    fn counts() -> Vec<u32> {
+        DEFAULT_COUNTS.to_vec()
+    }
+
+    #[test]
+    fn aliasing_sequences_are_refused_with_the_landing_bin() {
+        // The linear choice N = 2P+1, f = 1, 2 under gamma 2.2: 2·1 lands on f = 2.
+        let e = Sequence::new(5, vec![code(1, GAMMA), code(2, GAMMA)], counts(), counts())
+            .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "sequence: 2nd harmonic of projector 0 (f=1) lands on projector 1's frequency f=2 (2·1 = 2 ≡ 2 mod 5)"
+        );
+        // 3·2 = 6 ≡ −5 (mod 11) hits −f of the second projector.
+        let e = Sequence::new(11, vec![code(2, GAMMA), code(5, GAMMA)], counts(), counts())
+            .unwrap_err();
+        assert!(matches!(
+            e,
+            SequenceError::Alias {
+                harmonic: 3,
+                projector: 0,
+                target: AliasTarget::Frequency { projector: 1, negative: true, .. },
+                ..
+            }
+        ));
+        assert!(e.to_string().contains("projector 1's frequency −f=−5"), "{e}");
+        // Its own conjugate: N = 3, f = 1, 2·1 ≡ −1.
+        let e = Sequence::new(3, vec![code(1, GAMMA)], counts(), counts()).unwrap_err();
+        assert!(e.to_string().contains("2nd harmonic of projector 0 (f=1) lands on projector 0's frequency −f=−1"), "{e}");
+        let e = Sequence::new(6, vec![code(2, GAMMA)], counts(), counts()).unwrap_err();
+        assert!(e.to_string().ends_with("(2·2 = 4 ≡ −2 mod 6)"), "{e}");
+        // The same sequences are fine for linear light; equal fundamentals never are.
+        let lin = ProjectorResponse::Linear;
+        assert!(Sequence::new(5, vec![code(1, lin), code(2, lin)], counts(), counts()).is_ok());
+        let e = Sequence::new(5, vec![code(1, lin), code(1, lin)], counts(), counts())
+            .unwrap_err();
+        assert!(e.to_string().contains("fundamental of projector 0 (f=1) lands on projector 1's frequency f=1"), "{e}");
+        let e = Sequence::new(10, vec![code(5, lin)], counts(), counts()).unwrap_err();
+        assert!(matches!(e, SequenceError::FrequencyRange { projector: 0, frequency: 5, .. }));
+    }
+
+    #[test]
+    fn bad_counts_are_refused() {
+        let one = || vec![code(1, ProjectorResponse::Linear)];
+        for bad in [vec![20], vec![20, 25], vec![0, 21], vec![21, 21, 20], vec![20, 21, 600]] {
+            let e = Sequence::new(3, one(), counts(), bad.clone()).unwrap_err();
+            assert!(
+                matches!(&e, SequenceError::Counts { direction: Direction::Rows, counts, .. } if *counts == bad),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
+    fn sequence_round_trips_through_json_and_validates_on_load() {
+        let s = Sequence::default_for(&setups(3, GAMMA)).unwrap();
+        let json = serde_json::to_string(&s).unwrap();
+        assert_eq!(serde_json::from_str::<Sequence>(&json).unwrap(), s);
+        let aliasing = json.replacen("\"frequency\":6", "\"frequency\":2", 1);
+        let e = serde_json::from_str::<Sequence>(&aliasing).unwrap_err();
+        assert!(e.to_string().contains("harmonic"), "{e}");
+    }
+
+    #[test]
+    fn gamma_harmonics_match_the_design_figures() {
+        // DESIGN.md §6, γ = 2.2: 2nd 0.286, 3rd 0.011, 4th 0.0014 of the fundamental; mean
+        // over fundamental (γ+1)/(2γ) = 0.727; 2·a_1 = 0.989 of full white.
+        let a1 = pattern_harmonic(2.2, 1);
+        assert!((pattern_harmonic(2.2, 2) / a1 - 0.286).abs() < 0.0005);
+        assert!((pattern_harmonic(2.2, 3) / a1 - 0.011).abs() < 0.0005);
+        assert!((pattern_harmonic(2.2, 4).abs() / a1 - 0.0014).abs() < 0.00005);
+        assert!((pattern_harmonic(2.2, 0) / a1 - 3.2 / 4.4).abs() < 1e-9);
+        assert!((2.0 * a1 - 0.989).abs() < 0.0005);
+        assert!((pattern_harmonic(1.0, 0) - 0.5).abs() < 1e-12);
+        assert!((pattern_harmonic(1.0, 1) - 0.5).abs() < 1e-12);
+        assert!(pattern_harmonic(1.0, 2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn inverse_gamma_lut_linearises_light() {
+        let lut = inverse_gamma_lut(2.2);
+        let r = ProjectorResponse::Linearised { gamma: 2.2 };
+        for (level, &drive) in lut.iter().enumerate() {
+            let target = level as f64 / 255.0;
+            // Within half a drive step of the light curve (slope ≤ γ/255 per step).
+            assert!((r.light(drive) - target).abs() <= 0.5 * 2.2 / 255.0, "level {level}");
+        }
+        assert_eq!((lut[0], lut[255]), (0, 255));
+    }
+
+    #[test]
+    fn pattern_images_carry_the_documented_phase() {
+        // DFT over the N steps of a group at pixel x: arg X_f = 2π·n·(x + ½)/W (mod 2π),
+        // within the 8-bit quantisation (≈ 1/255 of the swing: < 0.01 rad).
+        let s = Sequence::new(
+            7,
+            vec![code(2, ProjectorResponse::Linear)],
+            counts(),
+            counts(),
+        )
+        .unwrap();
+        let group = 1; // columns, n = 21
+        let imgs: Vec<image::GrayImage> =
+            (0..7).map(|st| s.pattern_image(0, group * 7 + st)).collect();
+        assert_eq!(imgs[0].dimensions(), (1920, 1080));
+        for x in [0u32, 17, 500, 1919] {
+            let (mut re, mut im) = (0.0, 0.0);
+            for (st, img) in imgs.iter().enumerate() {
+                let v = f64::from(img.get_pixel(x, 300).0[0]);
+                let a = TAU_F * 2.0 * st as f64 / 7.0;
+                re += v * a.cos();
+                im += v * a.sin();
+            }
+            let want = TAU_F * 21.0 * (f64::from(x) + 0.5) / 1920.0;
+            let mut e = im.atan2(re) - want;
+            e -= TAU_F * (e / TAU_F).round();
+            assert!(e.abs() < 0.01, "x {x}: phase error {e}");
+        }
+        // Rows vary along y only; a linearised projector's image goes through the table.
+        let lin = Sequence::new(
+            5,
+            vec![code(1, ProjectorResponse::Linearised { gamma: 2.2 })],
+            counts(),
+            counts(),
+        )
+        .unwrap();
+        let k = 3 * 5 + 2;
+        let img = lin.pattern_image(0, k);
+        let lut = inverse_gamma_lut(2.2);
+        let level = (255.0 * lin.intensity(0, k, 0.0, 40.0)).round() as usize;
+        assert_eq!(img.get_pixel(700, 40).0[0], lut[level]);
+        assert_eq!(lin.drive(0, k, 12.3, 40.0), lut[level]);
+    }
+
+    const TAU_F: f64 = std::f64::consts::TAU;
 }

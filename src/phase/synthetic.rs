@@ -84,33 +84,44 @@ fn square_to_quad(quad: [[f64; 2]; 4]) -> Matrix3<f64> {
 }
 
 impl Scene {
-    /// The standard test scene: P projectors share the light above ambient equally; each
-    /// sees the camera's view as a slightly different perspective quadrilateral well inside
-    /// its screen, except the last, whose screen covers only part of the view (its left and
-    /// bottom edges cross the camera image), so it lights only part of the scene.
+    /// The standard test scene: P projectors share the light above ambient equally. Each
+    /// sees the camera's view as a slightly different perspective quadrilateral of about
+    /// 0.9 projector px per camera px (at most 90 % of its screen), so fringes of 1080/25
+    /// projector px are ≥ 48 camera px wide as in a real rig. Projector 0… P−2 see it centred in their screen; the last
+    /// one's screen corner lies inside the view (a quarter of the width and height are
+    /// outside its screen), so it lights only part of the scene.
     pub fn standard(width: u32, height: u32, setups: &[ProjectorSetup], seed: u64) -> Scene {
         let imaging = Imaging::default();
         let np = setups.len();
         let share = (imaging.white - imaging.ambient) / np as f64;
+        let (cw, ch) = (f64::from(width), f64::from(height));
         let projectors = setups
             .iter()
             .enumerate()
             .map(|(p, s)| {
                 let (w, h) = (f64::from(s.width), f64::from(s.height));
-                let j = 0.02 * p as f64;
-                let quad = if p + 1 == np {
-                    [[-0.35, 0.08 + j], [0.93, 0.04], [0.97 - j, 1.3], [-0.3, 1.25]]
+                let scale = 0.9f64.min(0.9 * w / cw).min(0.9 * h / ch);
+                let (sx, sy) = (scale * cw, scale * ch);
+                let (ox, oy) = if p + 1 == np {
+                    (-0.25 * sx, -0.25 * sy)
                 } else {
-                    [[0.05 + j, 0.06], [0.95, 0.04 + j], [0.93 - j, 0.95], [0.06, 0.93 - j]]
+                    (0.5 * (w - sx), 0.5 * (h - sy))
                 };
-                let to_proj = square_to_quad(quad.map(|[a, b]| [a * w, b * h]));
+                let j = 0.01 * p as f64;
+                let corners = [
+                    [0.02 + j, 0.03],
+                    [0.97, 0.02 + j],
+                    [0.98 - j, 0.97],
+                    [0.03, 0.98 - j],
+                ];
+                let to_proj = square_to_quad(corners.map(|[a, b]| [ox + a * sx, oy + b * sy]));
                 let from_cam = Matrix3::new(
-                    1.0 / f64::from(width),
+                    1.0 / cw,
                     0.0,
-                    0.5 / f64::from(width),
+                    0.5 / cw,
                     0.0,
-                    1.0 / f64::from(height),
-                    0.5 / f64::from(height),
+                    1.0 / ch,
+                    0.5 / ch,
                     0.0,
                     0.0,
                     1.0,
@@ -156,8 +167,11 @@ pub struct Truth {
     pub u: Vec<Vec<f64>>,
     /// Per projector: projector row v.
     pub v: Vec<Vec<f64>>,
-    /// Per projector: noise-free modulation B_p after the PSF (DN).
+    /// Per projector: noise-free modulation B_p after the PSF, which lowers the fringe
+    /// contrast (RMS over the groups, as the decoder reports it) (DN).
     pub modulation: Vec<Vec<f64>>,
+    /// Per projector: its full-white irradiance alone after the PSF (DN).
+    pub full_white: Vec<Vec<f64>>,
     /// Noise-free ambient image after the PSF (DN).
     pub ambient: Vec<f64>,
     /// Noise-free mean level A (DN).
@@ -358,6 +372,10 @@ impl<'a> Renderer<'a> {
             b.iter().zip(&self.albedo).map(|(x, y)| (x - y).abs() < 1e-5).collect()
         };
         let mut modulation = Vec::new();
+        let mut full_white = Vec::new();
+        let groups: Vec<_> = (0..self.seq.groups())
+            .map(|g| self.seq.frame(g * self.seq.steps() as usize).expect("group start"))
+            .collect();
         for (p, wgt) in self.weight.iter().enumerate() {
             let gamma = codes[p].response.effective_gamma();
             let (a0, a1) = (pattern_harmonic(gamma, 0), pattern_harmonic(gamma, 1));
@@ -365,7 +383,32 @@ impl<'a> Renderer<'a> {
             for (m, &v) in mean.iter_mut().zip(&b) {
                 *m += a0 * f64::from(v);
             }
-            modulation.push(b.iter().map(|&v| a1 * f64::from(v)).collect());
+            full_white.push(b.iter().map(|&v| f64::from(v)).collect());
+            // Per group: a_1·|PSF ∗ (weight·e^{iφ})|, then the RMS over groups.
+            let mut sq = vec![0f64; wgt.len()];
+            for fc in &groups {
+                let size = f64::from(match fc.direction {
+                    Direction::Columns => codes[p].width,
+                    Direction::Rows => codes[p].height,
+                });
+                let axis = usize::from(fc.direction == Direction::Rows);
+                let phase = |c: &[f64; 2]| TAU * f64::from(fc.count) * (c[axis] + 0.5) / size;
+                let re: Vec<f32> = wgt
+                    .iter()
+                    .zip(&self.coords[p])
+                    .map(|(&w, c)| w * phase(c).cos() as f32)
+                    .collect();
+                let im: Vec<f32> = wgt
+                    .iter()
+                    .zip(&self.coords[p])
+                    .map(|(&w, c)| w * phase(c).sin() as f32)
+                    .collect();
+                for ((s2, r), i) in sq.iter_mut().zip(blurred(&re)).zip(blurred(&im)) {
+                    *s2 += a1 * a1 * f64::from(r * r + i * i);
+                }
+            }
+            let ng = groups.len() as f64;
+            modulation.push(sq.iter().map(|s2| (s2 / ng).sqrt()).collect());
             let lit: Vec<f32> = wgt.iter().map(|&v| f32::from(u8::from(v > 0.0))).collect();
             for ((int, x), y) in interior.iter_mut().zip(blurred(&lit)).zip(&lit) {
                 *int &= (x - y).abs() < 1e-5;
@@ -380,6 +423,7 @@ impl<'a> Renderer<'a> {
             u: self.coords.iter().map(|c| c.iter().map(|q| q[0]).collect()).collect(),
             v: self.coords.iter().map(|c| c.iter().map(|q| q[1]).collect()).collect(),
             modulation,
+            full_white,
             ambient,
             mean,
             sigma_i,
