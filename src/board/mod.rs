@@ -52,7 +52,9 @@ impl std::str::FromStr for Side {
         match s {
             "front" => Ok(Side::Front),
             "back" => Ok(Side::Back),
-            other => Err(format!("unknown board side {other:?} (expected front or back)")),
+            other => Err(format!(
+                "unknown board side {other:?} (expected front or back)"
+            )),
         }
     }
 }

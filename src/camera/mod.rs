@@ -150,12 +150,8 @@ impl CameraModel {
 
     /// Project a point in the device frame; `None` behind the device (z ≤ 0).
     pub fn project(&self, p: &Point3<f64>) -> Option<Point2<f64>> {
-        (p.z > 0.0).then(|| {
-            self.to_pixel(
-                self.distortion
-                    .distort(Vector2::new(p.x / p.z, p.y / p.z)),
-            )
-        })
+        (p.z > 0.0)
+            .then(|| self.to_pixel(self.distortion.distort(Vector2::new(p.x / p.z, p.y / p.z))))
     }
 
     /// Undistorted normalised coordinates (x/z, y/z) of the ray through a pixel.

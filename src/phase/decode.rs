@@ -96,7 +96,9 @@ pub enum DecodeError {
         count: usize,
     },
     /// A frame of another size than the stack.
-    #[error("camera {camera}: frame {frame} is {got_width}×{got_height}, the stack is {width}×{height}")]
+    #[error(
+        "camera {camera}: frame {frame} is {got_width}×{got_height}, the stack is {width}×{height}"
+    )]
     Size {
         /// Camera label.
         camera: String,
@@ -112,7 +114,9 @@ pub enum DecodeError {
         height: u32,
     },
     /// A frame with fewer (or more) pixel values than its size says.
-    #[error("camera {camera}: frame {frame} is truncated: {got} pixel values for {expected} pixels")]
+    #[error(
+        "camera {camera}: frame {frame} is truncated: {got} pixel values for {expected} pixels"
+    )]
     Truncated {
         /// Camera label.
         camera: String,
@@ -295,10 +299,19 @@ pub struct Decoder<T: Sample> {
 /// Modulation quantisation: 2^15 steps per full scale (B ≤ 2·full scale).
 const B_STEPS: f32 = 32768.0;
 
+/// Pixels per strip in the DFT kernel.
+const CHUNK: usize = 64;
+
 impl<T: Sample> Decoder<T> {
     /// A decoder for `camera` (a label used in errors) with frames of `width` × `height`
     /// whose saturation level is `full_scale` (255 for 8 bit, 4095 for 12 bit, …).
-    pub fn new(seq: &Sequence, camera: impl Into<String>, width: u32, height: u32, full_scale: f32) -> Self {
+    pub fn new(
+        seq: &Sequence,
+        camera: impl Into<String>,
+        width: u32,
+        height: u32,
+        full_scale: f32,
+    ) -> Self {
         let npx = width as usize * height as usize;
         let n = seq.steps() as usize;
         let twiddles = seq
@@ -312,7 +325,8 @@ impl<T: Sample> Decoder<T> {
                 })
             })
             .collect();
-        let cons = |d| Constellation::new(seq.counts(d)).expect("a validated sequence has valid counts");
+        let cons =
+            |d| Constellation::new(seq.counts(d)).expect("a validated sequence has valid counts");
         Decoder {
             seq: seq.clone(),
             camera: camera.into(),
@@ -395,55 +409,125 @@ impl<T: Sample> Decoder<T> {
         let frames = &self.frames;
         let twiddles = &self.twiddles;
         let mut out = vec![0u16; npx * np * 2];
+        let inv_n = 1.0 / n as f32;
         out.par_chunks_mut(w * np * 2)
             .zip(self.pixels.par_chunks_mut(w))
             .enumerate()
             .for_each_init(
-                || (vec![0f32; w * (1 + 2 * np)], vec![0u8; w]),
-                |(acc, sat), (y, (out_row, stats_row))| {
-                    acc.fill(0.0);
-                    sat.fill(0);
-                    let (dc, reim) = acc.split_at_mut(w);
-                    for s in 0..n {
-                        let src = &frames[s * npx + y * w..][..w];
-                        for ((d, m), &v) in dc.iter_mut().zip(sat.iter_mut()).zip(src) {
-                            let v = v.value();
-                            *d += v;
-                            *m |= u8::from(v >= fs);
+                || vec![0f32; (4 + 2 * np) * CHUNK],
+                |scratch, (y, (out_row, stats_row))| {
+                    // Strips of CHUNK pixels: the sums stay in L1 over the N frames.
+                    for x0 in (0..w).step_by(CHUNK) {
+                        let len = CHUNK.min(w - x0);
+                        let (sum, rest) = scratch.split_at_mut(CHUNK);
+                        let (diff, rest) = rest.split_at_mut(CHUNK);
+                        let (peak, rest) = rest.split_at_mut(CHUNK);
+                        let (dc, reim) = rest.split_at_mut(CHUNK);
+                        let sum: &mut [f32; CHUNK] = sum.try_into().expect("CHUNK");
+                        let diff: &mut [f32; CHUNK] = diff.try_into().expect("CHUNK");
+                        let peak: &mut [f32; CHUNK] = peak.try_into().expect("CHUNK");
+                        let dc: &mut [f32; CHUNK] = dc.try_into().expect("CHUNK");
+                        let row = |s: usize| &frames[s * npx + y * w + x0..][..len];
+                        // Step 0 starts every sum (its twiddle is 1).
+                        sum.fill(0.0);
+                        for (v, &x) in sum.iter_mut().zip(row(0)) {
+                            *v = x.value();
                         }
-                        for p in 0..np {
-                            let [c, sn] = twiddles[p * n + s];
-                            let (re, im) = reim[p * 2 * w..(p + 1) * 2 * w].split_at_mut(w);
-                            for ((r, i), &v) in re.iter_mut().zip(im.iter_mut()).zip(src) {
-                                let v = v.value();
-                                *r += v * c;
-                                *i += v * sn;
+                        dc.copy_from_slice(sum);
+                        peak.copy_from_slice(sum);
+                        for sums in reim.chunks_exact_mut(2 * CHUNK) {
+                            let (re, im) = sums.split_at_mut(CHUNK);
+                            re.copy_from_slice(dc);
+                            im.fill(0.0);
+                        }
+                        // Steps s and N − s share |twiddle|: e^{±i2πfs/N}, so
+                        // X_f += (I_s + I_{N−s})·cos + i·(I_s − I_{N−s})·sin.
+                        for s in 1..n.div_ceil(2) {
+                            diff.fill(0.0);
+                            for (v, &x) in diff.iter_mut().zip(row(n - s)) {
+                                *v = x.value();
+                            }
+                            sum.fill(0.0);
+                            for (v, &x) in sum.iter_mut().zip(row(s)) {
+                                *v = x.value();
+                            }
+                            for i in 0..CHUNK {
+                                let (a, b) = (sum[i], diff[i]);
+                                peak[i] = if a > peak[i] { a } else { peak[i] };
+                                peak[i] = if b > peak[i] { b } else { peak[i] };
+                                sum[i] = a + b;
+                                diff[i] = a - b;
+                                dc[i] += a + b;
+                            }
+                            for (p, sums) in reim.chunks_exact_mut(2 * CHUNK).enumerate() {
+                                let [c, sn] = twiddles[p * n + s];
+                                let (re, im) = sums.split_at_mut(CHUNK);
+                                let re: &mut [f32; CHUNK] = re.try_into().expect("CHUNK");
+                                let im: &mut [f32; CHUNK] = im.try_into().expect("CHUNK");
+                                for i in 0..CHUNK {
+                                    re[i] += sum[i] * c;
+                                    im[i] += diff[i] * sn;
+                                }
                             }
                         }
-                    }
-                    let inv_n = 1.0 / n as f32;
-                    for x in 0..w {
-                        // A = X_0/N (DESIGN.md §6).
-                        let a = dc[x] * inv_n;
-                        let st = &mut stats_row[x];
-                        if g == 0 {
-                            st.first_mean = a;
-                        } else {
-                            let d = a - st.first_mean;
-                            st.sum_dev += d;
-                            st.sum_dev2 += d * d;
+                        if n % 2 == 0 {
+                            // The middle step's twiddle is (−1)^f.
+                            let s = n / 2;
+                            sum.fill(0.0);
+                            for (v, &x) in sum.iter_mut().zip(row(s)) {
+                                *v = x.value();
+                            }
+                            for i in 0..CHUNK {
+                                peak[i] = if sum[i] > peak[i] { sum[i] } else { peak[i] };
+                                dc[i] += sum[i];
+                            }
+                            for (p, sums) in reim.chunks_exact_mut(2 * CHUNK).enumerate() {
+                                let c = twiddles[p * n + s][0];
+                                for (r, &v) in sums[..CHUNK].iter_mut().zip(sum.iter()) {
+                                    *r += v * c;
+                                }
+                            }
                         }
-                        st.saturated |= sat[x] != 0;
-                    }
-                    for p in 0..np {
-                        let (re, im) = reim[p * 2 * w..(p + 1) * 2 * w].split_at(w);
-                        let o = &mut out_row[..];
-                        for x in 0..w {
-                            // φ_p = arg X_{f_p}, B_p = 2|X_{f_p}|/N (DESIGN.md §6).
-                            let psi = phase_cycles(im[x], re[x]);
-                            let b = 2.0 * (re[x] * re[x] + im[x] * im[x]).sqrt() * inv_n;
-                            o[(x * np + p) * 2] = (psi * 65536.0).round() as u32 as u16;
-                            o[(x * np + p) * 2 + 1] = (b * b_scale).round().min(65535.0) as u16;
+                        // Saturation is rare: look per pixel only when the strip reached it.
+                        if peak.iter().any(|&m| m >= fs) {
+                            for s in 0..n {
+                                for (st, &v) in stats_row[x0..x0 + len].iter_mut().zip(row(s)) {
+                                    st.saturated |= v.value() >= fs;
+                                }
+                            }
+                        }
+                        for (st, &d) in stats_row[x0..x0 + len].iter_mut().zip(dc.iter()) {
+                            // A = X_0/N (DESIGN.md §6).
+                            let a = d * inv_n;
+                            if g == 0 {
+                                st.first_mean = a;
+                            } else {
+                                let dev = a - st.first_mean;
+                                st.sum_dev += dev;
+                                st.sum_dev2 += dev * dev;
+                            }
+                        }
+                        for (p, sums) in reim.chunks_exact(2 * CHUNK).enumerate() {
+                            let (re, im) = sums.split_at(CHUNK);
+                            let re: &[f32; CHUNK] = re.try_into().expect("CHUNK");
+                            let im: &[f32; CHUNK] = im.try_into().expect("CHUNK");
+                            // φ_p = arg X_{f_p}, B_p = 2|X_{f_p}|/N (DESIGN.md §6), as 16-bit
+                            // fractions of a cycle and of full scale (rounded: both ≥ 0; a
+                            // phase of 1 cycle wraps to 0).
+                            let mut psi = [0f32; CHUNK];
+                            let mut bq = [0f32; CHUNK];
+                            for i in 0..CHUNK {
+                                let ph = phase_cycles(im[i], re[i]);
+                                let b = 2.0 * (re[i] * re[i] + im[i] * im[i]).sqrt() * inv_n;
+                                psi[i] = ph * 65536.0 + 0.5;
+                                bq[i] = (b * b_scale + 0.5).min(65535.0);
+                            }
+                            for i in 0..len {
+                                let o = ((x0 + i) * np + p) * 2;
+                                // Both are in [0.5, 65536.5): i32 is exact, u16 wraps 65536.
+                                out_row[o] = psi[i] as i32 as u16;
+                                out_row[o + 1] = bq[i] as i32 as u16;
+                            }
                         }
                     }
                 },
@@ -508,7 +592,10 @@ impl<T: Sample> Decoder<T> {
 
         let codes = seq.projectors();
         let gammas: Vec<f64> = codes.iter().map(|c| c.response.effective_gamma()).collect();
-        let fundamental: Vec<f32> = gammas.iter().map(|&g| pattern_harmonic(g, 1) as f32).collect();
+        let fundamental: Vec<f32> = gammas
+            .iter()
+            .map(|&g| pattern_harmonic(g, 1) as f32)
+            .collect();
         // Mean over fundamental: (γ+1)/(2γ) (DESIGN.md §6).
         let mean_ratio: Vec<f32> = gammas
             .iter()
@@ -740,32 +827,24 @@ fn fit_noise(s: &[f64; 5]) -> NoiseModel {
     }
 }
 
-/// arg(re + i·im) in cycles, in [0, 1); |error| < 2·10⁻⁶ cycles (Abramowitz & Stegun
+/// arg(re + i·im) in cycles, in [0, 1] (1 only for a zero angle approached from below, ≡ 0); |error| < 2·10⁻⁶ cycles (Abramowitz & Stegun
 /// 4.4.49 on the reduced octant, |ε| ≤ 10⁻⁵ rad).
-#[inline]
+#[inline(always)]
 fn phase_cycles(im: f32, re: f32) -> f32 {
+    // Branch-free (phases are random, so branches would mispredict): the octant's flips are
+    // blended in with 0/1 factors.
     let (ax, ay) = (re.abs(), im.abs());
     let (lo, hi) = (ax.min(ay), ax.max(ay));
-    let a = if hi > 0.0 { lo / hi } else { 0.0 };
+    let a = lo / hi.max(f32::MIN_POSITIVE);
     let a2 = a * a;
-    let mut r = a
+    let r = a
         * (0.999_866
             + a2 * (-0.330_299_5 + a2 * (0.180_141 + a2 * (-0.085_133 + a2 * 0.020_835_1))));
-    if ay > ax {
-        r = FRAC_PI_2 - r;
-    }
-    if re < 0.0 {
-        r = PI - r;
-    }
-    if im < 0.0 {
-        r = -r;
-    }
+    let flag = |b: bool| f32::from(u8::from(b));
+    let r = r + flag(ay > ax) * (FRAC_PI_2 - 2.0 * r);
+    let r = r + flag(re < 0.0) * (PI - 2.0 * r);
     let c = r * (1.0 / TAU);
-    if c < 0.0 {
-        c + 1.0
-    } else {
-        c
-    }
+    c + flag(im < 0.0) * (1.0 - 2.0 * c)
 }
 
 #[cfg(test)]
@@ -783,7 +862,7 @@ mod tests {
                 let mut e = got - a / std::f64::consts::TAU;
                 e -= e.round();
                 worst = worst.max(e.abs());
-                assert!((0.0..1.0).contains(&got));
+                assert!((0.0..=1.0).contains(&got));
             }
         }
         assert!(worst < 2e-6, "worst error {worst} cycles");

@@ -336,7 +336,13 @@ impl Sequence {
         let uncorrected = projectors.iter().any(|s| s.response.has_harmonics());
         let (steps, freqs): (u32, Vec<u32>) = if uncorrected {
             // ±1 mod 5: 1, 4, 6, 9, 11, …
-            let f = (0..p).map(|i| if i % 2 == 0 { 5 * (i / 2) + 1 } else { 5 * (i / 2) + 4 });
+            let f = (0..p).map(|i| {
+                if i % 2 == 0 {
+                    5 * (i / 2) + 1
+                } else {
+                    5 * (i / 2) + 4
+                }
+            });
             (5 * p, f.collect())
         } else {
             (2 * p + 1, (1..=p).collect())
@@ -351,7 +357,12 @@ impl Sequence {
                 response: s.response,
             })
             .collect();
-        Sequence::new(steps, codes, DEFAULT_COUNTS.to_vec(), DEFAULT_COUNTS.to_vec())
+        Sequence::new(
+            steps,
+            codes,
+            DEFAULT_COUNTS.to_vec(),
+            DEFAULT_COUNTS.to_vec(),
+        )
     }
 
     fn validate(&self) -> Result<(), SequenceError> {
@@ -533,8 +544,8 @@ impl Sequence {
         };
         // Spatial phase φ = 2π·n·(u + ½)/W; temporal shift 2π·f_p·s/N (DESIGN.md §6).
         let phi = 2.0 * PI * f64::from(frame.count) * (pos + 0.5) / f64::from(size);
-        let shift = 2.0 * PI * f64::from(code.frequency * frame.step % self.steps)
-            / f64::from(self.steps);
+        let shift =
+            2.0 * PI * f64::from(code.frequency * frame.step % self.steps) / f64::from(self.steps);
         0.5 * (1.0 + (phi - shift).cos())
     }
 
@@ -613,9 +624,15 @@ mod tests {
         let s = Sequence::default_for(&setups(3, GAMMA)).unwrap();
         assert_eq!(s.frame_count(), 90);
         let f = s.frame(16).unwrap();
-        assert_eq!((f.direction, f.count, f.group, f.step), (Direction::Columns, 21, 1, 1));
+        assert_eq!(
+            (f.direction, f.count, f.group, f.step),
+            (Direction::Columns, 21, 1, 1)
+        );
         let f = s.frame(89).unwrap();
-        assert_eq!((f.direction, f.count, f.group, f.step), (Direction::Rows, 25, 5, 14));
+        assert_eq!(
+            (f.direction, f.count, f.group, f.step),
+            (Direction::Rows, 25, 5, 14)
+        );
         assert!(s.frame(90).is_none());
     }
 
@@ -635,8 +652,8 @@ mod tests {
     #[test]
     fn aliasing_sequences_are_refused_with_the_landing_bin() {
         // The linear choice N = 2P+1, f = 1, 2 under gamma 2.2: 2·1 lands on f = 2.
-        let e = Sequence::new(5, vec![code(1, GAMMA), code(2, GAMMA)], counts(), counts())
-            .unwrap_err();
+        let e =
+            Sequence::new(5, vec![code(1, GAMMA), code(2, GAMMA)], counts(), counts()).unwrap_err();
         assert_eq!(
             e.to_string(),
             "sequence: 2nd harmonic of projector 0 (f=1) lands on projector 1's frequency f=2 (2·1 = 2 ≡ 2 mod 5)"
@@ -649,30 +666,58 @@ mod tests {
             SequenceError::Alias {
                 harmonic: 3,
                 projector: 0,
-                target: AliasTarget::Frequency { projector: 1, negative: true, .. },
+                target: AliasTarget::Frequency {
+                    projector: 1,
+                    negative: true,
+                    ..
+                },
                 ..
             }
         ));
-        assert!(e.to_string().contains("projector 1's frequency −f=−5"), "{e}");
+        assert!(
+            e.to_string().contains("projector 1's frequency −f=−5"),
+            "{e}"
+        );
         // Its own conjugate: N = 3, f = 1, 2·1 ≡ −1.
         let e = Sequence::new(3, vec![code(1, GAMMA)], counts(), counts()).unwrap_err();
-        assert!(e.to_string().contains("2nd harmonic of projector 0 (f=1) lands on projector 0's frequency −f=−1"), "{e}");
+        assert!(
+            e.to_string().contains(
+                "2nd harmonic of projector 0 (f=1) lands on projector 0's frequency −f=−1"
+            ),
+            "{e}"
+        );
         let e = Sequence::new(6, vec![code(2, GAMMA)], counts(), counts()).unwrap_err();
         assert!(e.to_string().ends_with("(2·2 = 4 ≡ −2 mod 6)"), "{e}");
         // The same sequences are fine for linear light; equal fundamentals never are.
         let lin = ProjectorResponse::Linear;
         assert!(Sequence::new(5, vec![code(1, lin), code(2, lin)], counts(), counts()).is_ok());
-        let e = Sequence::new(5, vec![code(1, lin), code(1, lin)], counts(), counts())
-            .unwrap_err();
-        assert!(e.to_string().contains("fundamental of projector 0 (f=1) lands on projector 1's frequency f=1"), "{e}");
+        let e = Sequence::new(5, vec![code(1, lin), code(1, lin)], counts(), counts()).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("fundamental of projector 0 (f=1) lands on projector 1's frequency f=1"),
+            "{e}"
+        );
         let e = Sequence::new(10, vec![code(5, lin)], counts(), counts()).unwrap_err();
-        assert!(matches!(e, SequenceError::FrequencyRange { projector: 0, frequency: 5, .. }));
+        assert!(matches!(
+            e,
+            SequenceError::FrequencyRange {
+                projector: 0,
+                frequency: 5,
+                ..
+            }
+        ));
     }
 
     #[test]
     fn bad_counts_are_refused() {
         let one = || vec![code(1, ProjectorResponse::Linear)];
-        for bad in [vec![20], vec![20, 25], vec![0, 21], vec![21, 21, 20], vec![20, 21, 600]] {
+        for bad in [
+            vec![20],
+            vec![20, 25],
+            vec![0, 21],
+            vec![21, 21, 20],
+            vec![20, 21, 600],
+        ] {
             let e = Sequence::new(3, one(), counts(), bad.clone()).unwrap_err();
             assert!(
                 matches!(&e, SequenceError::Counts { direction: Direction::Rows, counts, .. } if *counts == bad),
@@ -713,7 +758,10 @@ mod tests {
         for (level, &drive) in lut.iter().enumerate() {
             let target = level as f64 / 255.0;
             // Within half a drive step of the light curve (slope ≤ γ/255 per step).
-            assert!((r.light(drive) - target).abs() <= 0.5 * 2.2 / 255.0, "level {level}");
+            assert!(
+                (r.light(drive) - target).abs() <= 0.5 * 2.2 / 255.0,
+                "level {level}"
+            );
         }
         assert_eq!((lut[0], lut[255]), (0, 255));
     }
@@ -730,8 +778,9 @@ mod tests {
         )
         .unwrap();
         let group = 1; // columns, n = 21
-        let imgs: Vec<image::GrayImage> =
-            (0..7).map(|st| s.pattern_image(0, group * 7 + st)).collect();
+        let imgs: Vec<image::GrayImage> = (0..7)
+            .map(|st| s.pattern_image(0, group * 7 + st))
+            .collect();
         assert_eq!(imgs[0].dimensions(), (1920, 1080));
         for x in [0u32, 17, 500, 1919] {
             let (mut re, mut im) = (0.0, 0.0);

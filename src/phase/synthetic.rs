@@ -75,7 +75,10 @@ fn square_to_quad(quad: [[f64; 2]; 4]) -> Matrix3<f64> {
     for i in 0..4 {
         let ([x, y], [u, v]) = (src[i], quad[i]);
         a.set_row(2 * i, &[x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y].into());
-        a.set_row(2 * i + 1, &[0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y].into());
+        a.set_row(
+            2 * i + 1,
+            &[0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y].into(),
+        );
         b[2 * i] = u;
         b[2 * i + 1] = v;
     }
@@ -145,7 +148,10 @@ impl Scene {
         // Dark disks of radius 4 % of the short side on a grid of 1/5 of the width.
         let s = f64::from(self.width) / 5.0;
         let r = 0.04 * f64::from(self.width.min(self.height));
-        let (dx, dy) = (x - (x / s).floor() * s - 0.5 * s, y - (y / s).floor() * s - 0.5 * s);
+        let (dx, dy) = (
+            x - (x / s).floor() * s - 0.5 * s,
+            y - (y / s).floor() * s - 0.5 * s,
+        );
         if dx * dx + dy * dy < r * r {
             self.imaging.dark_albedo
         } else {
@@ -319,12 +325,11 @@ impl<'a> Renderer<'a> {
             for (x, e) in row.iter_mut().enumerate() {
                 let i = y * w + x;
                 let mut s = self.albedo[i] * ambient;
-                for p in 0..shifts.len() {
+                for (p, &[ct, st]) in shifts.iter().enumerate() {
                     let wgt = self.weight[p][i];
                     if wgt > 0.0 {
                         // c = ½(1 + cos(φ − θ)), quantised to the 8-bit level sent.
                         let [cp, sp] = self.trig[p][i];
-                        let [ct, st] = shifts[p];
                         let c = 0.5 * (1.0 + cp * ct + sp * st);
                         let level = (255.0 * c).round().clamp(0.0, 255.0) as usize;
                         s += wgt * self.light[p][level];
@@ -369,12 +374,19 @@ impl<'a> Renderer<'a> {
         let ambient = mean.clone();
         let mut interior: Vec<bool> = {
             let b = blurred(&self.albedo);
-            b.iter().zip(&self.albedo).map(|(x, y)| (x - y).abs() < 1e-5).collect()
+            b.iter()
+                .zip(&self.albedo)
+                .map(|(x, y)| (x - y).abs() < 1e-5)
+                .collect()
         };
         let mut modulation = Vec::new();
         let mut full_white = Vec::new();
         let groups: Vec<_> = (0..self.seq.groups())
-            .map(|g| self.seq.frame(g * self.seq.steps() as usize).expect("group start"))
+            .map(|g| {
+                self.seq
+                    .frame(g * self.seq.steps() as usize)
+                    .expect("group start")
+            })
             .collect();
         for (p, wgt) in self.weight.iter().enumerate() {
             let gamma = codes[p].response.effective_gamma();
@@ -420,8 +432,16 @@ impl<'a> Renderer<'a> {
             .map(|&a| (im.read_noise * im.read_noise + im.shot_gain * a + 1.0 / 12.0).sqrt())
             .collect();
         Truth {
-            u: self.coords.iter().map(|c| c.iter().map(|q| q[0]).collect()).collect(),
-            v: self.coords.iter().map(|c| c.iter().map(|q| q[1]).collect()).collect(),
+            u: self
+                .coords
+                .iter()
+                .map(|c| c.iter().map(|q| q[0]).collect())
+                .collect(),
+            v: self
+                .coords
+                .iter()
+                .map(|c| c.iter().map(|q| q[1]).collect())
+                .collect(),
             modulation,
             full_white,
             ambient,
@@ -430,26 +450,6 @@ impl<'a> Renderer<'a> {
             interior,
         }
     }
-}
-
-/// Figures of one decode benchmark run.
-#[derive(Clone, Debug)]
-pub struct DecodeBench {
-    /// Camera width × height (px).
-    pub size: (u32, u32),
-    /// Frames in the stack.
-    pub frames: usize,
-    /// Seconds to render the stack (not part of the decode).
-    pub render_seconds: f64,
-    /// Seconds from the first frame pushed to the decoded maps.
-    pub decode_seconds: f64,
-    /// Bytes the decoder holds at its peak (frame buffer + phases + statistics).
-    pub decoder_bytes: usize,
-    /// Bytes of the decoded maps.
-    pub output_bytes: usize,
-    /// Per projector: (valid pixels, RMS error of u and of v on valid interior pixels,
-    /// predicted σ_u and σ_v, pixels off by more than max(6σ_u, 1 px)).
-    pub accuracy: Vec<ProjectorAccuracy>,
 }
 
 /// Accuracy of one projector's decoded maps against the ground truth.
@@ -484,7 +484,13 @@ pub fn accuracy(
         .enumerate()
         .map(|(p, maps)| {
             let code = seq.projectors()[p];
-            let info = |d| seq.counts(d).iter().map(|&c| f64::from(c * c)).sum::<f64>().sqrt();
+            let info = |d| {
+                seq.counts(d)
+                    .iter()
+                    .map(|&c| f64::from(c * c))
+                    .sum::<f64>()
+                    .sqrt()
+            };
             let (ic, ir) = (info(Direction::Columns), info(Direction::Rows));
             let (mut cnt, mut su, mut sv, mut gross) = (0usize, 0f64, 0f64, 0usize);
             for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
@@ -518,9 +524,51 @@ pub fn accuracy(
         .collect()
 }
 
+/// Figures of one decode benchmark run.
+#[derive(Clone, Debug)]
+pub struct DecodeBench {
+    /// Camera width × height (px).
+    pub size: (u32, u32),
+    /// Frames in the stack.
+    pub frames: usize,
+    /// Seconds to render the stack (not part of the decode).
+    pub render_seconds: f64,
+    /// Seconds from the first frame pushed to the decoded maps, per repetition.
+    pub decode_seconds: Vec<f64>,
+    /// CPU seconds (all threads, user + system) of each decode (Linux; 10 ms ticks).
+    pub cpu_seconds: Vec<f64>,
+    /// Bytes the decoder holds at its peak (frame buffer + phases + statistics).
+    pub decoder_bytes: usize,
+    /// Bytes of the decoded maps.
+    pub output_bytes: usize,
+    /// Growth of the process's peak resident memory over the first decode (bytes; Linux).
+    pub peak_growth_bytes: Option<usize>,
+    /// Accuracy of the last decode against the ground truth.
+    pub accuracy: Vec<ProjectorAccuracy>,
+}
+
+/// CPU time of this process so far, user + system (Linux only).
+fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name: utime and stime are the 12th and 13th.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+/// A field of /proc/self/status in bytes (Linux only).
+fn proc_status_bytes(field: &str) -> Option<usize> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with(field))?;
+    let kib: usize = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
 /// Render the default stack of the standard scene (P projectors of 1920×1080 with gamma 2.2
-/// uncorrected, default sequence) for a `width` × `height` camera, then time its decoding.
-pub fn bench_decode(width: u32, height: u32, projectors: usize) -> DecodeBench {
+/// uncorrected, default sequence) for a `width` × `height` camera, then decode it
+/// `repeats` times, timing each decode.
+pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) -> DecodeBench {
     let setups = vec![
         ProjectorSetup {
             width: 1920,
@@ -535,16 +583,35 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize) -> DecodeBench {
     let mut renderer = Renderer::new(&scene, &seq);
     let frames: Vec<image::GrayImage> = (0..seq.frame_count()).map(|k| renderer.frame(k)).collect();
     let render_seconds = t0.elapsed().as_secs_f64();
-    let t1 = std::time::Instant::now();
-    let mut decoder = Decoder::<u8>::new(&seq, "bench", width, height, 255.0);
-    for (k, f) in frames.iter().enumerate() {
-        decoder
-            .push_frame(k, FrameRef::from(f))
-            .expect("frames match the sequence");
+    let mut decode_seconds = Vec::new();
+    let mut cpu_seconds = Vec::new();
+    let mut decoder_bytes = 0;
+    let mut peak_growth_bytes = None;
+    let mut last = None;
+    for _ in 0..repeats.max(1) {
+        drop(last.take()); // free the previous maps before decoding again
+        let before = proc_status_bytes("VmRSS:");
+        let cpu0 = process_cpu_seconds();
+        let t1 = std::time::Instant::now();
+        let mut decoder = Decoder::<u8>::new(&seq, "bench", width, height, 255.0);
+        for (k, f) in frames.iter().enumerate() {
+            decoder
+                .push_frame(k, FrameRef::from(f))
+                .expect("frames match the sequence");
+        }
+        decoder_bytes = decoder.buffer_bytes();
+        last = Some(decoder.finish().expect("complete stack"));
+        decode_seconds.push(t1.elapsed().as_secs_f64());
+        if let Some((a, b)) = cpu0.zip(process_cpu_seconds()) {
+            cpu_seconds.push(b - a);
+        }
+        if peak_growth_bytes.is_none() {
+            peak_growth_bytes = before
+                .zip(proc_status_bytes("VmHWM:"))
+                .map(|(b, h)| h.saturating_sub(b));
+        }
     }
-    let decoder_bytes = decoder.buffer_bytes();
-    let decoded = decoder.finish().expect("complete stack");
-    let decode_seconds = t1.elapsed().as_secs_f64();
+    let decoded = last.expect("at least one decode");
     let npx = width as usize * height as usize;
     let output_bytes = npx * (4 + 1 + projectors * (4 * 4 + 1));
     let truth = renderer.truth();
@@ -553,8 +620,10 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize) -> DecodeBench {
         frames: frames.len(),
         render_seconds,
         decode_seconds,
+        cpu_seconds,
         decoder_bytes,
         output_bytes,
+        peak_growth_bytes,
         accuracy: accuracy(&decoded, &truth, &seq),
     }
 }

@@ -65,7 +65,13 @@ fn check_case(case: &Case, label: &str) {
         let acc = accuracy(decoded, truth, seq)[p];
         // Truth-based prediction over the same valid pixels: σ_φ = √(2/N)·σ_I/B,
         // σ_u = W·σ_φ/(2π·√Σn²) (DESIGN.md §6), RMS over pixels.
-        let info = |d| seq.counts(d).iter().map(|&c| f64::from(c * c)).sum::<f64>().sqrt();
+        let info = |d| {
+            seq.counts(d)
+                .iter()
+                .map(|&c| f64::from(c * c))
+                .sum::<f64>()
+                .sqrt()
+        };
         let (mut pu, mut pv, mut pu_all, mut cnt_all) = (0f64, 0f64, 0f64, 0usize);
         let (mut edge_worst, mut edge_count) = (0f64, 0usize);
         for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
@@ -73,8 +79,10 @@ fn check_case(case: &Case, label: &str) {
                 continue;
             }
             let sphi = (2.0 / n).sqrt() * truth.sigma_i[i] / truth.modulation[p][i];
-            let su = f64::from(code.width) * sphi / (std::f64::consts::TAU * info(Direction::Columns));
-            let sv = f64::from(code.height) * sphi / (std::f64::consts::TAU * info(Direction::Rows));
+            let su =
+                f64::from(code.width) * sphi / (std::f64::consts::TAU * info(Direction::Columns));
+            let sv =
+                f64::from(code.height) * sphi / (std::f64::consts::TAU * info(Direction::Rows));
             pu_all += su * su;
             cnt_all += 1;
             if truth.interior[i] {
@@ -97,13 +105,31 @@ fn check_case(case: &Case, label: &str) {
         );
         // Enough pixels for the RMS to mean something (its relative standard error is
         // 1/√(2·compared) < 1 %).
-        assert!(acc.compared > 5000, "{label} p{p}: only {} compared", acc.compared);
+        assert!(
+            acc.compared > 5000,
+            "{label} p{p}: only {} compared",
+            acc.compared
+        );
         // Issue 9: RMS ≤ 1.2× the predicted σ, against both the truth-based prediction and the
         // decoder's own report.
-        assert!(acc.rms_u <= 1.2 * pu, "{label} p{p}: rms u {} vs {pu}", acc.rms_u);
-        assert!(acc.rms_v <= 1.2 * pv, "{label} p{p}: rms v {} vs {pv}", acc.rms_v);
-        assert!(acc.rms_u <= 1.2 * maps.noise.sigma_u, "{label} p{p}: reported σ_u");
-        assert!(acc.rms_v <= 1.2 * maps.noise.sigma_v, "{label} p{p}: reported σ_v");
+        assert!(
+            acc.rms_u <= 1.2 * pu,
+            "{label} p{p}: rms u {} vs {pu}",
+            acc.rms_u
+        );
+        assert!(
+            acc.rms_v <= 1.2 * pv,
+            "{label} p{p}: rms v {} vs {pv}",
+            acc.rms_v
+        );
+        assert!(
+            acc.rms_u <= 1.2 * maps.noise.sigma_u,
+            "{label} p{p}: reported σ_u"
+        );
+        assert!(
+            acc.rms_v <= 1.2 * maps.noise.sigma_v,
+            "{label} p{p}: reported σ_v"
+        );
         // The decoder's prediction from its measured B and σ_I agrees with the truth's: B is
         // unbiased after the noise correction and σ_I comes from a fit over all pixels, so a
         // 10 % band is wide (their own statistical error is < 1 %).
@@ -117,9 +143,15 @@ fn check_case(case: &Case, label: &str) {
         assert_eq!(acc.gross, 0, "{label} p{p}: gross errors");
         // At albedo and coverage edges the decoded coordinate is the lit part's centroid, a
         // fraction of the PSF away, never a fringe order away.
-        let jump = half_order_jump(seq, Direction::Columns, code.width)
-            .min(half_order_jump(seq, Direction::Rows, code.height));
-        assert!(edge_worst < jump, "{label} p{p}: edge error {edge_worst} px");
+        let jump = half_order_jump(seq, Direction::Columns, code.width).min(half_order_jump(
+            seq,
+            Direction::Rows,
+            code.height,
+        ));
+        assert!(
+            edge_worst < jump,
+            "{label} p{p}: edge error {edge_worst} px"
+        );
     }
     // Ambient image against the truth: A − Σ κ_p·B_p, κ_p = a_0/a_1 (0.727 for γ = 2.2).
     // Where projector p lights the pixel (B ≫ σ_I): Var(Ā) = σ_I²/(G·N) and B_p, the RMS over
@@ -142,7 +174,7 @@ fn check_case(case: &Case, label: &str) {
     // [count, Σe², Σe, Σσ², beyond 3σ] for pixels lit by all, and unlit by some.
     let mut classes = [[0f64; 5]; 2];
     let amb = decoded.ambient.as_raw();
-    for i in 0..amb.len() {
+    for (i, &amb_i) in amb.iter().enumerate() {
         let s2 = truth.sigma_i[i].powi(2);
         let lit = |p: usize| truth.modulation[p][i] >= 5.0 * truth.sigma_i[i];
         let unlit = |p: usize| truth.full_white[p][i] == 0.0;
@@ -164,7 +196,7 @@ fn check_case(case: &Case, label: &str) {
                     }
                 })
                 .sum::<f64>();
-        let e = f64::from(amb[i]) - truth.ambient[i];
+        let e = f64::from(amb_i) - truth.ambient[i];
         let c = &mut classes[class];
         c[0] += 1.0;
         c[1] += e * e;
@@ -183,20 +215,29 @@ fn check_case(case: &Case, label: &str) {
             "{label} ambient {name}: {} px rms {rms:.3} predicted {pred:.3} bias {bias:.3} beyond 3σ {frac:.4}",
             c[0]
         );
-        assert!(rms < 1.2 * pred, "{label} {name}: ambient rms {rms} vs {pred}");
+        assert!(
+            rms < 1.2 * pred,
+            "{label} {name}: ambient rms {rms} vs {pred}"
+        );
         if class == 0 {
             // Gaussian: 0.27 % beyond 3σ. The PSF lowers the fringe contrast by
             // 1 − e^{−(2πσ_psf/48)²/2} ≤ 0.55 % for ≥ 48 px fringes, biasing the ambient by
             // ≤ 0.0055·Σκ_p·B_p ≈ 0.3σ_amb; 1 % beyond 3σ and |bias| < 0.5σ_amb allow for it.
             assert!(frac < 0.01, "{label}: {frac} of ambient pixels beyond 3σ");
-            assert!(bias.abs() < 0.5 * pred, "{label}: ambient bias {bias} vs σ {pred}");
+            assert!(
+                bias.abs() < 0.5 * pred,
+                "{label}: ambient bias {bias} vs σ {pred}"
+            );
         }
     }
     // The measured noise model against read² + 0.1·A + 1/12.
     for a in [40.0, 150.0] {
         let want = (4.0 + 0.1 * a + 1.0 / 12.0f64).sqrt();
         let got = decoded.noise.sigma(a);
-        assert!((got / want - 1.0).abs() < 0.05, "{label}: σ_I({a}) {got} vs {want}");
+        assert!(
+            (got / want - 1.0).abs() < 0.05,
+            "{label}: σ_I({a}) {got} vs {want}"
+        );
     }
     assert_eq!(decoded.projectors.len(), np);
 }
@@ -251,7 +292,10 @@ fn lit_images_are_each_projectors_full_white_alone() {
             "p{p}: lit bias {rel:.5} over {cnt} px; PSF contrast {:.4}",
             mtf / f64::from(cnt)
         );
-        assert!(cnt > 10_000 && rel.abs() < 0.003, "p{p}: lit bias {rel} over {cnt}");
+        assert!(
+            cnt > 10_000 && rel.abs() < 0.003,
+            "p{p}: lit bias {rel} over {cnt}"
+        );
     }
 }
 
@@ -264,7 +308,9 @@ fn saturated_pixels_are_invalid() {
     let mut renderer = Renderer::new(&scene, &seq);
     let mut decoder = Decoder::<u8>::new(&seq, "cam", 160, 120, 255.0);
     for k in 0..seq.frame_count() {
-        decoder.push_frame(k, FrameRef::from(&renderer.frame(k))).unwrap();
+        decoder
+            .push_frame(k, FrameRef::from(&renderer.frame(k)))
+            .unwrap();
     }
     let d = decoder.finish().unwrap();
     let sat = d.saturated.count();
@@ -320,7 +366,10 @@ fn missing_truncated_and_missized_frames_name_camera_and_frame() {
     }
     let small = image::GrayImage::new(32, 48);
     let e = d.push_frame(4, FrameRef::from(&small)).unwrap_err();
-    assert_eq!(e.to_string(), "camera left-7: frame 4 is 32×48, the stack is 64×48");
+    assert_eq!(
+        e.to_string(),
+        "camera left-7: frame 4 is 32×48, the stack is 64×48"
+    );
 
     // The stack stops after 29 of 30 frames.
     let mut d = new();
@@ -339,7 +388,14 @@ fn missing_truncated_and_missized_frames_name_camera_and_frame() {
         d.push_frame(k, FrameRef::from(f)).unwrap();
     }
     let e = d.push_frame(30, FrameRef::from(&frames[0])).unwrap_err();
-    assert!(matches!(e, DecodeError::TooMany { frame: 30, count: 30, .. }));
+    assert!(matches!(
+        e,
+        DecodeError::TooMany {
+            frame: 30,
+            count: 30,
+            ..
+        }
+    ));
     assert!(d.finish().is_ok());
 }
 
@@ -359,9 +415,21 @@ fn sixteen_bit_and_float_frames_decode_like_eight_bit() {
             pixels,
         };
         d16.push_frame(k, fr(&wide[..])).unwrap();
-        df.push_frame(k, FrameRef { width: 64, height: 48, pixels: &float[..] }).unwrap();
+        df.push_frame(
+            k,
+            FrameRef {
+                width: 64,
+                height: 48,
+                pixels: &float[..],
+            },
+        )
+        .unwrap();
     }
-    let (a, b, c) = (d8.finish().unwrap(), d16.finish().unwrap(), df.finish().unwrap());
+    let (a, b, c) = (
+        d8.finish().unwrap(),
+        d16.finish().unwrap(),
+        df.finish().unwrap(),
+    );
     assert_eq!(a.projectors[0].u, b.projectors[0].u);
     assert_eq!(a.projectors[0].u, c.projectors[0].u);
     assert_eq!(a.ambient, c.ambient);

@@ -40,11 +40,10 @@ pub struct Unwrapped {
 #[derive(Clone, Debug)]
 pub struct Constellation {
     counts: Vec<u32>,
+    counts_f32: [f32; MAX_COUNTS],
     /// Orthonormal basis of the hyperplane orthogonal to n: `dims` rows of M entries.
     basis: Vec<[f32; MAX_COUNTS]>,
-    /// Projected points −Q^T k, `dims` coordinates each (padded to MAX_COUNTS − 1).
-    points: Vec<[f32; MAX_COUNTS - 1]>,
-    /// Fringe orders k of each point.
+    /// Fringe orders k of each point (the points −Q^T k live in the grid).
     orders: Vec<[i32; MAX_COUNTS]>,
     /// Smallest distance between two points (cycles).
     spacing: f64,
@@ -56,11 +55,18 @@ pub struct Constellation {
 #[derive(Clone, Debug)]
 struct Grid {
     origin: [f32; MAX_COUNTS - 1],
-    cell: f32,
     dims: [usize; MAX_COUNTS - 1],
     /// CSR: candidates of cell c are `candidates[start[c]..start[c + 1]]`.
     start: Vec<u32>,
     candidates: Vec<u32>,
+    /// The candidates' coordinates, inline for the search.
+    candidate_points: Vec<[f32; MAX_COUNTS - 1]>,
+    /// Per cell: its only candidate, or `u16::MAX` when several remain.
+    single: Vec<u16>,
+    /// The projected constellation points −Q^T k, `dims` coordinates each (padded).
+    points: Vec<[f32; MAX_COUNTS - 1]>,
+    /// 1 / cell.
+    inv_cell: f32,
 }
 
 fn gcd(a: u32, b: u32) -> u32 {
@@ -79,7 +85,9 @@ impl Constellation {
             return Err(ConstellationError::Arity(counts.to_vec()));
         }
         let distinct: BTreeSet<u32> = counts.iter().copied().collect();
-        if distinct.len() != m || counts.contains(&0) || counts.iter().fold(0, |g, &c| gcd(g, c)) != 1
+        if distinct.len() != m
+            || counts.contains(&0)
+            || counts.iter().fold(0, |g, &c| gcd(g, c)) != 1
         {
             return Err(ConstellationError::Counts(counts.to_vec()));
         }
@@ -171,11 +179,15 @@ impl Constellation {
                 r
             })
             .collect();
-        let grid = Grid::build(&basis, &points, dims, spacing);
+        let grid = Grid::build(&basis, points, dims, spacing);
+        let mut counts_f32 = [0f32; MAX_COUNTS];
+        for (c, &n) in counts_f32.iter_mut().zip(counts) {
+            *c = n as f32;
+        }
         Ok(Constellation {
             counts: counts.to_vec(),
+            counts_f32,
             basis: basis32,
-            points,
             orders,
             spacing,
             grid,
@@ -189,12 +201,12 @@ impl Constellation {
 
     /// Number of distinct constellation points.
     pub fn len(&self) -> usize {
-        self.points.len()
+        self.grid.points.len()
     }
 
     /// Whether the constellation is empty (never, for a valid count set).
     pub fn is_empty(&self) -> bool {
-        self.points.is_empty()
+        self.grid.points.is_empty()
     }
 
     /// Smallest distance between two constellation points (rad).
@@ -205,43 +217,41 @@ impl Constellation {
     /// Unwrap wrapped phases `psi[i]` ∈ [0, 1) (cycles) of the counts, fusing the positions
     /// with weights `weight[i]`·n_i² (pass weight ∝ 1/σ_φ,i², e.g. B_i²).
     pub fn unwrap(&self, psi: &[f32], weight: &[f32]) -> Unwrapped {
-        let m = self.counts.len();
-        let dims = m - 1;
-        let mut z = [0f32; MAX_COUNTS - 1];
-        for (d, q) in self.basis.iter().enumerate() {
-            z[d] = (0..m).map(|i| q[i] * psi[i]).sum();
+        match self.counts.len() {
+            2 => self.unwrap_m::<2, 1>(psi, weight),
+            3 => self.unwrap_m::<3, 2>(psi, weight),
+            _ => self.unwrap_m::<4, 3>(psi, weight),
         }
-        let (best, d2) = self.grid.nearest(&self.points, &z, dims);
+    }
+
+    /// [`Self::unwrap`] for M counts (D = M − 1 projected dimensions), unrolled.
+    #[inline(always)]
+    fn unwrap_m<const M: usize, const D: usize>(&self, psi: &[f32], weight: &[f32]) -> Unwrapped {
+        let psi: &[f32; M] = psi.try_into().expect("one phase per count");
+        let weight: &[f32; M] = weight.try_into().expect("one weight per count");
+        let mut z = [0f32; MAX_COUNTS - 1];
+        for (zd, q) in z.iter_mut().zip(&self.basis).take(D) {
+            *zd = (0..M).map(|i| q[i] * psi[i]).sum();
+        }
+        let (best, d2) = self.grid.nearest::<D>(&z);
         let k = &self.orders[best];
         // Fused position: t = Σ w_i n_i (ψ_i + k_i) / Σ w_i n_i² (least squares along n).
         let (mut num, mut den) = (0f32, 0f32);
-        for i in 0..m {
-            let ni = self.counts[i] as f32;
-            let w = weight[i].max(f32::MIN_POSITIVE);
-            num += w * ni * (psi[i] + k[i] as f32);
-            den += w * ni * ni;
+        for i in 0..M {
+            let ni = self.counts_f32[i];
+            let w = weight[i].max(f32::MIN_POSITIVE) * ni;
+            num += w * (psi[i] + k[i] as f32);
+            den += w * ni;
         }
         let t = num / den;
+        // t ∈ (−1, 2): wrap into [0, 1) without a libm floor.
+        let whole = t as i32 as f32;
+        let whole = if whole > t { whole - 1.0 } else { whole };
         Unwrapped {
-            position: t - t.floor(),
+            position: t - whole,
             distance: d2.sqrt() * std::f32::consts::TAU,
         }
     }
-
-    /// Brute-force nearest point (for checking the grid).
-    #[cfg(test)]
-    fn nearest_brute(&self, z: &[f32; MAX_COUNTS - 1]) -> usize {
-        let dims = self.counts.len() - 1;
-        (0..self.points.len())
-            .min_by(|&a, &b| {
-                sq_dist(&self.points[a], z, dims).total_cmp(&sq_dist(&self.points[b], z, dims))
-            })
-            .unwrap_or(0)
-    }
-}
-
-fn sq_dist(a: &[f32; MAX_COUNTS - 1], b: &[f32; MAX_COUNTS - 1], dims: usize) -> f32 {
-    (0..dims).map(|d| (a[d] - b[d]) * (a[d] - b[d])).sum()
 }
 
 /// Representative of k modulo n (k and k + n give the same projected point): k_0 in [0, n_0).
@@ -278,7 +288,12 @@ fn orthonormal_complement(n: &[f64]) -> Vec<Vec<f64>> {
 }
 
 impl Grid {
-    fn build(basis: &[Vec<f64>], points: &[[f32; MAX_COUNTS - 1]], dims: usize, spacing: f64) -> Grid {
+    fn build(
+        basis: &[Vec<f64>],
+        points: Vec<[f32; MAX_COUNTS - 1]>,
+        dims: usize,
+        spacing: f64,
+    ) -> Grid {
         // The projected unit cube: per axis, the sums of the negative and positive entries.
         let mut origin = [0f32; MAX_COUNTS - 1];
         let mut extent = [0f64; MAX_COUNTS - 1];
@@ -288,10 +303,10 @@ impl Grid {
             origin[d] = lo as f32;
             extent[d] = hi - lo;
         }
-        // Cells of a quarter spacing, capped at 2^18 cells in all.
-        let max_cells_per_axis = (2f64.powi(18)).powf(1.0 / dims as f64).floor();
+        // Cells of 1/16 spacing (mostly a single candidate), capped at 2^16 cells in all.
+        let max_cells_per_axis = (2f64.powi(16)).powf(1.0 / dims as f64).floor();
         let widest = extent[..dims].iter().cloned().fold(0.0, f64::max);
-        let cell = (spacing / 4.0).max(widest / max_cells_per_axis);
+        let cell = (spacing / 16.0).max(widest / max_cells_per_axis);
         let mut gdims = [1usize; MAX_COUNTS - 1];
         for d in 0..dims {
             gdims[d] = ((extent[d] / cell).ceil() as usize).max(1);
@@ -313,7 +328,7 @@ impl Grid {
             // Squared min / max distance from each point to the cell box.
             let mut best_max = f64::INFINITY;
             let mut mins = Vec::with_capacity(points.len());
-            for p in points {
+            for p in &points {
                 let (mut dmin, mut dmax) = (0.0, 0.0);
                 for d in 0..dims {
                     let x = f64::from(p[d]);
@@ -332,38 +347,56 @@ impl Grid {
             }
             start.push(candidates.len() as u32);
         }
+        let candidate_points = candidates.iter().map(|&c| points[c as usize]).collect();
+        let single = start
+            .windows(2)
+            .map(|r| {
+                if r[1] - r[0] == 1 && points.len() < usize::from(u16::MAX) {
+                    candidates[r[0] as usize] as u16
+                } else {
+                    u16::MAX
+                }
+            })
+            .collect();
         Grid {
             origin,
-            cell: cell as f32,
+            single,
+            points,
+            inv_cell: (1.0 / cell) as f32,
             dims: gdims,
             start,
             candidates,
+            candidate_points,
         }
     }
 
-    fn nearest(
-        &self,
-        points: &[[f32; MAX_COUNTS - 1]],
-        z: &[f32; MAX_COUNTS - 1],
-        dims: usize,
-    ) -> (usize, f32) {
+    #[inline(always)]
+    fn nearest<const D: usize>(&self, z: &[f32; MAX_COUNTS - 1]) -> (usize, f32) {
+        let dist2 = |p: &[f32; MAX_COUNTS - 1]| -> f32 {
+            (0..D).map(|d| (p[d] - z[d]) * (p[d] - z[d])).sum()
+        };
         let mut idx = 0usize;
         let mut stride = 1usize;
-        for d in 0..dims {
-            let i = ((z[d] - self.origin[d]) / self.cell).floor();
-            let i = (i.max(0.0) as usize).min(self.dims[d] - 1);
-            idx += i * stride;
-            stride *= self.dims[d];
+        for ((&zd, &o), &n) in z.iter().zip(&self.origin).zip(&self.dims).take(D) {
+            // Truncation of a non-negative value is its floor.
+            let i = ((zd - o) * self.inv_cell).max(0.0) as usize;
+            idx += i.min(n - 1) * stride;
+            stride *= n;
         }
-        let cands = &self.candidates[self.start[idx] as usize..self.start[idx + 1] as usize];
-        let mut best = (cands[0] as usize, f32::INFINITY);
-        for &c in cands {
-            let d2 = sq_dist(&points[c as usize], z, dims);
+        let only = self.single[idx];
+        if only != u16::MAX {
+            let c = usize::from(only);
+            return (c, dist2(&self.points[c]));
+        }
+        let (lo, hi) = (self.start[idx] as usize, self.start[idx + 1] as usize);
+        let mut best = (lo, f32::INFINITY);
+        for (j, p) in self.candidate_points[lo..hi].iter().enumerate() {
+            let d2 = dist2(p);
             if d2 < best.1 {
-                best = (c as usize, d2);
+                best = (lo + j, d2);
             }
         }
-        best
+        (self.candidates[best.0] as usize, best.1)
     }
 }
 
@@ -373,6 +406,19 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_distr::{Distribution, Normal};
     use rayon::prelude::*;
+
+    fn sq_dist(a: &[f32; MAX_COUNTS - 1], b: &[f32; MAX_COUNTS - 1], dims: usize) -> f32 {
+        (0..dims).map(|d| (a[d] - b[d]) * (a[d] - b[d])).sum()
+    }
+
+    /// Brute-force nearest point (for checking the grid).
+    fn nearest_brute(c: &Constellation, z: &[f32; MAX_COUNTS - 1]) -> usize {
+        let dims = c.counts.len() - 1;
+        let pts = &c.grid.points;
+        (0..pts.len())
+            .min_by(|&a, &b| sq_dist(&pts[a], z, dims).total_cmp(&sq_dist(&pts[b], z, dims)))
+            .unwrap_or(0)
+    }
 
     #[test]
     fn spacing_of_default_counts_matches_design() {
@@ -385,9 +431,18 @@ mod tests {
 
     #[test]
     fn refuses_bad_count_sets() {
-        assert!(matches!(Constellation::new(&[20]), Err(ConstellationError::Arity(_))));
-        assert!(matches!(Constellation::new(&[20, 25]), Err(ConstellationError::Counts(_))));
-        assert!(matches!(Constellation::new(&[20, 20, 21]), Err(ConstellationError::Counts(_))));
+        assert!(matches!(
+            Constellation::new(&[20]),
+            Err(ConstellationError::Arity(_))
+        ));
+        assert!(matches!(
+            Constellation::new(&[20, 25]),
+            Err(ConstellationError::Counts(_))
+        ));
+        assert!(matches!(
+            Constellation::new(&[20, 20, 21]),
+            Err(ConstellationError::Counts(_))
+        ));
     }
 
     #[test]
@@ -402,10 +457,17 @@ mod tests {
                 for (d, q) in c.basis.iter().enumerate() {
                     z[d] = (0..m).map(|i| q[i] * psi[i]).sum();
                 }
-                let (g, gd) = c.grid.nearest(&c.points, &z, m - 1);
-                let b = c.nearest_brute(&z);
-                let bd = sq_dist(&c.points[b], &z, m - 1);
-                assert!(g == b || (gd - bd).abs() < 1e-7, "{counts:?}: grid {g} brute {b}");
+                let (g, gd) = match m {
+                    2 => c.grid.nearest::<1>(&z),
+                    3 => c.grid.nearest::<2>(&z),
+                    _ => c.grid.nearest::<3>(&z),
+                };
+                let b = nearest_brute(&c, &z);
+                let bd = sq_dist(&c.grid.points[b], &z, m - 1);
+                assert!(
+                    g == b || (gd - bd).abs() < 1e-7,
+                    "{counts:?}: grid {g} brute {b}"
+                );
             }
         }
     }
