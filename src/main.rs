@@ -61,12 +61,17 @@ fn main() -> anyhow::Result<()> {
                 rayon::current_num_threads(),
                 r.render_seconds
             );
-            let times: Vec<String> = r.decode_seconds.iter().map(|s| format!("{s:.3}")).collect();
-            let cpu: Vec<String> = r.cpu_seconds.iter().map(|s| format!("{s:.2}")).collect();
+            for run in &r.runs {
+                let cpu = |s: Option<f64>| s.map_or("n/a".into(), |s| format!("{s:.2} s"));
+                println!(
+                    "decode {:.3} s wall; CPU {} in frame pushes + {} in finish",
+                    run.wall_seconds,
+                    cpu(run.push_cpu_seconds),
+                    cpu(run.finish_cpu_seconds)
+                );
+            }
             println!(
-                "decode time: {} s wall, {} s CPU (load average before: {})",
-                times.join(", "),
-                cpu.join(", "),
+                "load average: {}",
                 std::fs::read_to_string("/proc/loadavg")
                     .unwrap_or_default()
                     .trim()

@@ -4,12 +4,14 @@
 //!
 //! Streaming: frames arrive one by one. The frames of the current (direction, count) group —
 //! N of the stack's G·N frames — are kept as they came (8 or 16 bit); when a group is
-//! complete its DFT is taken row by row in cache-sized scratch (per pixel: the mean and, for
-//! each projector frequency f_p, Σ I_s·e^{i2πf_p s/N}) on all cores, and only the wrapped
-//! phase and modulation per projector are kept (16 bit each). Accumulating the DFT over the
-//! whole image frame by frame would stream (2P+1) f32 accumulators through memory for every
-//! frame (≈ 130 MB per 1920×1200 frame at P = 3, ≈ 12 GB per stack), which is
-//! bandwidth-bound; the group buffer is smaller than those accumulators for 8-bit frames.
+//! complete its DFT is taken on all cores in strips of 64 pixels whose sums stay in L1 (per
+//! pixel: the mean and, for each projector frequency f_p, X_f = Σ I_s·e^{i2πf_p s/N}, with
+//! steps s and N − s paired so that the P frequencies share one sum and one difference per
+//! pair), and only the wrapped phase and modulation per projector are kept (16 bit each).
+//! Accumulating the DFT over the whole image frame by frame would stream (2P+1) f32
+//! accumulators through memory for every frame (≈ 130 MB per 1920×1200 frame at P = 3,
+//! ≈ 12 GB per stack), which is bandwidth-bound; the group buffer (N 8-bit frames) is smaller
+//! than those accumulators, and the stack is never held twice.
 //!
 //! Noise: every group measures the same mean level A, so the spread of the G group means at
 //! a pixel estimates σ_I²/N with G − 1 degrees of freedom (free of projector harmonics); a
@@ -221,13 +223,15 @@ impl Mask {
 /// One projector's decoded maps in one camera.
 #[derive(Clone, Debug)]
 pub struct ProjectorMaps {
-    /// Projector column u per camera pixel (projector px, (0, 0) at a pixel centre).
+    /// Projector column u per camera pixel (projector px, (0, 0) at a pixel centre); NaN
+    /// where the modulation or saturation test already fails (those are not unwrapped).
     pub u: FloatImage,
-    /// Projector row v per camera pixel.
+    /// Projector row v per camera pixel (NaN as for u).
     pub v: FloatImage,
     /// Modulation B_p (DN), bias-corrected for noise: √(mean_g B_g² − 4σ_I²/N).
     pub modulation: FloatImage,
-    /// Unwrapping distance, the larger of the two directions' (rad); small is reliable.
+    /// Unwrapping distance, the larger of the two directions' (rad); small is reliable
+    /// (NaN as for u).
     pub reliability: FloatImage,
     /// Where (u, v) is trustworthy: B_p ≥ max(5σ_I, 3 % full scale), no saturated frame,
     /// unwrapping distance < ½ constellation spacing, and farther than 6σ_u from the
@@ -301,6 +305,9 @@ const B_STEPS: f32 = 32768.0;
 
 /// Pixels per strip in the DFT kernel.
 const CHUNK: usize = 64;
+
+/// 1.5·2^23: x + ROUNDER, for 0 ≤ x < 2^22, holds round(x) in its low mantissa bits.
+const ROUNDER: f32 = 12_582_912.0;
 
 impl<T: Sample> Decoder<T> {
     /// A decoder for `camera` (a label used in errors) with frames of `width` × `height`
@@ -514,19 +521,20 @@ impl<T: Sample> Decoder<T> {
                             // φ_p = arg X_{f_p}, B_p = 2|X_{f_p}|/N (DESIGN.md §6), as 16-bit
                             // fractions of a cycle and of full scale (rounded: both ≥ 0; a
                             // phase of 1 cycle wraps to 0).
-                            let mut psi = [0f32; CHUNK];
-                            let mut bq = [0f32; CHUNK];
+                            let mut psi = [0u16; CHUNK];
+                            let mut bq = [0u16; CHUNK];
                             for i in 0..CHUNK {
                                 let ph = phase_cycles(im[i], re[i]);
                                 let b = 2.0 * (re[i] * re[i] + im[i] * im[i]).sqrt() * inv_n;
-                                psi[i] = ph * 65536.0 + 0.5;
-                                bq[i] = (b * b_scale + 0.5).min(65535.0);
+                                // Rounded to 16 bits by adding 1.5·2^23: the integer lands in
+                                // the low mantissa bits (a phase of 1 cycle wraps to 0).
+                                psi[i] = (ph * 65536.0 + ROUNDER).to_bits() as u16;
+                                bq[i] = ((b * b_scale).min(65535.0) + ROUNDER).to_bits() as u16;
                             }
-                            for i in 0..len {
-                                let o = ((x0 + i) * np + p) * 2;
-                                // Both are in [0.5, 65536.5): i32 is exact, u16 wraps 65536.
-                                out_row[o] = psi[i] as i32 as u16;
-                                out_row[o + 1] = bq[i] as i32 as u16;
+                            let o = &mut out_row[x0 * np * 2..(x0 + len) * np * 2];
+                            for ((pair, &ph), &b) in o.chunks_exact_mut(np * 2).zip(&psi).zip(&bq) {
+                                pair[p * 2] = ph;
+                                pair[p * 2 + 1] = b;
                             }
                         }
                     }
@@ -671,8 +679,6 @@ impl<T: Sample> Decoder<T> {
             .enumerate()
             .map(|(y, mut row)| {
                 let mut acc = vec![[0f64; 6]; np];
-                let mut psi = [0f32; MAX_COUNTS];
-                let mut wt = [0f32; MAX_COUNTS];
                 for x in 0..w {
                     let px = y * w + x;
                     let st = &pixels[px];
@@ -683,11 +689,28 @@ impl<T: Sample> Decoder<T> {
                     let mut amb = mean as f32;
                     for p in 0..np {
                         let code = &codes[p];
-                        let at = |g: usize| {
-                            let o = &groups[g][(px * np + p) * 2..][..2];
-                            (f32::from(o[0]) / 65536.0, f32::from(o[1]) * inv_b_scale)
-                        };
+                        // This pixel's (ψ, B) of projector p in every group.
+                        let mut psi_g = [0f32; 2 * MAX_COUNTS];
+                        let mut bsq_g = [0f32; 2 * MAX_COUNTS];
                         let mut bsq = 0f32;
+                        for (g, data) in groups.iter().enumerate() {
+                            let o = &data[(px * np + p) * 2..][..2];
+                            psi_g[g] = f32::from(o[0]) * (1.0 / 65536.0);
+                            let b = f32::from(o[1]) * inv_b_scale;
+                            bsq_g[g] = b * b;
+                            bsq += b * b;
+                        }
+                        let bmod = (bsq / ng as f32 - var4).max(0.0).sqrt();
+                        amb -= mean_ratio[p] * bmod;
+                        row.b[p][x] = bmod;
+                        if st.saturated || bmod < min_b.max(5.0 * sigma) {
+                            // Invalid whatever the phases say: not unwrapped.
+                            row.u[p][x] = f32::NAN;
+                            row.v[p][x] = f32::NAN;
+                            row.r[p][x] = f32::NAN;
+                            row.valid[p][x] = false;
+                            continue;
+                        }
                         let mut fused = [0f32; 2];
                         let mut dist = [0f32; 2];
                         let mut sigma_pos = [0f32; 2];
@@ -699,16 +722,14 @@ impl<T: Sample> Decoder<T> {
                         .into_iter()
                         .enumerate()
                         {
-                            let mut info = 0f32;
-                            for (i, &ni) in counts.iter().enumerate() {
-                                let (ps, b) = at(offset + i);
-                                psi[i] = ps;
-                                wt[i] = b * b;
-                                bsq += b * b;
-                                info += (ni * ni) as f32 * b * b;
-                            }
                             let m = counts.len();
-                            let un = cons.unwrap(&psi[..m], &wt[..m]);
+                            let (ps, wt) = (&psi_g[offset..offset + m], &bsq_g[offset..offset + m]);
+                            let info: f32 = counts
+                                .iter()
+                                .zip(wt)
+                                .map(|(&ni, &w)| (ni * ni) as f32 * w)
+                                .sum();
+                            let un = cons.unwrap(ps, wt);
                             let size = size as f32;
                             fused[d] = un.position * size - 0.5;
                             dist[d] = un.distance;
@@ -718,16 +739,10 @@ impl<T: Sample> Decoder<T> {
                             let edge = un.position.min(1.0 - un.position) * size;
                             clear_of_wrap &= edge >= 6.0 * s_pos;
                         }
-                        let bmod = (bsq / ng as f32 - var4).max(0.0).sqrt();
-                        amb -= mean_ratio[p] * bmod;
-                        let ok = !st.saturated
-                            && bmod >= min_b.max(5.0 * sigma)
-                            && dist[0] < half_spacing[0]
-                            && dist[1] < half_spacing[1]
-                            && clear_of_wrap;
+                        let ok =
+                            dist[0] < half_spacing[0] && dist[1] < half_spacing[1] && clear_of_wrap;
                         row.u[p][x] = fused[0];
                         row.v[p][x] = fused[1];
-                        row.b[p][x] = bmod;
                         row.r[p][x] = dist[0].max(dist[1]);
                         row.valid[p][x] = ok;
                         if ok {
@@ -827,12 +842,11 @@ fn fit_noise(s: &[f64; 5]) -> NoiseModel {
     }
 }
 
-/// arg(re + i·im) in cycles, in [0, 1] (1 only for a zero angle approached from below, ≡ 0); |error| < 2·10⁻⁶ cycles (Abramowitz & Stegun
-/// 4.4.49 on the reduced octant, |ε| ≤ 10⁻⁵ rad).
+/// arg(re + i·im) in cycles, in [0, 1] (1 ≡ 0, for a zero angle approached from below);
+/// |error| < 2·10⁻⁶ cycles (Abramowitz & Stegun 4.4.49 on the reduced octant, ≤ 10⁻⁵ rad).
 #[inline(always)]
 fn phase_cycles(im: f32, re: f32) -> f32 {
-    // Branch-free (phases are random, so branches would mispredict): the octant's flips are
-    // blended in with 0/1 factors.
+    // Selects, not branches (phases are random): the loop over a strip vectorises.
     let (ax, ay) = (re.abs(), im.abs());
     let (lo, hi) = (ax.min(ay), ax.max(ay));
     let a = lo / hi.max(f32::MIN_POSITIVE);
@@ -840,11 +854,14 @@ fn phase_cycles(im: f32, re: f32) -> f32 {
     let r = a
         * (0.999_866
             + a2 * (-0.330_299_5 + a2 * (0.180_141 + a2 * (-0.085_133 + a2 * 0.020_835_1))));
-    let flag = |b: bool| f32::from(u8::from(b));
-    let r = r + flag(ay > ax) * (FRAC_PI_2 - 2.0 * r);
-    let r = r + flag(re < 0.0) * (PI - 2.0 * r);
+    let r = if ay > ax { FRAC_PI_2 - r } else { r };
+    let r = if re < 0.0 { PI - r } else { r };
     let c = r * (1.0 / TAU);
-    c + flag(im < 0.0) * (1.0 - 2.0 * c)
+    if im < 0.0 {
+        1.0 - c
+    } else {
+        c
+    }
 }
 
 #[cfg(test)]

@@ -452,6 +452,18 @@ impl<'a> Renderer<'a> {
     }
 }
 
+/// Timing of one decode.
+#[derive(Clone, Copy, Debug)]
+pub struct DecodeRun {
+    /// Seconds from the first frame pushed to the decoded maps.
+    pub wall_seconds: f64,
+    /// CPU seconds (all threads, user + system; Linux, 10 ms ticks) spent in the frame
+    /// pushes (copies and per-group DFTs).
+    pub push_cpu_seconds: Option<f64>,
+    /// CPU seconds spent in `finish` (noise fit, unwrapping, fusion, maps).
+    pub finish_cpu_seconds: Option<f64>,
+}
+
 /// Accuracy of one projector's decoded maps against the ground truth.
 #[derive(Clone, Copy, Debug)]
 pub struct ProjectorAccuracy {
@@ -533,10 +545,8 @@ pub struct DecodeBench {
     pub frames: usize,
     /// Seconds to render the stack (not part of the decode).
     pub render_seconds: f64,
-    /// Seconds from the first frame pushed to the decoded maps, per repetition.
-    pub decode_seconds: Vec<f64>,
-    /// CPU seconds (all threads, user + system) of each decode (Linux; 10 ms ticks).
-    pub cpu_seconds: Vec<f64>,
+    /// Each timed decode.
+    pub runs: Vec<DecodeRun>,
     /// Bytes the decoder holds at its peak (frame buffer + phases + statistics).
     pub decoder_bytes: usize,
     /// Bytes of the decoded maps.
@@ -583,8 +593,7 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
     let mut renderer = Renderer::new(&scene, &seq);
     let frames: Vec<image::GrayImage> = (0..seq.frame_count()).map(|k| renderer.frame(k)).collect();
     let render_seconds = t0.elapsed().as_secs_f64();
-    let mut decode_seconds = Vec::new();
-    let mut cpu_seconds = Vec::new();
+    let mut runs = Vec::new();
     let mut decoder_bytes = 0;
     let mut peak_growth_bytes = None;
     let mut last = None;
@@ -600,11 +609,15 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
                 .expect("frames match the sequence");
         }
         decoder_bytes = decoder.buffer_bytes();
+        let cpu1 = process_cpu_seconds();
         last = Some(decoder.finish().expect("complete stack"));
-        decode_seconds.push(t1.elapsed().as_secs_f64());
-        if let Some((a, b)) = cpu0.zip(process_cpu_seconds()) {
-            cpu_seconds.push(b - a);
-        }
+        let wall_seconds = t1.elapsed().as_secs_f64();
+        let cpu2 = process_cpu_seconds();
+        runs.push(DecodeRun {
+            wall_seconds,
+            push_cpu_seconds: cpu0.zip(cpu1).map(|(a, b)| b - a),
+            finish_cpu_seconds: cpu1.zip(cpu2).map(|(a, b)| b - a),
+        });
         if peak_growth_bytes.is_none() {
             peak_growth_bytes = before
                 .zip(proc_status_bytes("VmHWM:"))
@@ -619,8 +632,7 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
         size: (width, height),
         frames: frames.len(),
         render_seconds,
-        decode_seconds,
-        cpu_seconds,
+        runs,
         decoder_bytes,
         output_bytes,
         peak_growth_bytes,

@@ -551,6 +551,7 @@ mod tests {
             }
         }
         let rate = bad as f64 / trials as f64;
+        eprintln!("gross error rate at σ_φ = 0.15 rad: {rate}");
         // 10⁻³ ± Poisson: 200 expected; accept 3·10⁻⁴…3·10⁻³.
         assert!((3e-4..3e-3).contains(&rate), "gross error rate {rate}");
     }
