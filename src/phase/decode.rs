@@ -77,6 +77,18 @@ impl<'a, T: image::Primitive> From<&'a image::ImageBuffer<image::Luma<T>, Vec<T>
 /// A stack that does not match its sequence.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum DecodeError {
+    /// An empty frame size or a full scale that is not a positive number.
+    #[error("camera {camera}: frames of {width}×{height} with full scale {full_scale} cannot be decoded")]
+    Format {
+        /// Camera label.
+        camera: String,
+        /// Frame width.
+        width: u32,
+        /// Frame height.
+        height: u32,
+        /// Saturation level.
+        full_scale: f32,
+    },
     /// A frame arrived out of order: frame `expected` is missing.
     #[error("camera {camera}: frame {got} arrived while frame {expected} was due (frame {expected} is missing or out of order)")]
     OutOfOrder {
@@ -311,14 +323,24 @@ const ROUNDER: f32 = 12_582_912.0;
 
 impl<T: Sample> Decoder<T> {
     /// A decoder for `camera` (a label used in errors) with frames of `width` × `height`
-    /// whose saturation level is `full_scale` (255 for 8 bit, 4095 for 12 bit, …).
+    /// whose saturation level is `full_scale` (255 for 8 bit, 4095 for 12 bit, …); fails on
+    /// an empty size or a full scale that is not positive.
     pub fn new(
         seq: &Sequence,
         camera: impl Into<String>,
         width: u32,
         height: u32,
         full_scale: f32,
-    ) -> Self {
+    ) -> Result<Self, DecodeError> {
+        let camera = camera.into();
+        if width == 0 || height == 0 || !(full_scale.is_finite() && full_scale > 0.0) {
+            return Err(DecodeError::Format {
+                camera,
+                width,
+                height,
+                full_scale,
+            });
+        }
         let npx = width as usize * height as usize;
         let n = seq.steps() as usize;
         let twiddles = seq
@@ -334,9 +356,9 @@ impl<T: Sample> Decoder<T> {
             .collect();
         let cons =
             |d| Constellation::new(seq.counts(d)).expect("a validated sequence has valid counts");
-        Decoder {
+        Ok(Decoder {
             seq: seq.clone(),
-            camera: camera.into(),
+            camera,
             width,
             height,
             full_scale,
@@ -347,7 +369,7 @@ impl<T: Sample> Decoder<T> {
             pixels: vec![PixelStats::default(); npx],
             columns: cons(Direction::Columns),
             rows: cons(Direction::Rows),
-        }
+        })
     }
 
     /// Bytes the decoder holds once every group is in (its peak before [`Self::finish`]):

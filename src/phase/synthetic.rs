@@ -602,7 +602,8 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
         let before = proc_status_bytes("VmRSS:");
         let cpu0 = process_cpu_seconds();
         let t1 = std::time::Instant::now();
-        let mut decoder = Decoder::<u8>::new(&seq, "bench", width, height, 255.0);
+        let mut decoder =
+            Decoder::<u8>::new(&seq, "bench", width, height, 255.0).expect("a valid frame format");
         for (k, f) in frames.iter().enumerate() {
             decoder
                 .push_frame(k, FrameRef::from(f))

@@ -30,7 +30,7 @@ fn decode_case(p: usize, response: ProjectorResponse, width: u32, height: u32, s
     let seq = Sequence::default_for(&setups).unwrap();
     let scene = Scene::standard(width, height, &setups, seed);
     let mut renderer = Renderer::new(&scene, &seq);
-    let mut decoder = Decoder::<u8>::new(&seq, "cam0", width, height, 255.0);
+    let mut decoder = Decoder::<u8>::new(&seq, "cam0", width, height, 255.0).unwrap();
     for k in 0..seq.frame_count() {
         let frame = renderer.frame(k);
         decoder.push_frame(k, FrameRef::from(&frame)).unwrap();
@@ -306,7 +306,7 @@ fn saturated_pixels_are_invalid() {
     let mut scene = Scene::standard(160, 120, &setups, 3);
     scene.projectors[0].gain *= 1.6; // 40 + 312 DN at full white: clipped at 255
     let mut renderer = Renderer::new(&scene, &seq);
-    let mut decoder = Decoder::<u8>::new(&seq, "cam", 160, 120, 255.0);
+    let mut decoder = Decoder::<u8>::new(&seq, "cam", 160, 120, 255.0).unwrap();
     for k in 0..seq.frame_count() {
         decoder
             .push_frame(k, FrameRef::from(&renderer.frame(k)))
@@ -333,7 +333,7 @@ fn small_stack() -> (Sequence, Vec<image::GrayImage>) {
 #[test]
 fn missing_truncated_and_missized_frames_name_camera_and_frame() {
     let (seq, frames) = small_stack();
-    let new = || Decoder::<u8>::new(&seq, "left-7", 64, 48, 255.0);
+    let new = || Decoder::<u8>::new(&seq, "left-7", 64, 48, 255.0).unwrap();
 
     // Frame 2 missing.
     let mut d = new();
@@ -397,14 +397,23 @@ fn missing_truncated_and_missized_frames_name_camera_and_frame() {
         }
     ));
     assert!(d.finish().is_ok());
+
+    // An empty frame size.
+    let e = Decoder::<u8>::new(&seq, "left-7", 0, 48, 255.0)
+        .err()
+        .unwrap();
+    assert_eq!(
+        e.to_string(),
+        "camera left-7: frames of 0×48 with full scale 255 cannot be decoded"
+    );
 }
 
 #[test]
 fn sixteen_bit_and_float_frames_decode_like_eight_bit() {
     let (seq, frames) = small_stack();
-    let mut d8 = Decoder::<u8>::new(&seq, "c", 64, 48, 255.0);
-    let mut d16 = Decoder::<u16>::new(&seq, "c", 64, 48, 255.0);
-    let mut df = Decoder::<f32>::new(&seq, "c", 64, 48, 255.0);
+    let mut d8 = Decoder::<u8>::new(&seq, "c", 64, 48, 255.0).unwrap();
+    let mut d16 = Decoder::<u16>::new(&seq, "c", 64, 48, 255.0).unwrap();
+    let mut df = Decoder::<f32>::new(&seq, "c", 64, 48, 255.0).unwrap();
     for (k, f) in frames.iter().enumerate() {
         d8.push_frame(k, FrameRef::from(f)).unwrap();
         let wide: Vec<u16> = f.as_raw().iter().map(|&v| u16::from(v)).collect();
