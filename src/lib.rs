@@ -14,3 +14,4 @@ pub mod grid;
 pub mod imageio;
 pub mod rig;
 pub mod sim;
+pub mod phase;

@@ -1,0 +1,17 @@
+//! Multi-projector phase shifting (DESIGN.md §6): the pattern sequence that all P projectors
+//! show at once, and the decoder that turns one camera's stack into each projector's
+//! (u, v) map, modulation, validity, ambient and lit images.
+//!
+//! Takes the [`Sequence`] and the camera frames in order; gives a [`DecodedStack`] per camera.
+
+mod decode;
+mod sequence;
+pub mod synthetic;
+mod unwrap;
+
+pub use decode::*;
+pub use sequence::*;
+pub use unwrap::*;
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,448 @@
+//! Acceptance tests of the decoder on synthetic stacks at the default imaging conditions of
+//! DESIGN.md §9 (8 bit, read noise 2 DN, shot variance 0.1·I, PSF σ 0.8 px, ambient 40 DN on
+//! white, P projectors sharing 195 DN, projector gamma 2.2), against ground truth.
+
+use super::synthetic::{accuracy, Renderer, Scene, Truth};
+use super::*;
+
+const GAMMA: ProjectorResponse = ProjectorResponse::Gamma { gamma: 2.2 };
+const LINEARISED: ProjectorResponse = ProjectorResponse::Linearised { gamma: 2.2 };
+
+fn setups(p: usize, response: ProjectorResponse) -> Vec<ProjectorSetup> {
+    vec![
+        ProjectorSetup {
+            width: 1920,
+            height: 1080,
+            response,
+        };
+        p
+    ]
+}
+
+struct Case {
+    seq: Sequence,
+    truth: Truth,
+    decoded: DecodedStack,
+}
+
+fn decode_case(p: usize, response: ProjectorResponse, width: u32, height: u32, seed: u64) -> Case {
+    let setups = setups(p, response);
+    let seq = Sequence::default_for(&setups).unwrap();
+    let scene = Scene::standard(width, height, &setups, seed);
+    let mut renderer = Renderer::new(&scene, &seq);
+    let mut decoder = Decoder::<u8>::new(&seq, "cam0", width, height, 255.0).unwrap();
+    for k in 0..seq.frame_count() {
+        let frame = renderer.frame(k);
+        decoder.push_frame(k, FrameRef::from(&frame)).unwrap();
+    }
+    Case {
+        truth: renderer.truth(),
+        decoded: decoder.finish().unwrap(),
+        seq,
+    }
+}
+
+/// Half the smallest jump a wrong fringe order causes in the fused position:
+/// min_i n_i/Σn² of the screen (≈ 13 px across 1920 for {20, 21, 25}).
+fn half_order_jump(seq: &Sequence, d: Direction, size: u32) -> f64 {
+    let c = seq.counts(d);
+    let s2: u32 = c.iter().map(|n| n * n).sum();
+    0.5 * f64::from(size) * f64::from(*c.iter().min().unwrap()) / f64::from(s2)
+}
+
+/// The acceptance checks of one decoded case (issue 9).
+fn check_case(case: &Case, label: &str) {
+    let Case {
+        seq,
+        truth,
+        decoded,
+    } = case;
+    let n = f64::from(seq.steps());
+    let g = seq.groups() as f64;
+    let np = seq.projectors().len();
+    for (p, maps) in decoded.projectors.iter().enumerate() {
+        let code = seq.projectors()[p];
+        let acc = accuracy(decoded, truth, seq)[p];
+        // Truth-based prediction over the same valid pixels: σ_φ = √(2/N)·σ_I/B,
+        // σ_u = W·σ_φ/(2π·√Σn²) (DESIGN.md §6), RMS over pixels.
+        let info = |d| {
+            seq.counts(d)
+                .iter()
+                .map(|&c| f64::from(c * c))
+                .sum::<f64>()
+                .sqrt()
+        };
+        let (mut pu, mut pv, mut pu_all, mut cnt_all) = (0f64, 0f64, 0f64, 0usize);
+        let (mut edge_worst, mut edge_count) = (0f64, 0usize);
+        for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
+            if !ok {
+                continue;
+            }
+            let sphi = (2.0 / n).sqrt() * truth.sigma_i[i] / truth.modulation[p][i];
+            let su =
+                f64::from(code.width) * sphi / (std::f64::consts::TAU * info(Direction::Columns));
+            let sv =
+                f64::from(code.height) * sphi / (std::f64::consts::TAU * info(Direction::Rows));
+            pu_all += su * su;
+            cnt_all += 1;
+            if truth.interior[i] {
+                pu += su * su;
+                pv += sv * sv;
+            } else {
+                let eu = (f64::from(maps.u.as_raw()[i]) - truth.u[p][i]).abs();
+                let ev = (f64::from(maps.v.as_raw()[i]) - truth.v[p][i]).abs();
+                edge_worst = edge_worst.max(eu.max(ev));
+                edge_count += 1;
+            }
+        }
+        let c = acc.compared as f64;
+        let (pu, pv) = ((pu / c).sqrt(), (pv / c).sqrt());
+        let pu_all = (pu_all / cnt_all as f64).sqrt();
+        eprintln!(
+            "{label} projector {p}: valid {} compared {} | rms u {:.3} v {:.3} | truth σ_u {:.3} σ_v {:.3} | reported σ_u {:.3} σ_v {:.3} (truth over valid {:.3}) | B {:.1} σ_I {:.2} σ_φ {:.4} | edge px {edge_count} worst {edge_worst:.2}",
+            acc.valid, acc.compared, acc.rms_u, acc.rms_v, pu, pv, maps.noise.sigma_u,
+            maps.noise.sigma_v, pu_all, maps.noise.modulation, maps.noise.sigma_i, maps.noise.sigma_phi
+        );
+        // Enough pixels for the RMS to mean something (its relative standard error is
+        // 1/√(2·compared) < 1 %).
+        assert!(
+            acc.compared > 5000,
+            "{label} p{p}: only {} compared",
+            acc.compared
+        );
+        // Issue 9: RMS ≤ 1.2× the predicted σ, against both the truth-based prediction and the
+        // decoder's own report.
+        assert!(
+            acc.rms_u <= 1.2 * pu,
+            "{label} p{p}: rms u {} vs {pu}",
+            acc.rms_u
+        );
+        assert!(
+            acc.rms_v <= 1.2 * pv,
+            "{label} p{p}: rms v {} vs {pv}",
+            acc.rms_v
+        );
+        assert!(
+            acc.rms_u <= 1.2 * maps.noise.sigma_u,
+            "{label} p{p}: reported σ_u"
+        );
+        assert!(
+            acc.rms_v <= 1.2 * maps.noise.sigma_v,
+            "{label} p{p}: reported σ_v"
+        );
+        // The decoder's prediction from its measured B and σ_I agrees with the truth's: B is
+        // unbiased after the noise correction and σ_I comes from a fit over all pixels, so a
+        // 10 % band is wide (their own statistical error is < 1 %).
+        assert!(
+            (maps.noise.sigma_u / pu_all - 1.0).abs() < 0.1,
+            "{label} p{p}: reported σ_u {} vs truth {pu_all}",
+            maps.noise.sigma_u
+        );
+        // No unwrapping error: interior valid pixels within max(6σ, 1 px) of the truth (σ per
+        // pixel from the true B; a Gaussian exceeds 6σ with probability 2·10⁻⁹).
+        assert_eq!(acc.gross, 0, "{label} p{p}: gross errors");
+        // At albedo and coverage edges the decoded coordinate is the lit part's centroid, a
+        // fraction of the PSF away, never a fringe order away.
+        let jump = half_order_jump(seq, Direction::Columns, code.width).min(half_order_jump(
+            seq,
+            Direction::Rows,
+            code.height,
+        ));
+        assert!(
+            edge_worst < jump,
+            "{label} p{p}: edge error {edge_worst} px"
+        );
+    }
+    // Ambient image against the truth: A − Σ κ_p·B_p, κ_p = a_0/a_1 (0.727 for γ = 2.2).
+    // Where projector p lights the pixel (B ≫ σ_I): Var(Ā) = σ_I²/(G·N) and B_p, the RMS over
+    // G groups of a modulation with variance 2σ_I²/N, has variance 2σ_I²/(G·N), so the error
+    // is Gaussian with σ_amb² = σ_I²·(1 + 2·Σκ_p²)/(G·N) (DESIGN.md §6 for G = 1, κ = 1).
+    // Where p lights nothing, B_p² = θ·(Y − 1)₊ with θ = 4σ_I²/N and Y ~ Gamma(G, 1/G), whose
+    // mean square is θ·E(Y − 1)₊ = θ·e^{−G}·G^G/G!: not Gaussian, so only its RMS is checked.
+    // Shot noise correlates A with B_p (brighter frames are noisier), which lowers the
+    // ambient's variance by ≈ 2·Σκ_p·0.1·B_p/(G·N): the predictions are upper bounds.
+    let kappa: Vec<f64> = seq
+        .projectors()
+        .iter()
+        .map(|c| {
+            let gm = c.response.effective_gamma();
+            pattern_harmonic(gm, 0) / pattern_harmonic(gm, 1)
+        })
+        .collect();
+    let gi = seq.groups() as i32;
+    let unlit_ms = (-g).exp() * g.powi(gi) / (1..=gi).map(f64::from).product::<f64>();
+    // [count, Σe², Σe, Σσ², beyond 3σ] for pixels lit by all, and unlit by some.
+    let mut classes = [[0f64; 5]; 2];
+    let amb = decoded.ambient.as_raw();
+    for (i, &amb_i) in amb.iter().enumerate() {
+        let s2 = truth.sigma_i[i].powi(2);
+        let lit = |p: usize| truth.modulation[p][i] >= 5.0 * truth.sigma_i[i];
+        let unlit = |p: usize| truth.full_white[p][i] == 0.0;
+        let class = if (0..np).all(lit) {
+            0
+        } else if (0..np).all(|p| lit(p) || unlit(p)) {
+            1
+        } else {
+            continue; // partly lit through the PSF: neither regime
+        };
+        let var: f64 = s2 / (g * n)
+            + (0..np)
+                .map(|p| {
+                    let k2 = kappa[p] * kappa[p];
+                    if lit(p) {
+                        k2 * 2.0 * s2 / (g * n)
+                    } else {
+                        k2 * 4.0 * s2 / n * unlit_ms
+                    }
+                })
+                .sum::<f64>();
+        let e = f64::from(amb_i) - truth.ambient[i];
+        let c = &mut classes[class];
+        c[0] += 1.0;
+        c[1] += e * e;
+        c[2] += e;
+        c[3] += var;
+        c[4] += f64::from(u8::from(e.abs() > 3.0 * var.sqrt()));
+    }
+    for (class, c) in classes.iter().enumerate() {
+        if c[0] == 0.0 {
+            continue;
+        }
+        let (rms, pred) = ((c[1] / c[0]).sqrt(), (c[3] / c[0]).sqrt());
+        let (bias, frac) = (c[2] / c[0], c[4] / c[0]);
+        let name = ["lit by all", "unlit by some"][class];
+        eprintln!(
+            "{label} ambient {name}: {} px rms {rms:.3} predicted {pred:.3} bias {bias:.3} beyond 3σ {frac:.4}",
+            c[0]
+        );
+        assert!(
+            rms < 1.2 * pred,
+            "{label} {name}: ambient rms {rms} vs {pred}"
+        );
+        if class == 0 {
+            // Gaussian: 0.27 % beyond 3σ. The PSF lowers the fringe contrast by
+            // 1 − e^{−(2πσ_psf/48)²/2} ≤ 0.55 % for ≥ 48 px fringes, biasing the ambient by
+            // ≤ 0.0055·Σκ_p·B_p ≈ 0.3σ_amb; 1 % beyond 3σ and |bias| < 0.5σ_amb allow for it.
+            assert!(frac < 0.01, "{label}: {frac} of ambient pixels beyond 3σ");
+            assert!(
+                bias.abs() < 0.5 * pred,
+                "{label}: ambient bias {bias} vs σ {pred}"
+            );
+        }
+    }
+    // The measured noise model against read² + 0.1·A + 1/12.
+    for a in [40.0, 150.0] {
+        let want = (4.0 + 0.1 * a + 1.0 / 12.0f64).sqrt();
+        let got = decoded.noise.sigma(a);
+        assert!(
+            (got / want - 1.0).abs() < 0.05,
+            "{label}: σ_I({a}) {got} vs {want}"
+        );
+    }
+    assert_eq!(decoded.projectors.len(), np);
+}
+
+#[test]
+fn decodes_one_to_four_projectors_gamma_uncorrected_and_linearised() {
+    for p in 1..=4 {
+        for (response, name) in [(GAMMA, "gamma 2.2"), (LINEARISED, "linearised")] {
+            let case = decode_case(p, response, 320, 240, 10 + p as u64);
+            check_case(&case, &format!("P={p} {name} N={}", case.seq.steps()));
+        }
+    }
+}
+
+/// ≥ 10⁶ valid interior (pixel, projector) decodes of the default P = 3 stack, each checked
+/// for unwrapping errors (> max(6σ_u, 1 px)) in both directions.
+#[test]
+fn no_unwrapping_error_over_a_million_pixels() {
+    let case = decode_case(3, GAMMA, 800, 600, 99);
+    check_case(&case, "P=3 800×600");
+    let total: usize = accuracy(&case.decoded, &case.truth, &case.seq)
+        .iter()
+        .map(|a| a.compared)
+        .sum();
+    assert!(total >= 1_000_000, "only {total} decodes compared");
+}
+
+#[test]
+fn lit_images_are_each_projectors_full_white_alone() {
+    let case = decode_case(2, GAMMA, 320, 240, 5);
+    for (p, maps) in case.decoded.projectors.iter().enumerate() {
+        let lit = maps.lit_image();
+        let a1 = pattern_harmonic(2.2, 1);
+        // The decoder's lit image is B_p/a_1 (2·B_p/0.989 for γ = 2.2); its truth is the
+        // projector's full-white image after the PSF, times the PSF's fringe-contrast loss
+        // (which no decoder can see): truth B_p/a_1.
+        let (mut num, mut den, mut mtf, mut cnt) = (0f64, 0f64, 0f64, 0);
+        for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
+            if ok && case.truth.interior[i] {
+                let want = case.truth.modulation[p][i] / a1;
+                num += f64::from(lit.as_raw()[i]) - want;
+                den += want;
+                mtf += want / case.truth.full_white[p][i];
+                cnt += 1;
+            }
+        }
+        // Mean relative bias over > 10⁴ pixels: each pixel's noise is ≈ 2σ_I/√(G·N)/(2a_1) ≈
+        // 1 DN of ≈ 100 DN, so the mean is good to 10⁻⁴; the 8-bit pattern levels add < 0.2 %.
+        // Using 2·B_p (the linear formula) would be 1.1 % off.
+        let rel = num / den;
+        eprintln!(
+            "p{p}: lit bias {rel:.5} over {cnt} px; PSF contrast {:.4}",
+            mtf / f64::from(cnt)
+        );
+        assert!(
+            cnt > 10_000 && rel.abs() < 0.003,
+            "p{p}: lit bias {rel} over {cnt}"
+        );
+    }
+}
+
+#[test]
+fn saturated_pixels_are_invalid() {
+    let setups = setups(1, GAMMA);
+    let seq = Sequence::default_for(&setups).unwrap();
+    let mut scene = Scene::standard(160, 120, &setups, 3);
+    scene.projectors[0].gain *= 1.6; // 40 + 312 DN at full white: clipped at 255
+    let mut renderer = Renderer::new(&scene, &seq);
+    let mut decoder = Decoder::<u8>::new(&seq, "cam", 160, 120, 255.0).unwrap();
+    for k in 0..seq.frame_count() {
+        decoder
+            .push_frame(k, FrameRef::from(&renderer.frame(k)))
+            .unwrap();
+    }
+    let d = decoder.finish().unwrap();
+    let sat = d.saturated.count();
+    assert!(sat > 1000, "{sat} saturated");
+    let maps = &d.projectors[0];
+    for (s, v) in d.saturated.as_slice().iter().zip(maps.valid.as_slice()) {
+        assert!(!(*s && *v));
+    }
+}
+
+fn small_stack() -> (Sequence, Vec<image::GrayImage>) {
+    let setups = setups(1, GAMMA);
+    let seq = Sequence::default_for(&setups).unwrap();
+    let scene = Scene::standard(64, 48, &setups, 1);
+    let mut r = Renderer::new(&scene, &seq);
+    let frames = (0..seq.frame_count()).map(|k| r.frame(k)).collect();
+    (seq, frames)
+}
+
+#[test]
+fn missing_truncated_and_missized_frames_name_camera_and_frame() {
+    let (seq, frames) = small_stack();
+    let new = || Decoder::<u8>::new(&seq, "left-7", 64, 48, 255.0).unwrap();
+
+    // Frame 2 missing.
+    let mut d = new();
+    d.push_frame(0, FrameRef::from(&frames[0])).unwrap();
+    d.push_frame(1, FrameRef::from(&frames[1])).unwrap();
+    let e = d.push_frame(3, FrameRef::from(&frames[3])).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "camera left-7: frame 3 arrived while frame 2 was due (frame 2 is missing or out of order)"
+    );
+
+    // Frame 1 truncated.
+    let mut d = new();
+    d.push_frame(0, FrameRef::from(&frames[0])).unwrap();
+    let cut = FrameRef {
+        width: 64,
+        height: 48,
+        pixels: &frames[1].as_raw()[..64 * 30],
+    };
+    let e = d.push_frame(1, cut).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "camera left-7: frame 1 is truncated: 1920 pixel values for 3072 pixels"
+    );
+
+    // Frame 4 of another size.
+    let mut d = new();
+    for (k, f) in frames.iter().enumerate().take(4) {
+        d.push_frame(k, FrameRef::from(f)).unwrap();
+    }
+    let small = image::GrayImage::new(32, 48);
+    let e = d.push_frame(4, FrameRef::from(&small)).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "camera left-7: frame 4 is 32×48, the stack is 64×48"
+    );
+
+    // The stack stops after 29 of 30 frames.
+    let mut d = new();
+    for (k, f) in frames.iter().enumerate().take(29) {
+        d.push_frame(k, FrameRef::from(f)).unwrap();
+    }
+    let e = d.finish().unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "camera left-7: stack ends after 29 frames, the sequence has 30 (frame 29 is missing)"
+    );
+
+    // One frame too many.
+    let mut d = new();
+    for (k, f) in frames.iter().enumerate() {
+        d.push_frame(k, FrameRef::from(f)).unwrap();
+    }
+    let e = d.push_frame(30, FrameRef::from(&frames[0])).unwrap_err();
+    assert!(matches!(
+        e,
+        DecodeError::TooMany {
+            frame: 30,
+            count: 30,
+            ..
+        }
+    ));
+    assert!(d.finish().is_ok());
+
+    // An empty frame size.
+    let e = Decoder::<u8>::new(&seq, "left-7", 0, 48, 255.0)
+        .err()
+        .unwrap();
+    assert_eq!(
+        e.to_string(),
+        "camera left-7: frames of 0×48 with full scale 255 cannot be decoded"
+    );
+}
+
+#[test]
+fn sixteen_bit_and_float_frames_decode_like_eight_bit() {
+    let (seq, frames) = small_stack();
+    let mut d8 = Decoder::<u8>::new(&seq, "c", 64, 48, 255.0).unwrap();
+    let mut d16 = Decoder::<u16>::new(&seq, "c", 64, 48, 255.0).unwrap();
+    let mut df = Decoder::<f32>::new(&seq, "c", 64, 48, 255.0).unwrap();
+    for (k, f) in frames.iter().enumerate() {
+        d8.push_frame(k, FrameRef::from(f)).unwrap();
+        let wide: Vec<u16> = f.as_raw().iter().map(|&v| u16::from(v)).collect();
+        let float: Vec<f32> = f.as_raw().iter().map(|&v| f32::from(v)).collect();
+        let fr = |pixels| FrameRef {
+            width: 64,
+            height: 48,
+            pixels,
+        };
+        d16.push_frame(k, fr(&wide[..])).unwrap();
+        df.push_frame(
+            k,
+            FrameRef {
+                width: 64,
+                height: 48,
+                pixels: &float[..],
+            },
+        )
+        .unwrap();
+    }
+    let (a, b, c) = (
+        d8.finish().unwrap(),
+        d16.finish().unwrap(),
+        df.finish().unwrap(),
+    );
+    // Bitwise, so that the NaN of pixels that were not unwrapped compare equal.
+    let bits = |img: &FloatImage| img.as_raw().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&a.projectors[0].u), bits(&b.projectors[0].u));
+    assert_eq!(bits(&a.projectors[0].u), bits(&c.projectors[0].u));
+    assert_eq!(bits(&a.ambient), bits(&c.ambient));
+    assert_eq!(a.projectors[0].valid, c.projectors[0].valid);
+}
