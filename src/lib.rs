@@ -12,6 +12,6 @@ pub mod camera;
 pub mod detect;
 pub mod grid;
 pub mod imageio;
+pub mod phase;
 pub mod rig;
 pub mod sim;
-pub mod phase;

@@ -152,7 +152,6 @@ fn load_scene(path: Option<&PathBuf>) -> anyhow::Result<hexcal::sim::Scene> {
     })
 }
 
-
 /// Write `bytes` to `path` through a temporary file beside it and a rename, so that `path`
 /// holds either the old or the whole new content.
 fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
@@ -212,12 +211,14 @@ fn main() -> anyhow::Result<()> {
             what: Bench::Detect { images, runs },
         } => bench_detect(&images, runs)?,
         Command::Bench {
-            what: Bench::Decode {
-            width,
-            height,
-            projectors,
-            repeats,
-        }} => {
+            what:
+                Bench::Decode {
+                    width,
+                    height,
+                    projectors,
+                    repeats,
+                },
+        } => {
             let r = hexcal::phase::synthetic::bench_decode(width, height, projectors, repeats);
             let mib = |b: usize| b as f64 / (1024.0 * 1024.0);
             println!(

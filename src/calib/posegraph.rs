@@ -126,14 +126,14 @@ mod tests {
             points: 500,
         });
         let c = chain(&pairs, 4, 3, 0);
-        for d in 0..3 {
-            let e = c.devices[d].unwrap();
-            assert!((e.translation.vector - devs[d].translation.vector).norm() < 1e-9);
-            assert!(e.rotation.angle_to(&devs[d].rotation) < 1e-12);
+        for (e, truth) in c.devices.iter().zip(&devs) {
+            let e = e.unwrap();
+            assert!((e.translation.vector - truth.translation.vector).norm() < 1e-9);
+            assert!(e.rotation.angle_to(&truth.rotation) < 1e-12);
         }
-        for b in 0..2 {
-            let e = c.boards[b].unwrap();
-            assert!((e.translation.vector - boards[b].translation.vector).norm() < 1e-9);
+        for (e, truth) in c.boards.iter().zip(&boards) {
+            let e = e.unwrap();
+            assert!((e.translation.vector - truth.translation.vector).norm() < 1e-9);
         }
         assert!(c.devices[3].is_none() && c.boards[2].is_none());
     }

@@ -376,6 +376,7 @@ mod tests {
                 score: 0.3,
                 background: 20.0,
                 foreground: 200.0,
+                edge_rms: 0.0,
             })
             .collect();
         (circles, hexes)

@@ -131,6 +131,7 @@ pub fn detection(image: &GrayImage, ellipse: Ellipse) -> Circle {
         score: 0.3,
         background: outside.get(outside.len() / 2).copied().unwrap_or(0.0),
         foreground: inside.get(inside.len() * 9 / 10).copied().unwrap_or(0.0),
+        edge_rms: 0.0,
     }
 }
 
