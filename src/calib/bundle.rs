@@ -11,10 +11,10 @@
 //! T ← (exp(ω), τ)·T, a Huber loss first, then rejection of outliers beyond a multiple of a
 //! robust σ, then plain least squares; covariance σ²(JᵀJ)⁻¹ at the end.
 
-use super::synthetic::ellipse_center;
+use super::circle::ellipse_center;
 use super::CalibError;
 use crate::board::{Board, Hex, Side};
-use crate::camera::CameraModel;
+use crate::camera::{CameraModel, LensJacobian, LensParam, LensParams};
 use nalgebra::{
     DMatrix, DVector, Isometry3, Matrix2x3, Matrix3, Point2, Point3, Translation3, UnitQuaternion,
     Vector2, Vector3,
@@ -83,7 +83,8 @@ pub struct Options {
     pub huber: f64,
     /// Reject observations whose residual norm exceeds this many robust σ.
     pub outlier_sigmas: f64,
-    /// Use the rational k4–k6 terms; k3 is free unless `fix_k3`.
+    /// Hold k3 at its start (the lens parameters estimated are otherwise those of each
+    /// device's model: nine, or twelve with the rational terms).
     pub fix_k3: bool,
     /// Maximum LM iterations per phase.
     pub max_iterations: usize,
@@ -153,63 +154,6 @@ pub struct Solution {
     pub iterations: usize,
 }
 
-/// Number of lens parameters used for a model: 9, or 12 with the rational terms.
-fn lens_len(m: &CameraModel) -> usize {
-    if m.distortion.is_rational() {
-        12
-    } else {
-        9
-    }
-}
-
-fn lens_get(m: &CameraModel) -> Vec<f64> {
-    let (k, d) = (&m.intrinsics, &m.distortion);
-    let mut v = vec![k.fx, k.fy, k.cx, k.cy, d.k1, d.k2, d.p1, d.p2, d.k3];
-    if d.is_rational() {
-        v.extend([d.k4, d.k5, d.k6]);
-    }
-    v
-}
-
-fn lens_set(m: &mut CameraModel, v: &[f64]) {
-    let (k, d) = (&mut m.intrinsics, &mut m.distortion);
-    [k.fx, k.fy, k.cx, k.cy, d.k1, d.k2, d.p1, d.p2, d.k3] =
-        [v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]];
-    if v.len() == 12 {
-        [d.k4, d.k5, d.k6] = [v[9], v[10], v[11]];
-    }
-}
-
-/// Pixel of a device-frame point with d pixel/d point (2×3) and d pixel/d lens (2×n).
-fn project_with_jacobians(
-    m: &CameraModel,
-    p: &Point3<f64>,
-) -> Option<(Point2<f64>, Matrix2x3<f64>, DMatrix<f64>)> {
-    let x = m.project(p)?;
-    let mut jp = Matrix2x3::zeros();
-    for i in 0..3 {
-        let h = 1e-6 * p.coords.norm().max(1.0);
-        let mut a = *p;
-        let mut b = *p;
-        a[i] += h;
-        b[i] -= h;
-        jp.set_column(i, &((m.project(&a)? - m.project(&b)?) / (2.0 * h)));
-    }
-    let v = lens_get(m);
-    let mut jl = DMatrix::zeros(2, v.len());
-    for i in 0..v.len() {
-        let h = 1e-5 * v[i].abs().max(1e-1);
-        let (mut a, mut b) = (*m, *m);
-        let (mut va, mut vb) = (v.clone(), v.clone());
-        va[i] += h;
-        vb[i] -= h;
-        lens_set(&mut a, &va);
-        lens_set(&mut b, &vb);
-        jl.set_column(i, &((a.project(p)? - b.project(p)?) / (2.0 * h)));
-    }
-    Some((x, jp, jl))
-}
-
 /// Apply a left increment (ω, τ) to a pose: T ← (exp(ω), τ)·T.
 fn apply_increment(t: &Isometry3<f64>, d: &[f64]) -> Isometry3<f64> {
     let dq = UnitQuaternion::from_scaled_axis(Vector3::new(d[0], d[1], d[2]));
@@ -220,31 +164,10 @@ fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }
 
-/// Perspective bias of a circle's image-ellipse centre in undistorted normalised
-/// coordinates: centre of the conic C = H⁻ᵀ·diag(1, 1, −R²)·H⁻¹ with H = [r1 r2 P_c]
-/// (DESIGN.md §8) minus the projected centre P_c.
-pub fn ellipse_bias(
-    device_from_side: &Isometry3<f64>,
-    center: Point2<f64>,
-    radius: f64,
-) -> Option<Vector2<f64>> {
-    let r = device_from_side.rotation.to_rotation_matrix();
-    let pc = device_from_side * Point3::new(center.x, center.y, 0.0);
-    let h = Matrix3::from_columns(&[
-        r.matrix().column(0).into(),
-        r.matrix().column(1).into(),
-        pc.coords,
-    ]);
-    let hi = h.try_inverse()?;
-    let c = hi.transpose() * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, -radius * radius)) * hi;
-    let a = nalgebra::Matrix2::new(c[(0, 0)], c[(0, 1)], c[(1, 0)], c[(1, 1)]);
-    let e = -a.try_inverse()? * Vector2::new(c[(0, 2)], c[(1, 2)]);
-    Some(e - Vector2::new(pc.x / pc.z, pc.y / pc.z))
-}
-
 /// Column layout of the parameter vector.
 struct Layout {
-    lens: Vec<(usize, usize)>,
+    /// Start column and free parameters of each device's lens block.
+    lens: Vec<(usize, LensParams)>,
     pose: Vec<Option<usize>>,
     board: Vec<usize>,
     side: Option<usize>,
@@ -257,9 +180,12 @@ impl Layout {
         let mut lens = Vec::new();
         let mut pose = Vec::new();
         for (i, d) in p.devices.iter().enumerate() {
-            let n = lens_len(&d.model);
-            lens.push((at, n));
-            at += n;
+            let mut params = LensParams::for_model(&d.model);
+            if o.fix_k3 {
+                params = params.fix(LensParam::K3);
+            }
+            lens.push((at, params));
+            at += params.len();
             if i == o.reference {
                 pose.push(None);
             } else {
@@ -303,12 +229,13 @@ impl State {
         let mut s = self.clone();
         let step = |i: usize| if fixed[i] { 0.0 } else { delta[i] };
         for (d, dev) in s.devices.iter_mut().enumerate() {
-            let (at, n) = l.lens[d];
-            let mut v = lens_get(&dev.model);
-            for (j, x) in v.iter_mut().enumerate().take(n) {
+            let (at, params) = l.lens[d];
+            let mut v = vec![0.0; params.len()];
+            params.gather(&dev.model, &mut v);
+            for (j, x) in v.iter_mut().enumerate() {
                 *x += step(at + j);
             }
-            lens_set(&mut dev.model, &v);
+            params.scatter(&mut dev.model, &v);
             if let Some(at) = l.pose[d] {
                 let inc: Vec<f64> = (0..6).map(|j| step(at + j)).collect();
                 dev.pose = apply_increment(&dev.pose, &inc);
@@ -358,25 +285,92 @@ fn anchors(p: &Problem, s: &State, o: &Options) -> Vec<Option<Anchor>> {
         .collect()
 }
 
-/// Predicted pixel and its Jacobian columns (parameter index, d pixel / d parameter).
+/// Predicted pixel and its Jacobian, as blocks of contiguous parameter columns.
 struct Linearised {
     predicted: Point2<f64>,
-    columns: Vec<(usize, Vector2<f64>)>,
+    /// (first parameter index, column count) of each block, in `jac` order.
+    blocks: Vec<(usize, usize)>,
+    /// d pixel / d parameter, the blocks' columns one after another.
+    jac: Vec<Vector2<f64>>,
 }
 
 impl Linearised {
-    fn push_lens(&mut self, at: usize, j: &DMatrix<f64>) {
-        for c in 0..j.ncols() {
-            self.columns
-                .push((at + c, Vector2::new(j[(0, c)], j[(1, c)])));
-        }
+    /// Columns of a device's free lens parameters from d pixel/d lens (all twelve).
+    fn push_lens(&mut self, (at, params): (usize, LensParams), j: &LensJacobian) {
+        self.blocks.push((at, params.len()));
+        self.jac
+            .extend(params.iter().map(|p| Vector2::from(j.column(p.index()))));
     }
 
     /// Columns of a pose increment (ω, τ) from d pixel/dω (2×3) and d pixel/dτ (2×3).
     fn push_pose(&mut self, at: usize, dw: Matrix2x3<f64>, dt: Matrix2x3<f64>) {
-        for c in 0..3 {
-            self.columns.push((at + c, dw.column(c).into()));
-            self.columns.push((at + 3 + c, dt.column(c).into()));
+        self.blocks.push((at, 6));
+        self.jac.extend((0..3).map(|c| Vector2::from(dw.column(c))));
+        self.jac.extend((0..3).map(|c| Vector2::from(dt.column(c))));
+    }
+
+    /// Without a Jacobian.
+    fn value(predicted: Point2<f64>) -> Linearised {
+        Linearised {
+            predicted,
+            blocks: Vec::new(),
+            jac: Vec::new(),
+        }
+    }
+
+    /// With room for a Jacobian of `columns` columns in `blocks` blocks.
+    fn with_capacity(predicted: Point2<f64>, blocks: usize, columns: usize) -> Linearised {
+        Linearised {
+            predicted,
+            blocks: Vec::with_capacity(blocks),
+            jac: Vec::with_capacity(columns),
+        }
+    }
+
+    /// Every column with its parameter index.
+    #[cfg(test)]
+    fn columns(&self) -> impl Iterator<Item = (usize, Vector2<f64>)> + '_ {
+        self.blocks
+            .iter()
+            .flat_map(|&(at, n)| at..at + n)
+            .zip(self.jac.iter().copied())
+    }
+
+    /// Add w·JᵀJ to the upper triangle of `jtj` (column-major, n × n) and w·Jᵀe to `jtr`.
+    fn accumulate(&self, w: f64, e: &Vector2<f64>, jtj: &mut [f64], n: usize, jtr: &mut [f64]) {
+        let wj: Vec<Vector2<f64>> = self.jac.iter().map(|j| j * w).collect();
+        let mut oa = 0;
+        for (ia, &(ga, la)) in self.blocks.iter().enumerate() {
+            for (g, j) in jtr[ga..ga + la].iter_mut().zip(&wj[oa..oa + la]) {
+                *g += j.dot(e);
+            }
+            let mut ob = oa;
+            for &(gb, lb) in &self.blocks[ia..] {
+                if gb == ga {
+                    // Diagonal block: its upper triangle.
+                    for c in 0..la {
+                        let col = &mut jtj[(ga + c) * n + ga..(ga + c) * n + ga + c + 1];
+                        for (x, j) in col.iter_mut().zip(&wj[oa..=oa + c]) {
+                            *x += j.dot(&self.jac[oa + c]);
+                        }
+                    }
+                } else {
+                    // Off-diagonal block: rows of the earlier parameters, columns of the later.
+                    let (gr, lr, or, gc, lc, oc) = if ga < gb {
+                        (ga, la, oa, gb, lb, ob)
+                    } else {
+                        (gb, lb, ob, ga, la, oa)
+                    };
+                    for c in 0..lc {
+                        let col = &mut jtj[(gc + c) * n + gr..(gc + c) * n + gr + lr];
+                        for (x, j) in col.iter_mut().zip(&wj[or..or + lr]) {
+                            *x += j.dot(&self.jac[oc + c]);
+                        }
+                    }
+                }
+                ob += lb;
+            }
+            oa += la;
         }
     }
 }
@@ -419,17 +413,14 @@ fn linearise(
             let pc = dev.pose * y; // device frame
                                    // The observed ellipse centre sits `bias` pixels from the projected centre (§4).
             if !jacobian {
-                return Some(Linearised {
-                    predicted: dev.model.project(&pc)? + bias,
-                    columns: Vec::new(),
-                });
+                return Some(Linearised::value(dev.model.project(&pc)? + bias));
             }
-            let (px, jp, jl) = project_with_jacobians(&dev.model, &pc)?;
-            let mut lin = Linearised {
-                predicted: px + bias,
-                columns: Vec::with_capacity(40),
-            };
-            lin.push_lens(l.lens[ob.device].0, &jl);
+            let pj = dev
+                .model
+                .project_with_jacobians(&Isometry3::identity(), &pc)?;
+            let jp = pj.d_point;
+            let mut lin = Linearised::with_capacity(pj.pixel + bias, 4, 27);
+            lin.push_lens(l.lens[ob.device], &pj.d_lens);
             if let Some(at) = l.pose[ob.device] {
                 lin.push_pose(at, -jp * skew(&pc.coords), jp);
             }
@@ -445,8 +436,8 @@ fn linearise(
             // r = (n, 1), n = undistort(e_c), meets the side's plane (normal N through Q,
             // in camera c's frame) at P_c = λ·r.
             let cam = &s.devices[via.camera];
-            let n = cam.model.undistort(via.ellipse_center)?;
-            let r = Vector3::new(n.x, n.y, 1.0);
+            let un = cam.model.undistort_with_jacobians(via.ellipse_center)?;
+            let r = Vector3::new(un.normalised.x, un.normalised.y, 1.0);
             let to_board = s.boards[ob.pose];
             let plane_pose = cam.pose * to_board * side;
             let normal = plane_pose.rotation * Vector3::z();
@@ -458,19 +449,15 @@ fn linearise(
             let proj_from_cam = dev.pose * cam.pose.inverse();
             let p_p = proj_from_cam * p_c;
             if !jacobian {
-                return Some(Linearised {
-                    predicted: dev.model.project(&p_p)?,
-                    columns: Vec::new(),
-                });
+                return Some(Linearised::value(dev.model.project(&p_p)?));
             }
-            let (px, jp, jl) = project_with_jacobians(&dev.model, &p_p)?;
-            let dn_dlens = undistort_jacobian(&cam.model, via.ellipse_center)?;
+            let pj = dev
+                .model
+                .project_with_jacobians(&Isometry3::identity(), &p_p)?;
+            let jp = pj.d_point;
             let jpc = jp * *proj_from_cam.rotation.to_rotation_matrix().matrix();
-            let mut lin = Linearised {
-                predicted: px,
-                columns: Vec::with_capacity(60),
-            };
-            lin.push_lens(l.lens[ob.device].0, &jl);
+            let mut lin = Linearised::with_capacity(pj.pixel, 6, 42);
+            lin.push_lens(l.lens[ob.device], &pj.d_lens);
             if let Some(at) = l.pose[ob.device] {
                 lin.push_pose(at, -jp * skew(&p_p.coords), jp);
             }
@@ -493,35 +480,11 @@ fn linearise(
             // Camera c's lens moves the ray: dP_c = λ·(I − r·Nᵀ/(N·r))·(dn, 0).
             let slide = (Matrix3::identity() - r * normal.transpose() / normal.dot(&r)) * lambda;
             let dpc_dn = slide.fixed_columns::<2>(0).into_owned();
-            let j = jpc * dpc_dn * dn_dlens;
-            lin.push_lens(
-                l.lens[via.camera].0,
-                &DMatrix::from_fn(2, j.ncols(), |i, c| j[(i, c)]),
-            );
+            lin.push_lens(l.lens[via.camera], &(jpc * dpc_dn * un.d_lens));
             Some(lin)
         }
         (Anchor::Projector, None) => None,
     }
-}
-
-/// Derivative of the undistorted normalised point of a pixel with respect to the lens
-/// parameters.
-fn undistort_jacobian(m: &CameraModel, e: Point2<f64>) -> Option<DMatrix<f64>> {
-    let v = lens_get(m);
-    let mut j = DMatrix::zeros(2, v.len());
-    for i in 0..v.len() {
-        let h = 1e-5 * v[i].abs().max(1e-1);
-        let (mut a, mut b) = (*m, *m);
-        let (mut va, mut vb) = (v.clone(), v.clone());
-        va[i] += h;
-        vb[i] -= h;
-        lens_set(&mut a, &va);
-        lens_set(&mut b, &vb);
-        let d = (a.undistort(e)? - b.undistort(e)?) / (2.0 * h);
-        j[(0, i)] = d.x;
-        j[(1, i)] = d.y;
-    }
-    Some(j)
 }
 
 /// Normal equations, weighted cost and per-observation residuals at a state.
@@ -568,8 +531,11 @@ fn normal_equations(
         .sum();
     let n = if with_jacobian { l.len } else { 0 };
     // JᵀWJ and JᵀWr, accumulated per thread over the upper triangle, then summed.
+    // A few large chunks per thread bound the number of n × n accumulators.
+    let chunk = p.observations.len() / (4 * rayon::current_num_threads()) + 1;
     let (mut jtj, jtr) = (0..p.observations.len())
         .into_par_iter()
+        .with_min_len(chunk)
         .filter(|&i| with_jacobian && active[i] && residuals[i].is_some())
         .fold(
             || (DMatrix::<f64>::zeros(n, n), DVector::<f64>::zeros(n)),
@@ -577,13 +543,13 @@ fn normal_equations(
                 let ob = &p.observations[i];
                 if let Some(lin) = an[i].as_ref().and_then(|a| linearise(p, s, l, ob, a, true)) {
                     let e = ob.pixel - lin.predicted;
-                    let w = weight(&e, huber);
-                    for (x, (a, ja)) in lin.columns.iter().enumerate() {
-                        jtr[*a] += w * ja.dot(&e);
-                        for (b, jb) in &lin.columns[x..] {
-                            jtj[(*a.min(b), *a.max(b))] += w * ja.dot(jb);
-                        }
-                    }
+                    lin.accumulate(
+                        weight(&e, huber),
+                        &e,
+                        jtj.as_mut_slice(),
+                        n,
+                        jtr.as_mut_slice(),
+                    );
                 }
                 (jtj, jtr)
             },
@@ -603,15 +569,8 @@ fn normal_equations(
 
 /// Parameters that carry no information (no observation touches them) or that the options
 /// fix: held at their start.
-fn fixed_parameters(p: &Problem, l: &Layout, o: &Options, jtj: &DMatrix<f64>) -> Vec<bool> {
-    let mut fixed: Vec<bool> = (0..l.len).map(|i| jtj[(i, i)] <= 0.0).collect();
-    if o.fix_k3 {
-        for &(at, _) in &l.lens {
-            fixed[at + 8] = true;
-        }
-    }
-    let _ = p;
-    fixed
+fn fixed_parameters(l: &Layout, jtj: &DMatrix<f64>) -> Vec<bool> {
+    (0..l.len).map(|i| jtj[(i, i)] <= 0.0).collect()
 }
 
 /// Levenberg–Marquardt iterations; returns the new state and the iteration count.
@@ -625,11 +584,11 @@ fn levenberg_marquardt(
 ) -> (State, usize) {
     let mut lambda = 1e-3;
     let mut iterations = 0;
+    let mut an = anchors(p, &s, o);
     for _ in 0..o.max_iterations {
         iterations += 1;
-        let an = anchors(p, &s, o);
         let ne = normal_equations(p, &s, l, &an, active, huber, true);
-        let fixed = fixed_parameters(p, l, o, &ne.jtj);
+        let fixed = fixed_parameters(l, &ne.jtj);
         let mut improved = false;
         for _ in 0..10 {
             let mut a = ne.jtj.clone();
@@ -649,13 +608,18 @@ fn levenberg_marquardt(
             };
             let delta = chol.solve(&rhs);
             let trial = s.update(l, &delta, &fixed);
-            let an_t = anchors(p, &trial, o);
-            let c = normal_equations(p, &trial, l, &an_t, active, huber, false).cost;
+            // The anchors (circle biases) stay those of the linearisation point within a step.
+            let c = normal_equations(p, &trial, l, &an, active, huber, false).cost;
             if c < ne.cost {
                 let rel = (ne.cost - c) / ne.cost.max(1e-300);
                 s = trial;
                 lambda = (lambda / 3.0).max(1e-12);
-                improved = rel > 1e-12;
+                improved = rel > 1e-9;
+                // The circle biases move with the poses: refresh them after large steps
+                // (near convergence a step changes them by far less than the noise).
+                if rel > 1e-2 {
+                    an = anchors(p, &s, o);
+                }
                 break;
             }
             lambda *= 10.0;
@@ -712,7 +676,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     let (s, it2) = levenberg_marquardt(p, s, &l, o, &active, None);
     let an = anchors(p, &s, o);
     let ne = normal_equations(p, &s, &l, &an, &active, None, true);
-    let fixed = fixed_parameters(p, &l, o, &ne.jtj);
+    let fixed = fixed_parameters(&l, &ne.jtj);
     let free = fixed.iter().filter(|f| !**f).count();
     let n = 2 * active.iter().filter(|a| **a).count();
     let sigma = (ne.cost / (n.saturating_sub(free)).max(1) as f64).sqrt();
@@ -743,7 +707,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     let intrinsic_std = l
         .lens
         .iter()
-        .map(|&(at, n)| (at..at + n).map(std).collect())
+        .map(|&(at, params)| (at..at + params.len()).map(std).collect())
         .collect();
     let pose_std = l
         .pose
@@ -823,12 +787,12 @@ mod tests {
             let ob = &problem.observations[i];
             let lin = linearise(&problem, &state, &l, ob, an[i].as_ref().unwrap(), true).unwrap();
             let mut analytic = DMatrix::<f64>::zeros(2, l.len);
-            for (c, v) in &lin.columns {
-                analytic[(0, *c)] += v.x;
-                analytic[(1, *c)] += v.y;
+            for (c, v) in lin.columns() {
+                analytic[(0, c)] += v.x;
+                analytic[(1, c)] += v.y;
             }
             for c in 0..l.len {
-                let h = if l.lens.iter().any(|&(at, n)| c >= at && c < at + 4 && n > 0) {
+                let h = if l.lens.iter().any(|&(at, _)| c >= at && c < at + 4) {
                     1e-3
                 } else {
                     1e-6

@@ -4,6 +4,7 @@
 //! Takes labelled observations (board point ↔ device pixel) and gives device models and poses.
 
 pub mod bundle;
+pub mod circle;
 pub mod posegraph;
 pub mod synthetic;
 pub mod zhang;

@@ -2,7 +2,8 @@
 //! calibration stage: cameras and projectors around a double-sided board, some facing each
 //! other across it, board poses turned so both sides are seen.
 
-use super::bundle::{Device, DeviceKind, Observation, Via};
+use super::bundle::{Device, DeviceKind, Observation, Problem, Via};
+use super::circle::ellipse_center;
 use crate::board::{Board, Side};
 use crate::camera::{CameraModel, Distortion, Intrinsics};
 use nalgebra::{
@@ -46,44 +47,61 @@ fn around(azimuth_deg: f64, elevation_deg: f64, distance: f64) -> Point3<f64> {
     )
 }
 
-/// Exact image-ellipse centre of a board circle: the centre of the conic fitted to densely
-/// projected rim points (independent of the solver's closed-form bias model).
-pub fn ellipse_center(
-    model: &CameraModel,
-    device_from_side: &Isometry3<f64>,
-    center: Point2<f64>,
-    radius: f64,
-) -> Option<Point2<f64>> {
-    let n = 64;
-    let mut ata = nalgebra::Matrix5::<f64>::zeros();
-    let mut atb = nalgebra::Vector5::<f64>::zeros();
-    let c0 = model.project(&(device_from_side * Point3::new(center.x, center.y, 0.0)))?;
-    for i in 0..n {
-        let t = std::f64::consts::TAU * i as f64 / n as f64;
-        let p = device_from_side
-            * Point3::new(
-                center.x + radius * t.cos(),
-                center.y + radius * t.sin(),
-                0.0,
-            );
-        let q = model.project(&p)? - c0;
-        // x² + B xy + C y² + D x + E y + F = 0 with the x² coefficient fixed to 1.
-        let row = nalgebra::Vector5::new(q.x * q.y, q.y * q.y, q.x, q.y, 1.0);
-        ata += row * row.transpose();
-        atb += row * (-q.x * q.x);
-    }
-    let s = ata.lu().solve(&atb)?;
-    let (b, c, d, e) = (s[0], s[1], s[2], s[3]);
-    let m = nalgebra::Matrix2::new(1.0, b / 2.0, b / 2.0, c);
-    let off = -m.try_inverse()? * nalgebra::Vector2::new(d / 2.0, e / 2.0);
-    Some(c0 + off)
-}
-
 impl SyntheticRig {
     /// The paper-like rig: 6 cameras (3 facing the front, 3 the back), 3 projectors
     /// (2 front, 1 back), `poses` board poses; observation noise σ px on every coordinate
     /// of cameras and projectors alike.
     pub fn paper(poses: usize, sigma: f64, seed: u64) -> SyntheticRig {
+        let cameras = [0.0, -35.0, 35.0, 180.0, 150.0, 210.0]
+            .into_iter()
+            .enumerate()
+            .map(|(i, az)| (az, 12.0 * ((i % 3) as f64 - 1.0)))
+            .collect::<Vec<_>>();
+        Self::build(&cameras, &[15.0, -20.0, 170.0], poses, sigma, seed)
+    }
+
+    /// A large rig: `cameras` on a ring around the board, half facing each side (azimuths
+    /// spread over ±50° around 0° and 180°, elevations over ±15°), `projectors` likewise,
+    /// `poses` board poses; noise σ px.
+    pub fn ring(
+        cameras: usize,
+        projectors: usize,
+        poses: usize,
+        sigma: f64,
+        seed: u64,
+    ) -> SyntheticRig {
+        let spread = |i: usize, n: usize| {
+            let half = n.div_ceil(2);
+            let (k, base) = if i < half {
+                (i, 0.0)
+            } else {
+                (i - half, 180.0)
+            };
+            let m = if i < half { half } else { n - half };
+            base + if m > 1 {
+                -50.0 + 100.0 * k as f64 / (m - 1) as f64
+            } else {
+                0.0
+            }
+        };
+        let cams: Vec<(f64, f64)> = (0..cameras)
+            .map(|i| (spread(i, cameras), 15.0 * ((i % 3) as f64 - 1.0)))
+            .collect();
+        let projs: Vec<f64> = (0..projectors)
+            .map(|i| spread(i, projectors) + 7.0)
+            .collect();
+        Self::build(&cams, &projs, poses, sigma, seed)
+    }
+
+    /// Cameras at (azimuth, elevation) in degrees at 1500 mm, projectors at azimuths at
+    /// 1300 mm and 5° elevation, all looking at the origin.
+    fn build(
+        cameras: &[(f64, f64)],
+        projectors: &[f64],
+        poses: usize,
+        sigma: f64,
+        seed: u64,
+    ) -> SyntheticRig {
         let mut rng = StdRng::seed_from_u64(seed);
         let board = Board::hex600();
         let cam_model = |rng: &mut StdRng| CameraModel {
@@ -121,17 +139,11 @@ impl SyntheticRig {
         let target = Point3::origin();
         let mut world = Vec::new();
         let mut devices = Vec::new();
-        for (i, az) in [0.0, -35.0, 35.0, 180.0, 150.0, 210.0]
-            .into_iter()
-            .enumerate()
-        {
-            world.push(look_at(
-                around(az, 12.0 * ((i % 3) as f64 - 1.0), 1500.0),
-                target,
-            ));
+        for (i, &(az, el)) in cameras.iter().enumerate() {
+            world.push(look_at(around(az, el, 1500.0), target));
             devices.push((format!("cam{i}"), DeviceKind::Camera, cam_model(&mut rng)));
         }
-        for (i, az) in [15.0, -20.0, 170.0].into_iter().enumerate() {
+        for (i, &az) in projectors.iter().enumerate() {
             world.push(look_at(around(az, 5.0, 1300.0), target));
             devices.push((
                 format!("proj{i}"),
@@ -251,4 +263,99 @@ impl SyntheticRig {
             observations,
         }
     }
+
+    /// A start for the adjustment: every focal length off by up to ±5 % (fy = fx), no
+    /// distortion, every non-reference device moved by (30, −20, 40) mm and turned by 5°,
+    /// every board pose turned by 5° about a random axis.
+    pub fn perturbed_start(&self, seed: u64) -> Problem {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let mut devices = self.devices.clone();
+        let turn = |rng: &mut StdRng| {
+            let axis = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            )
+            .normalize();
+            UnitQuaternion::from_scaled_axis(axis * 5f64.to_radians())
+        };
+        for (i, d) in devices.iter_mut().enumerate() {
+            d.model.intrinsics.fx *= 1.0 + rng.random_range(-0.05..0.05);
+            d.model.intrinsics.fy = d.model.intrinsics.fx;
+            d.model.distortion = Distortion::default();
+            if i != 0 {
+                d.pose = Isometry3::from_parts(
+                    Translation3::from(d.pose.translation.vector + Vector3::new(30.0, -20.0, 40.0)),
+                    turn(&mut rng) * d.pose.rotation,
+                );
+            }
+        }
+        let boards = self
+            .boards
+            .iter()
+            .map(|b| Isometry3::from_parts(b.translation, turn(&mut rng) * b.rotation))
+            .collect();
+        Problem {
+            board: self.board.clone(),
+            devices,
+            boards,
+            observations: self.observations.clone(),
+        }
+    }
+}
+
+/// Figures of one timed adjustment of a synthetic rig (`hexcal bench calib`).
+#[derive(Clone, Debug)]
+pub struct AdjustBench {
+    /// Devices in the rig.
+    pub devices: usize,
+    /// Board poses.
+    pub poses: usize,
+    /// Observations (camera and projector).
+    pub observations: usize,
+    /// Scalar residuals n and free parameters p of the final solve.
+    pub dof: (usize, usize),
+    /// LM iterations over all phases.
+    pub iterations: usize,
+    /// Wall time of the adjustment from the perturbed start (s).
+    pub seconds: f64,
+    /// Posterior σ per coordinate (px); the simulated noise was `sigma`.
+    pub posterior_sigma: f64,
+    /// Largest relative focal-length error over all devices.
+    pub worst_focal_error: f64,
+}
+
+/// Build a [`SyntheticRig::ring`] (or the paper rig when `cameras == 6 && projectors == 3`),
+/// start from [`SyntheticRig::perturbed_start`] and time [`super::bundle::adjust`].
+pub fn bench_adjust(
+    cameras: usize,
+    projectors: usize,
+    poses: usize,
+    sigma: f64,
+) -> Result<AdjustBench, super::CalibError> {
+    let rig = if cameras == 6 && projectors == 3 {
+        SyntheticRig::paper(poses, sigma, 1)
+    } else {
+        SyntheticRig::ring(cameras, projectors, poses, sigma, 1)
+    };
+    let start = rig.perturbed_start(2);
+    let t = std::time::Instant::now();
+    let sol = super::bundle::adjust(&start, &super::bundle::Options::default())?;
+    let seconds = t.elapsed().as_secs_f64();
+    let worst_focal_error = sol
+        .devices
+        .iter()
+        .zip(&rig.devices)
+        .map(|(e, t)| (e.model.intrinsics.fx / t.model.intrinsics.fx - 1.0).abs())
+        .fold(0.0, f64::max);
+    Ok(AdjustBench {
+        devices: rig.devices.len(),
+        poses,
+        observations: rig.observations.len(),
+        dof: sol.dof,
+        iterations: sol.iterations,
+        seconds,
+        posterior_sigma: sol.sigma,
+        worst_focal_error,
+    })
 }

@@ -126,91 +126,15 @@ fn zhang_start_is_close_with_distortion_and_noise() {
 }
 
 mod bundle_adjustment {
-    use super::super::bundle::{self, ellipse_bias, DeviceKind, Options, Problem};
-    use super::super::synthetic::{ellipse_center, SyntheticRig};
+    use super::super::bundle::{self, DeviceKind, Options};
+    use super::super::synthetic::SyntheticRig;
     use crate::board::Side;
-    use crate::camera::{CameraModel, Distortion, Intrinsics};
-    use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector3};
-    use rand::{rngs::StdRng, Rng, SeedableRng};
-
-    #[test]
-    fn closed_form_bias_matches_fitted_rim_on_a_pinhole() {
-        let model = CameraModel {
-            width: 1920,
-            height: 1200,
-            intrinsics: Intrinsics {
-                fx: 2000.0,
-                fy: 2000.0,
-                cx: 960.0,
-                cy: 600.0,
-            },
-            distortion: Distortion::default(),
-        };
-        let pose = Isometry3::from_parts(
-            Translation3::new(-80.0, 50.0, 900.0),
-            UnitQuaternion::from_scaled_axis(Vector3::new(0.7, 0.4, 0.1)),
-        );
-        for c in [
-            Point2::new(0.0, 0.0),
-            Point2::new(200.0, -150.0),
-            Point2::new(-280.0, 220.0),
-        ] {
-            let bias = ellipse_bias(&pose, c, 6.0).unwrap();
-            let p = pose * nalgebra::Point3::new(c.x, c.y, 0.0);
-            let n = nalgebra::Vector2::new(p.x / p.z, p.y / p.z) + bias;
-            let predicted = model.to_pixel(n);
-            let fitted = ellipse_center(&model, &pose, c, 6.0).unwrap();
-            // Both are exact for a pinhole; the fit of 64 exact rim points is good to 1e-8 px.
-            assert!(
-                (predicted - fitted).norm() < 1e-6,
-                "{predicted} vs {fitted}"
-            );
-            // And the bias is not negligible at this tilt.
-            assert!((bias * 2000.0).norm() > 0.01);
-        }
-    }
-
-    fn perturbed(rig: &SyntheticRig, seed: u64) -> Problem {
-        let mut rng = StdRng::seed_from_u64(seed);
-        let mut devices = rig.devices.clone();
-        let turn = |rng: &mut StdRng| {
-            let axis = Vector3::new(
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-            )
-            .normalize();
-            UnitQuaternion::from_scaled_axis(axis * 5f64.to_radians())
-        };
-        for (i, d) in devices.iter_mut().enumerate() {
-            d.model.intrinsics.fx *= 1.0 + rng.random_range(-0.05..0.05);
-            d.model.intrinsics.fy = d.model.intrinsics.fx;
-            d.model.distortion = Distortion::default();
-            if i != 0 {
-                d.pose = Isometry3::from_parts(
-                    Translation3::from(d.pose.translation.vector + Vector3::new(30.0, -20.0, 40.0)),
-                    turn(&mut rng) * d.pose.rotation,
-                );
-            }
-        }
-        let boards = rig
-            .boards
-            .iter()
-            .map(|b| Isometry3::from_parts(b.translation, turn(&mut rng) * b.rotation))
-            .collect();
-        Problem {
-            board: rig.board.clone(),
-            devices,
-            boards,
-            observations: rig.observations.clone(),
-        }
-    }
 
     #[test]
     fn paper_rig_reaches_the_noise_floor_from_a_perturbed_start() {
         let sigma = 0.1;
         let rig = SyntheticRig::paper(10, sigma, 7);
-        let problem = perturbed(&rig, 8);
+        let problem = rig.perturbed_start(8);
         let sol = bundle::adjust(&problem, &Options::default()).unwrap();
         let (n, p) = sol.dof;
         // RMS per coordinate of the inliers → σ·√(1 − p/n) (DESIGN.md §8); a 4σ trim of 2D
@@ -285,7 +209,8 @@ mod bundle_adjustment {
         let (mut maha, mut nmse) = (Vec::new(), Vec::new());
         for seed in 0..3 {
             let rig = SyntheticRig::paper(10, sigma, 100 + seed);
-            let sol = bundle::adjust(&perturbed(&rig, 200 + seed), &Options::default()).unwrap();
+            let sol =
+                bundle::adjust(&rig.perturbed_start(200 + seed), &Options::default()).unwrap();
             let e = errors(&sol, &rig);
             let idx: Vec<usize> = e.iter().map(|(i, _)| *i).collect();
             let cov = nalgebra::DMatrix::from_fn(idx.len(), idx.len(), |a, b| {
@@ -312,7 +237,7 @@ mod bundle_adjustment {
         // Cameras 3–5 see only the back side, cameras 0–2 only the front: their relative
         // poses come out right only through the side transform.
         let rig = SyntheticRig::paper(8, 0.1, 21);
-        let sol = bundle::adjust(&perturbed(&rig, 22), &Options::default()).unwrap();
+        let sol = bundle::adjust(&rig.perturbed_start(22), &Options::default()).unwrap();
         for d in 3..6 {
             let (e, t) = (sol.devices[d].pose, rig.devices[d].pose);
             assert!(
