@@ -23,7 +23,10 @@ fn shipped_scenes_load_and_see_the_board() {
         assert_eq!(truth.side, Some(expect), "{name}");
         let whole = truth.circles.iter().filter(|c| c.whole).count();
         assert!(whole > 200, "{name}: {whole} whole circles");
-        assert!(whole < truth.circles.len(), "{name}: meant to be partly out of frame");
+        assert!(
+            whole < truth.circles.len(),
+            "{name}: meant to be partly out of frame"
+        );
         n += 1;
     }
     assert!(n > 0);

@@ -1,12 +1,17 @@
-//! Calibration (DESIGN.md §8): Zhang's planar initialisation per device, then (in later
-//! steps) the pose graph and one bundle adjustment over all devices and board poses.
+//! Calibration (DESIGN.md §7–8): registration of unanchored views ([`views`]), Zhang's
+//! planar initialisation per device ([`zhang`]), the pose graph ([`posegraph`]) and one
+//! bundle adjustment over all devices, board poses and both sides ([`bundle`], with the
+//! circle model of [`circle`]); [`pipeline::calibrate`] runs them in order.
 //!
-//! Takes labelled observations (board point ↔ device pixel) and gives device models and poses.
+//! Takes labelled camera views with projector coordinates at their circles and gives every
+//! device's model and pose in the reference device's frame, with residuals and covariance.
 
 pub mod bundle;
 pub mod circle;
+pub mod pipeline;
 pub mod posegraph;
 pub mod synthetic;
+pub mod views;
 pub mod zhang;
 
 use nalgebra::Point2;

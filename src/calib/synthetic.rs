@@ -4,6 +4,8 @@
 
 use super::bundle::{Device, DeviceKind, Observation, Problem, Via};
 use super::circle::ellipse_center;
+use super::pipeline::DeviceInfo;
+use super::views::{CameraView, Frame, ProjectorPixel, ViewPoint};
 use crate::board::{Board, Side};
 use crate::camera::{CameraModel, Distortion, Intrinsics};
 use nalgebra::{
@@ -262,6 +264,62 @@ impl SyntheticRig {
             boards,
             observations,
         }
+    }
+
+    /// The observations as anchored camera views (one per camera, pose and side) with the
+    /// projector pixels decoded at each circle, as the detection stages deliver them.
+    pub fn views(&self) -> Vec<CameraView> {
+        let mut views: Vec<CameraView> = Vec::new();
+        for ob in &self.observations {
+            match ob.via {
+                None => {
+                    let point = ViewPoint {
+                        hex: ob.hex,
+                        image: ob.pixel,
+                        projectors: Vec::new(),
+                    };
+                    match views.last_mut() {
+                        Some(v)
+                            if v.camera == ob.device
+                                && v.pose == ob.pose
+                                && v.frame == Frame::Anchored(ob.side) =>
+                        {
+                            v.points.push(point)
+                        }
+                        _ => views.push(CameraView {
+                            camera: ob.device,
+                            pose: ob.pose,
+                            frame: Frame::Anchored(ob.side),
+                            points: vec![point],
+                        }),
+                    }
+                }
+                Some(via) => {
+                    // Projector observations follow their camera observation.
+                    let v = views.last_mut().expect("camera observation first");
+                    let p = v.points.last_mut().expect("camera observation first");
+                    assert!(v.camera == via.camera && p.hex == ob.hex);
+                    p.projectors.push(ProjectorPixel {
+                        projector: ob.device,
+                        pixel: ob.pixel,
+                    });
+                }
+            }
+        }
+        views
+    }
+
+    /// The devices as [`DeviceInfo`]s.
+    pub fn device_infos(&self) -> Vec<DeviceInfo> {
+        self.devices
+            .iter()
+            .map(|d| DeviceInfo {
+                name: d.name.clone(),
+                kind: d.kind,
+                width: d.model.width,
+                height: d.model.height,
+            })
+            .collect()
     }
 
     /// A start for the adjustment: every focal length off by up to ±5 % (fy = fx), no

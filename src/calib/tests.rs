@@ -251,3 +251,71 @@ mod bundle_adjustment {
         assert!((sol.front_back.translation.vector - fb.translation.vector).norm() < 0.5);
     }
 }
+
+mod pipeline {
+    use super::super::pipeline::{calibrate, CalibrateOptions};
+    use super::super::synthetic::SyntheticRig;
+    use super::super::views::Frame;
+    use crate::board::Hex;
+    use rand::{rngs::StdRng, Rng, SeedableRng};
+
+    #[test]
+    fn calibrates_from_views_with_a_fifth_of_them_unanchored() {
+        // The paper rig from nothing but labelled views: Zhang, pose graph and adjustment
+        // must reach the truth, and views relabelled in an arbitrary lattice frame (as the
+        // grid builder leaves a view without its centre) must be registered.
+        let sigma = 0.1;
+        let rig = SyntheticRig::paper(10, sigma, 31);
+        let mut views = rig.views();
+        let mut rng = StdRng::seed_from_u64(32);
+        let mut scrambled = 0;
+        for v in views.iter_mut() {
+            // A camera view of the reference camera stays anchored in every pose it has, so
+            // that each pose keeps some anchored views under each projector.
+            if v.camera != 0 && rng.random_bool(0.2) {
+                let (k, t) = (
+                    rng.random_range(0..6),
+                    Hex::new(rng.random_range(-20..20), rng.random_range(-20..20)),
+                );
+                for p in &mut v.points {
+                    p.hex = p.hex.rotate(k) + t;
+                }
+                v.frame = Frame::Unanchored;
+                scrambled += 1;
+            }
+        }
+        assert!(scrambled > 5);
+        let cal = calibrate(
+            &rig.board,
+            &rig.device_infos(),
+            rig.boards.len(),
+            &views,
+            &CalibrateOptions::default(),
+        )
+        .unwrap();
+        let reg = &cal.registration;
+        assert_eq!(reg.unanchored, scrambled);
+        assert!(
+            reg.registered.len() as f64 >= 0.95 * scrambled as f64,
+            "registered {} of {scrambled}: {:?}",
+            reg.registered.len(),
+            reg.unregistered
+        );
+        assert!(cal.excluded.is_empty(), "{:?}", cal.excluded);
+        assert_eq!(cal.devices.len(), rig.devices.len());
+        // The noise floor and the truth: σ per coordinate within 3 %, focal lengths within
+        // 6 of their standard deviations.
+        assert!(
+            (cal.solution.sigma / sigma - 1.0).abs() < 0.03,
+            "σ {}",
+            cal.solution.sigma
+        );
+        for (d, (est, truth)) in cal.devices.iter().zip(&rig.devices).enumerate() {
+            let e = est.model.intrinsics.fx - truth.model.intrinsics.fx;
+            let s = cal.solution.intrinsic_std[d][0];
+            assert!(e.abs() < 6.0 * s, "{} fx error {e} std {s}", est.name);
+            let dt = (est.pose.translation.vector - truth.pose.translation.vector).norm();
+            assert!(dt < 1.0, "{} position error {dt} mm", est.name);
+        }
+    }
+}
