@@ -56,15 +56,47 @@ pub struct CameraView {
     pub points: Vec<ViewPoint>,
 }
 
+/// An unanchored view that registration placed on the board.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Registered {
+    /// Camera index.
+    pub camera: usize,
+    /// Board pose index.
+    pub pose: usize,
+    /// Points matched to anchored points in projector space.
+    pub matches: usize,
+    /// Matches agreeing with the accepted lattice transform.
+    pub agreeing: usize,
+}
+
+/// An unanchored view left out.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Unregistered {
+    /// Camera index.
+    pub camera: usize,
+    /// Board pose index.
+    pub pose: usize,
+    /// Why.
+    pub reason: String,
+}
+
 /// What registration did.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Registration {
     /// Unanchored views given.
     pub unanchored: usize,
-    /// Of those, registered: (camera, pose, matched points, agreeing points).
-    pub registered: Vec<(usize, usize, usize, usize)>,
-    /// Left unregistered: (camera, pose, why).
-    pub unregistered: Vec<(usize, usize, String)>,
+    /// Of those, the registered ones.
+    pub registered: Vec<Registered>,
+    /// And those left out.
+    pub unregistered: Vec<Unregistered>,
+}
+
+/// An anchored circle as a descriptor: its projector pixel under one projector.
+#[derive(Clone, Copy, Debug)]
+struct AnchoredPoint {
+    pixel: Point2<f64>,
+    side: Side,
+    hex: Hex,
 }
 
 /// Settings of [`register`].
@@ -100,7 +132,7 @@ struct LatticeMap {
 /// anchored with relabelled points, the others are dropped and reported.
 pub fn register(views: &[CameraView], params: &RegisterParams) -> (Vec<CameraView>, Registration) {
     // Anchored points per (pose, projector): (projector pixel, side, hex).
-    let mut anchored: HashMap<(usize, usize), Vec<(Point2<f64>, Side, Hex)>> = HashMap::new();
+    let mut anchored: HashMap<(usize, usize), Vec<AnchoredPoint>> = HashMap::new();
     for v in views {
         if let Frame::Anchored(side) = v.frame {
             for pt in &v.points {
@@ -108,7 +140,11 @@ pub fn register(views: &[CameraView], params: &RegisterParams) -> (Vec<CameraVie
                     anchored
                         .entry((v.pose, pp.projector))
                         .or_default()
-                        .push((pp.pixel, side, pt.hex));
+                        .push(AnchoredPoint {
+                            pixel: pp.pixel,
+                            side,
+                            hex: pt.hex,
+                        });
                 }
             }
         }
