@@ -161,17 +161,16 @@ pub fn register(views: &[CameraView], params: &RegisterParams) -> (Vec<CameraVie
         let mut votes: HashMap<LatticeMap, usize> = HashMap::new();
         let mut matches = 0;
         for pt in &v.points {
-            let mut best: Option<(f64, Side, Hex)> = None;
+            let mut best: Option<(f64, AnchoredPoint)> = None;
             for pp in &pt.projectors {
-                for &(px, side, hex) in anchored.get(&(v.pose, pp.projector)).into_iter().flatten()
-                {
-                    let d = (px - pp.pixel).norm();
+                for a in anchored.get(&(v.pose, pp.projector)).into_iter().flatten() {
+                    let d = (a.pixel - pp.pixel).norm();
                     if d <= params.max_distance && best.is_none_or(|b| d < b.0) {
-                        best = Some((d, side, hex));
+                        best = Some((d, *a));
                     }
                 }
             }
-            if let Some((_, side, hex)) = best {
+            if let Some((_, AnchoredPoint { side, hex, .. })) = best {
                 matches += 1;
                 for rotation in 0..6 {
                     let translation = hex - pt.hex.rotate(rotation);
@@ -191,7 +190,12 @@ pub fn register(views: &[CameraView], params: &RegisterParams) -> (Vec<CameraVie
                 if matches >= params.min_matches
                     && agree as f64 >= params.min_agreement * matches as f64 =>
             {
-                report.registered.push((v.camera, v.pose, matches, agree));
+                report.registered.push(Registered {
+                    camera: v.camera,
+                    pose: v.pose,
+                    matches,
+                    agreeing: agree,
+                });
                 out.push(CameraView {
                     frame: Frame::Anchored(map.side),
                     points: v
@@ -205,16 +209,18 @@ pub fn register(views: &[CameraView], params: &RegisterParams) -> (Vec<CameraVie
                     ..v.clone()
                 });
             }
-            Some((_, agree)) => report.unregistered.push((
-                v.camera,
-                v.pose,
-                format!("{matches} projector matches, best lattice transform agrees with {agree}"),
-            )),
-            None => report.unregistered.push((
-                v.camera,
-                v.pose,
-                "no point matched an anchored view under a common projector".into(),
-            )),
+            Some((_, agree)) => report.unregistered.push(Unregistered {
+                camera: v.camera,
+                pose: v.pose,
+                reason: format!(
+                    "{matches} projector matches, the best lattice transform agrees with {agree}"
+                ),
+            }),
+            None => report.unregistered.push(Unregistered {
+                camera: v.camera,
+                pose: v.pose,
+                reason: "no point matched an anchored view under a common projector".into(),
+            }),
         }
     }
     (out, report)
