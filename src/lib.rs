@@ -6,6 +6,7 @@
 //! [`grid`] (labelled lattice points); [`sim`] renders board views with ground truth.
 #![warn(missing_docs)]
 
+pub mod atomic;
 pub mod board;
 pub mod calib;
 pub mod camera;
@@ -13,5 +14,6 @@ pub mod detect;
 pub mod grid;
 pub mod imageio;
 pub mod phase;
+pub mod report;
 pub mod rig;
 pub mod sim;

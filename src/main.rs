@@ -3,7 +3,7 @@
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use hexcal::board::{Board, Side};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// Calibrate a structured-light rig of many cameras and projectors.
 #[derive(Parser)]
@@ -40,6 +40,21 @@ enum Command {
         /// Override the scene's noise seed.
         #[arg(long)]
         seed: Option<u64>,
+    },
+    /// Calibrate every device from a correspondences file (labelled views with projector
+    /// pixels, JSON) and write the calibration, OpenCV and Kalibr files and the residual table.
+    Calibrate {
+        /// The correspondences file.
+        input: PathBuf,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Reference device (its frame is the rig's frame); the first device by default.
+        #[arg(long)]
+        reference: Option<String>,
+        /// Hold k3 at zero.
+        #[arg(long)]
+        fix_k3: bool,
     },
     /// Speed benchmarks that print figures.
     Bench {
@@ -168,21 +183,51 @@ fn load_scene(path: Option<&PathBuf>) -> anyhow::Result<hexcal::sim::Scene> {
     })
 }
 
-/// Write `bytes` to `path` through a temporary file beside it and a rename, so that `path`
-/// holds either the old or the whole new content.
-fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let name = path.file_name().context("output path has no file name")?;
-    let tmp = path.with_file_name(format!(
-        ".{}.tmp{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    std::fs::write(&tmp, bytes)
-        .and_then(|()| std::fs::rename(&tmp, path))
-        .inspect_err(|_| {
-            let _ = std::fs::remove_file(&tmp);
-        })
-        .with_context(|| format!("cannot write {}", path.display()))
+/// `hexcal calibrate`: read, calibrate, write, print the residual table.
+fn calibrate(
+    input: &std::path::Path,
+    out: &std::path::Path,
+    reference: Option<&str>,
+    fix_k3: bool,
+) -> anyhow::Result<()> {
+    use hexcal::calib::pipeline::{calibrate, CalibrateOptions, Correspondences};
+    let text = std::fs::read_to_string(input)
+        .with_context(|| format!("cannot read {}", input.display()))?;
+    let c: Correspondences = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a correspondences file", input.display()))?;
+    let board = Board::resolve(&c.board)?;
+    let mut options = CalibrateOptions::default();
+    options.bundle.fix_k3 = fix_k3;
+    if let Some(name) = reference {
+        options.bundle.reference = c
+            .devices
+            .iter()
+            .position(|d| d.name == name)
+            .with_context(|| format!("{}: no device named {name:?}", input.display()))?;
+    }
+    let cal = calibrate(&board, &c.devices, c.poses, &c.views, &options)?;
+    let written = hexcal::report::write_outputs(&cal, out)?;
+    print!(
+        "{}",
+        hexcal::report::format_table(&hexcal::report::residual_table(&cal))
+    );
+    println!(
+        "σ {:.4} px; {} of {} unanchored views registered",
+        cal.solution.sigma,
+        cal.registration.registered.len(),
+        cal.registration.unanchored
+    );
+    for u in &cal.registration.unregistered {
+        println!(
+            "unregistered: {} pose {}: {}",
+            c.devices[u.camera].name, u.pose, u.reason
+        );
+    }
+    for e in &cal.excluded {
+        println!("not calibrated: {}: {}", e.name, e.reason);
+    }
+    println!("wrote {} files to {}", written.len(), out.display());
+    Ok(())
 }
 
 fn main() -> anyhow::Result<()> {
@@ -200,9 +245,16 @@ fn main() -> anyhow::Result<()> {
                 anyhow::bail!("{}: only SVG is written (name it *.svg)", out.display());
             }
             let board = Board::resolve(&board)?;
-            write_atomic(&out, board.svg(side).as_bytes())?;
+            hexcal::atomic::write(&out, board.svg(side).as_bytes())
+                .with_context(|| format!("cannot write {}", out.display()))?;
             println!("{} {side} side written to {}", board.name, out.display());
         }
+        Command::Calibrate {
+            input,
+            out,
+            reference,
+            fix_k3,
+        } => calibrate(&input, &out, reference.as_deref(), fix_k3)?,
         Command::Simulate { scene, out, seed } => {
             let mut scene = load_scene(scene.as_ref())?;
             scene.seed = seed.unwrap_or(scene.seed);

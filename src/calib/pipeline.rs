@@ -17,7 +17,7 @@ use crate::camera::CameraModel;
 use std::collections::BTreeMap;
 
 /// A device to calibrate.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct DeviceInfo {
     /// Name used in reports and outputs.
     pub name: String,
@@ -27,6 +27,22 @@ pub struct DeviceInfo {
     pub width: u32,
     /// Image (or projector raster) height (px).
     pub height: u32,
+}
+
+/// Everything calibration needs from the stages before it, as a file (JSON): the board,
+/// the devices, the number of board poses, and every camera's labelled views with projector
+/// pixels at their circles.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Correspondences {
+    /// A built-in board name or a board file path.
+    pub board: String,
+    /// The devices, indexed by the views.
+    pub devices: Vec<DeviceInfo>,
+    /// Number of board poses.
+    pub poses: usize,
+    /// The labelled views.
+    pub views: Vec<CameraView>,
 }
 
 /// Settings of [`calibrate`].

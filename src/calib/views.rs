@@ -15,7 +15,8 @@ use nalgebra::Point2;
 use std::collections::HashMap;
 
 /// How a view's lattice labels relate to the board.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Frame {
     /// Labels are in this side's own board frame.
     Anchored(Side),
@@ -24,7 +25,7 @@ pub enum Frame {
 }
 
 /// A projector's decoded pixel at a camera's ellipse centre.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ProjectorPixel {
     /// Device index of the projector.
     pub projector: usize,
@@ -33,7 +34,7 @@ pub struct ProjectorPixel {
 }
 
 /// One labelled circle of a view.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ViewPoint {
     /// Lattice position in the view's frame.
     pub hex: Hex,
@@ -44,7 +45,7 @@ pub struct ViewPoint {
 }
 
 /// One camera's labelled view of one board pose.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CameraView {
     /// Device index of the camera.
     pub camera: usize,

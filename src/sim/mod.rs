@@ -234,13 +234,7 @@ fn write_atomic(
     path: &Path,
     write: impl FnOnce(&Path) -> Result<(), SimError>,
 ) -> Result<(), SimError> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.tmp{}", std::process::id()));
-    write(&tmp)?;
-    std::fs::rename(&tmp, path).map_err(|source| SimError::Io {
+    crate::atomic::write_with(path, write, |source| SimError::Io {
         path: path.into(),
         source,
     })

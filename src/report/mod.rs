@@ -1,0 +1,410 @@
+//! What a calibration gives its users: hexcal's own calibration file, an OpenCV FileStorage
+//! YAML per device, a Kalibr-style camchain, and the per-device residual table of the
+//! paper's Table I (DESIGN.md §8).
+//!
+//! Takes a [`Calibration`]; gives serialisable values and text. Units: millimetres and
+//! pixels; poses are `T_device_ref` (a point in the reference device's frame mapped into
+//! the device's frame), rotations as Rodrigues vectors (rad).
+
+use crate::calib::bundle::DeviceKind;
+use crate::calib::pipeline::Calibration;
+use crate::camera::{CameraModel, Distortion, Intrinsics};
+use nalgebra::{Isometry3, Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// Version of [`CalibrationFile`]'s format.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// A rigid transform in a file: Rodrigues vector (rad) and translation (mm).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PoseRecord {
+    /// Rotation vector (axis × angle, rad).
+    pub rvec: [f64; 3],
+    /// Translation (mm).
+    pub tvec: [f64; 3],
+}
+
+impl PoseRecord {
+    /// The record of an isometry.
+    pub fn from_isometry(t: &Isometry3<f64>) -> PoseRecord {
+        let r = t.rotation.scaled_axis();
+        let v = t.translation.vector;
+        PoseRecord {
+            rvec: [r.x, r.y, r.z],
+            tvec: [v.x, v.y, v.z],
+        }
+    }
+
+    /// The isometry of a record.
+    pub fn isometry(&self) -> Isometry3<f64> {
+        Isometry3::new(Vector3::from(self.tvec), Vector3::from(self.rvec))
+    }
+}
+
+/// One calibrated device in a [`CalibrationFile`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DeviceRecord {
+    /// Device name.
+    pub name: String,
+    /// Camera or projector.
+    pub kind: DeviceKind,
+    /// Image (raster) width (px).
+    pub width: u32,
+    /// Image (raster) height (px).
+    pub height: u32,
+    /// Pinhole intrinsics (px).
+    pub intrinsics: Intrinsics,
+    /// OpenCV distortion coefficients.
+    pub distortion: Distortion,
+    /// T_device_ref.
+    pub pose: PoseRecord,
+    /// Standard deviations of the lens parameters, in the solver's order of the free
+    /// parameters ([`crate::camera::LensParam`] order).
+    pub lens_std: Vec<f64>,
+    /// Standard deviations of the pose increment (ω rad, τ mm); zero for the reference.
+    pub pose_std: [f64; 6],
+}
+
+impl DeviceRecord {
+    /// The device's lens model.
+    pub fn model(&self) -> CameraModel {
+        CameraModel {
+            width: self.width,
+            height: self.height,
+            intrinsics: self.intrinsics,
+            distortion: self.distortion,
+        }
+    }
+}
+
+/// hexcal's calibration file (JSON): every device's model and pose in one frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationFile {
+    /// Format version ([`FORMAT_VERSION`]).
+    pub version: u32,
+    /// Units of lengths and image coordinates.
+    pub units: Units,
+    /// Board name.
+    pub board: String,
+    /// Refined T_board_back (the back side's frame in the board frame).
+    pub front_back: PoseRecord,
+    /// Name of the reference device (pose identity).
+    pub reference: String,
+    /// Calibrated devices.
+    pub devices: Vec<DeviceRecord>,
+    /// Posterior σ per residual coordinate (px).
+    pub sigma: f64,
+}
+
+/// The units a file uses.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Units {
+    /// Length unit of translations.
+    pub length: String,
+    /// Unit of image coordinates; pixel (0, 0) is the centre of the top-left pixel.
+    pub image: String,
+}
+
+/// Why a calibration file could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    /// Not readable or not valid JSON of the format.
+    #[error("{path}: {message}")]
+    Parse {
+        /// The file.
+        path: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A file could not be written.
+    #[error("cannot write {path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A version this build does not read.
+    #[error("{path}: format version {found}, this hexcal reads version {FORMAT_VERSION}")]
+    Version {
+        /// The file.
+        path: String,
+        /// Version found.
+        found: u32,
+    },
+}
+
+impl CalibrationFile {
+    /// The file of a calibration.
+    pub fn new(cal: &Calibration) -> CalibrationFile {
+        let sol = &cal.solution;
+        let reference = cal
+            .devices
+            .iter()
+            .position(|d| d.pose == Isometry3::identity())
+            .unwrap_or(0);
+        CalibrationFile {
+            version: FORMAT_VERSION,
+            units: Units {
+                length: "mm".into(),
+                image: "px".into(),
+            },
+            board: cal.board.name.clone(),
+            front_back: PoseRecord::from_isometry(&sol.front_back),
+            reference: cal.devices[reference].name.clone(),
+            devices: cal
+                .devices
+                .iter()
+                .enumerate()
+                .map(|(i, d)| DeviceRecord {
+                    name: d.name.clone(),
+                    kind: d.kind,
+                    width: d.model.width,
+                    height: d.model.height,
+                    intrinsics: d.model.intrinsics,
+                    distortion: d.model.distortion,
+                    pose: PoseRecord::from_isometry(&d.pose),
+                    lens_std: sol.intrinsic_std[i].clone(),
+                    pose_std: sol.pose_std[i],
+                })
+                .collect(),
+            sigma: sol.sigma,
+        }
+    }
+
+    /// Parse a file's text; errors name `path`.
+    pub fn from_json(text: &str, path: &str) -> Result<CalibrationFile, ReportError> {
+        #[derive(Deserialize)]
+        struct Versioned {
+            version: u32,
+        }
+        let parse = |e: serde_json::Error| ReportError::Parse {
+            path: path.into(),
+            message: e.to_string(),
+        };
+        let v: Versioned = serde_json::from_str(text).map_err(parse)?;
+        if v.version != FORMAT_VERSION {
+            return Err(ReportError::Version {
+                path: path.into(),
+                found: v.version,
+            });
+        }
+        serde_json::from_str(text).map_err(parse)
+    }
+
+    /// Pretty JSON text.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("plain data serialises")
+    }
+}
+
+/// The distortion vector OpenCV uses: 5 coefficients, or 8 with the rational terms.
+fn opencv_distortion(d: &Distortion) -> Vec<f64> {
+    let mut v = vec![d.k1, d.k2, d.p1, d.p2, d.k3];
+    if d.is_rational() {
+        v.extend([d.k4, d.k5, d.k6]);
+    }
+    v
+}
+
+fn opencv_matrix(out: &mut String, name: &str, rows: usize, cols: usize, data: &[f64]) {
+    let values: Vec<String> = data.iter().map(|x| format!("{x:.17e}")).collect();
+    let _ = write!(
+        out,
+        "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]\n",
+        values.join(", ")
+    );
+}
+
+/// OpenCV FileStorage YAML of one device (readable by `cv2.FileStorage`): `camera_matrix`,
+/// `distortion_coefficients`, `image_width`, `image_height`, and `R`, `T` of T_device_ref
+/// (X_device = R·X_ref + T, mm).
+pub fn opencv_yaml(d: &DeviceRecord) -> String {
+    let k = &d.intrinsics;
+    let mut s = String::from("%YAML:1.0\n---\n");
+    let _ = writeln!(s, "name: \"{}\"", d.name);
+    let _ = writeln!(
+        s,
+        "kind: {}",
+        match d.kind {
+            DeviceKind::Camera => "camera",
+            DeviceKind::Projector => "projector",
+        }
+    );
+    let _ = writeln!(s, "image_width: {}", d.width);
+    let _ = writeln!(s, "image_height: {}", d.height);
+    opencv_matrix(
+        &mut s,
+        "camera_matrix",
+        3,
+        3,
+        &[k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+    );
+    let dist = opencv_distortion(&d.distortion);
+    opencv_matrix(&mut s, "distortion_coefficients", 1, dist.len(), &dist);
+    let t = d.pose.isometry();
+    let r: Matrix3<f64> = *t.rotation.to_rotation_matrix().matrix();
+    let rows: Vec<f64> = (0..3)
+        .flat_map(|i| (0..3).map(move |j| r[(i, j)]))
+        .collect();
+    opencv_matrix(&mut s, "R", 3, 3, &rows);
+    opencv_matrix(&mut s, "T", 3, 1, t.translation.vector.as_slice());
+    s
+}
+
+/// A Kalibr-style camchain YAML: one `camN` entry per device in order, pinhole-radtan,
+/// `T_cn_cnm1` relative to the previous device (metres, as Kalibr uses). Projectors are
+/// listed as cameras (Kalibr has no projector model); k3 and the rational terms have no
+/// place in radtan and are stated in a comment when nonzero.
+pub fn kalibr_camchain(file: &CalibrationFile) -> String {
+    let mut s =
+        String::from("# Kalibr-style camchain written by hexcal; translations in metres.\n");
+    let mut previous: Option<Isometry3<f64>> = None;
+    for (i, d) in file.devices.iter().enumerate() {
+        let k = &d.intrinsics;
+        let dist = &d.distortion;
+        let _ = writeln!(s, "cam{i}:");
+        let _ = writeln!(s, "  rostopic: /{}/image_raw", d.name);
+        let _ = writeln!(s, "  camera_model: pinhole");
+        let _ = writeln!(s, "  intrinsics: [{}, {}, {}, {}]", k.fx, k.fy, k.cx, k.cy);
+        let _ = writeln!(s, "  distortion_model: radtan");
+        let _ = writeln!(
+            s,
+            "  distortion_coeffs: [{}, {}, {}, {}]",
+            dist.k1, dist.k2, dist.p1, dist.p2
+        );
+        if dist.k3 != 0.0 || dist.is_rational() {
+            let _ = writeln!(
+                s,
+                "  # not representable in radtan: k3 {} k4 {} k5 {} k6 {}",
+                dist.k3, dist.k4, dist.k5, dist.k6
+            );
+        }
+        let _ = writeln!(s, "  resolution: [{}, {}]", d.width, d.height);
+        if matches!(d.kind, DeviceKind::Projector) {
+            let _ = writeln!(s, "  # a projector: its \"image\" is the projected raster");
+        }
+        let pose = d.pose.isometry();
+        if let Some(prev) = previous {
+            // T_cn_cnm1 = T_n_ref · T_ref_(n−1).
+            let t = pose * prev.inverse();
+            let m = t.to_homogeneous();
+            let _ = writeln!(s, "  T_cn_cnm1:");
+            for r in 0..4 {
+                let scale = |c: usize| if c == 3 && r < 3 { 1e-3 } else { 1.0 };
+                let row: Vec<String> = (0..4)
+                    .map(|c| format!("{}", m[(r, c)] * scale(c)))
+                    .collect();
+                let _ = writeln!(s, "  - [{}]", row.join(", "));
+            }
+        }
+        previous = Some(pose);
+    }
+    s
+}
+
+/// One row of the paper's Table I: a device's residual statistics.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ResidualRow {
+    /// Device name.
+    pub name: String,
+    /// Camera or projector.
+    pub kind: DeviceKind,
+    /// Observations used (inliers).
+    pub points: usize,
+    /// Observations rejected as outliers.
+    pub outliers: usize,
+    /// Mean of the inliers' residual norms (px).
+    pub mean: f64,
+    /// Standard deviation of the inliers' residual norms (px).
+    pub std: f64,
+    /// RMS of the inliers' residual norms (px).
+    pub rms: f64,
+}
+
+/// The per-device residual table of a calibration.
+pub fn residual_table(cal: &Calibration) -> Vec<ResidualRow> {
+    cal.devices
+        .iter()
+        .enumerate()
+        .map(|(d, dev)| {
+            let (mut norms, mut outliers) = (Vec::new(), 0);
+            for (o, r) in cal.observations.iter().zip(&cal.solution.residuals) {
+                if o.device == d {
+                    if r.outlier {
+                        outliers += 1;
+                    } else {
+                        norms.push(r.error.norm());
+                    }
+                }
+            }
+            let n = norms.len().max(1) as f64;
+            let mean = norms.iter().sum::<f64>() / n;
+            let var = norms.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
+            let rms = (norms.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+            ResidualRow {
+                name: dev.name.clone(),
+                kind: dev.kind,
+                points: norms.len(),
+                outliers,
+                mean,
+                std: var.sqrt(),
+                rms,
+            }
+        })
+        .collect()
+}
+
+/// The table as aligned text.
+pub fn format_table(rows: &[ResidualRow]) -> String {
+    let mut s = format!(
+        "{:<12} {:<9} {:>8} {:>8} {:>17} {:>9}\n",
+        "device", "kind", "points", "outliers", "mean ± std (px)", "RMS (px)"
+    );
+    for r in rows {
+        let kind = match r.kind {
+            DeviceKind::Camera => "camera",
+            DeviceKind::Projector => "projector",
+        };
+        let _ = writeln!(
+            s,
+            "{:<12} {:<9} {:>8} {:>8} {:>8.4} ± {:<6.4} {:>9.4}",
+            r.name, kind, r.points, r.outliers, r.mean, r.std, r.rms
+        );
+    }
+    s
+}
+
+/// Write every output of a calibration into `dir`, each file atomically:
+/// `calibration.json`, `opencv/NAME.yml` per device, `camchain.yaml`, `residuals.txt` and
+/// `residuals.json`. Returns the paths written.
+pub fn write_outputs(cal: &Calibration, dir: &Path) -> Result<Vec<PathBuf>, ReportError> {
+    let io = |path: &Path| {
+        let path = path.display().to_string();
+        move |source| ReportError::Io { path, source }
+    };
+    let opencv = dir.join("opencv");
+    std::fs::create_dir_all(&opencv).map_err(io(&opencv))?;
+    let file = CalibrationFile::new(cal);
+    let rows = residual_table(cal);
+    let mut outputs = vec![
+        (dir.join("calibration.json"), file.to_json()),
+        (dir.join("camchain.yaml"), kalibr_camchain(&file)),
+        (dir.join("residuals.txt"), format_table(&rows)),
+        (
+            dir.join("residuals.json"),
+            serde_json::to_string_pretty(&rows).expect("plain data serialises"),
+        ),
+    ];
+    outputs.extend(
+        file.devices
+            .iter()
+            .map(|d| (opencv.join(format!("{}.yml", d.name)), opencv_yaml(d))),
+    );
+    for (path, text) in &outputs {
+        crate::atomic::write(path, text.as_bytes()).map_err(io(path))?;
+    }
+    Ok(outputs.into_iter().map(|(p, _)| p).collect())
+}

@@ -1,0 +1,138 @@
+//! `hexcal calibrate` end to end on exact synthetic correspondences of the paper-like rig:
+//! the calibration file recovers the truth, OpenCV's own FileStorage reads the per-device
+//! YAML with the same numbers, the Kalibr camchain is valid YAML with one entry per device,
+//! and bad input names the file.
+
+use hexcal::calib::pipeline::Correspondences;
+use hexcal::calib::synthetic::SyntheticRig;
+use hexcal::report::CalibrationFile;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("hexcal-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn hexcal(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_hexcal"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn python(script: &str, args: &[&Path]) -> String {
+    let out = Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .args(args)
+        .output()
+        .expect("python3 runs (scripts/test.sh installs it)");
+    assert!(
+        out.status.success(),
+        "python: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+#[test]
+fn calibrate_writes_files_that_opencv_and_yaml_read() {
+    let dir = scratch("calibrate-cli");
+    let sigma = 0.1;
+    let rig = SyntheticRig::paper(8, sigma, 41);
+    let input = dir.join("correspondences.json");
+    let c = Correspondences {
+        board: "hex600".into(),
+        devices: rig.device_infos(),
+        poses: rig.boards.len(),
+        views: rig.views(),
+    };
+    std::fs::write(&input, serde_json::to_string(&c).unwrap()).unwrap();
+    let out = dir.join("out");
+    let run = hexcal(&[
+        "calibrate",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    // The table has a row per device.
+    for d in &rig.devices {
+        assert!(stdout.contains(&d.name), "{stdout}");
+    }
+
+    let text = std::fs::read_to_string(out.join("calibration.json")).unwrap();
+    let file = CalibrationFile::from_json(&text, "calibration.json").unwrap();
+    assert_eq!(file.devices.len(), rig.devices.len());
+    for (est, truth) in file.devices.iter().zip(&rig.devices) {
+        // Focal lengths to 0.1 % (their σ is ~0.01 % at this noise).
+        let e = est.intrinsics.fx / truth.model.intrinsics.fx - 1.0;
+        assert!(e.abs() < 1e-3, "{} fx error {e}", est.name);
+        let dt = (est.pose.isometry().translation.vector - truth.pose.translation.vector).norm();
+        assert!(dt < 1.0, "{} position error {dt} mm", est.name);
+    }
+
+    // OpenCV reads what we wrote, value for value.
+    let cam = &file.devices[1];
+    let yml = out.join("opencv").join(format!("{}.yml", cam.name));
+    let read = python(
+        "import sys, cv2\n\
+         fs = cv2.FileStorage(sys.argv[1], cv2.FILE_STORAGE_READ)\n\
+         k = fs.getNode('camera_matrix').mat(); d = fs.getNode('distortion_coefficients').mat()\n\
+         r = fs.getNode('R').mat(); t = fs.getNode('T').mat()\n\
+         w = int(fs.getNode('image_width').real()); h = int(fs.getNode('image_height').real())\n\
+         print(k[0,0], k[1,1], k[0,2], k[1,2], d[0,0], d[0,1], r.shape, t[0,0], t[1,0], t[2,0], w, h)\n",
+        &[&yml],
+    );
+    let f: Vec<&str> = read.split_whitespace().collect();
+    let num = |i: usize| f[i].parse::<f64>().unwrap();
+    assert!((num(0) - cam.intrinsics.fx).abs() < 1e-9 * cam.intrinsics.fx);
+    assert!((num(1) - cam.intrinsics.fy).abs() < 1e-9 * cam.intrinsics.fy);
+    assert!((num(2) - cam.intrinsics.cx).abs() < 1e-9);
+    assert!((num(4) - cam.distortion.k1).abs() < 1e-12);
+    let t = cam.pose.isometry().translation.vector;
+    // "(3, 3)" is printed as two fields.
+    assert!(
+        (num(8) - t.x).abs() < 1e-9 && (num(10) - t.z).abs() < 1e-9,
+        "{read}"
+    );
+    assert_eq!((f[11], f[12]), ("1920", "1200"));
+
+    // The camchain is YAML with one camN per device and a 4×4 T_cn_cnm1 after the first.
+    let chain = python(
+        "import sys, yaml\n\
+         c = yaml.safe_load(open(sys.argv[1]))\n\
+         print(len(c), len(c['cam1']['T_cn_cnm1']), c['cam0']['resolution'])\n",
+        &[&out.join("camchain.yaml")],
+    );
+    assert!(
+        chain.starts_with(&format!("{} 4 [1920, 1200]", rig.devices.len())),
+        "{chain}"
+    );
+    assert!(out.join("residuals.txt").exists() && out.join("residuals.json").exists());
+}
+
+#[test]
+fn bad_input_names_the_file() {
+    let dir = scratch("calibrate-bad");
+    let input = dir.join("broken.json");
+    std::fs::write(&input, "{\"board\": \"hex600\", \"devices\": [").unwrap();
+    let run = hexcal(&[
+        "calibrate",
+        input.to_str().unwrap(),
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("broken.json"), "{err}");
+    assert!(!dir.join("out").exists());
+}
