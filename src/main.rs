@@ -56,6 +56,15 @@ enum Command {
         #[arg(long)]
         fix_k3: bool,
     },
+    /// Check a calibration on held-out board poses: triangulate them from camera pairs and
+    /// camera–projector pairs, report length errors and flatness against the board.
+    Verify {
+        /// The calibration file (`calibration.json` of `hexcal calibrate`).
+        #[arg(long)]
+        calibration: PathBuf,
+        /// Correspondences of the held-out poses.
+        input: PathBuf,
+    },
     /// Speed benchmarks that print figures.
     Bench {
         #[command(subcommand)]
@@ -230,6 +239,65 @@ fn calibrate(
     Ok(())
 }
 
+/// `hexcal verify`: triangulate held-out poses and print the length and flatness table.
+fn verify(calibration: &std::path::Path, input: &std::path::Path) -> anyhow::Result<()> {
+    use hexcal::calib::bundle::Device;
+    use hexcal::calib::pipeline::Correspondences;
+    let text = std::fs::read_to_string(calibration)
+        .with_context(|| format!("cannot read {}", calibration.display()))?;
+    let cal =
+        hexcal::report::CalibrationFile::from_json(&text, &calibration.display().to_string())?;
+    let text = std::fs::read_to_string(input)
+        .with_context(|| format!("cannot read {}", input.display()))?;
+    let c: Correspondences = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a correspondences file", input.display()))?;
+    let devices = c
+        .devices
+        .iter()
+        .map(|d| {
+            let r = cal
+                .devices
+                .iter()
+                .find(|r| r.name == d.name)
+                .with_context(|| {
+                    format!(
+                        "{}: device {:?} is not in {}",
+                        input.display(),
+                        d.name,
+                        calibration.display()
+                    )
+                })?;
+            Ok(Device {
+                name: r.name.clone(),
+                kind: r.kind,
+                model: r.model(),
+                pose: r.pose.isometry(),
+            })
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let board = Board::resolve(&c.board)?;
+    let checks = hexcal::calib::verify::verify(&board, &devices, &c.views);
+    anyhow::ensure!(
+        !checks.is_empty(),
+        "{}: no device pair shares ten circles of a pose",
+        input.display()
+    );
+    println!(
+        "{:<10} {:<10} {:>5} {:>7} {:>14} {:>14} {:>14}",
+        "first", "second", "pose", "points", "length RMS mm", "length max mm", "flatness mm"
+    );
+    for k in &checks {
+        println!(
+            "{:<10} {:<10} {:>5} {:>7} {:>14.4} {:>14.4} {:>14.4}",
+            k.first, k.second, k.pose, k.points, k.length_rms, k.length_max, k.flatness_rms
+        );
+    }
+    let rms =
+        (checks.iter().map(|k| k.length_rms.powi(2)).sum::<f64>() / checks.len() as f64).sqrt();
+    println!("length error RMS over {} pairs: {rms:.4} mm", checks.len());
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
@@ -255,6 +323,7 @@ fn main() -> anyhow::Result<()> {
             reference,
             fix_k3,
         } => calibrate(&input, &out, reference.as_deref(), fix_k3)?,
+        Command::Verify { calibration, input } => verify(&calibration, &input)?,
         Command::Simulate { scene, out, seed } => {
             let mut scene = load_scene(scene.as_ref())?;
             scene.seed = seed.unwrap_or(scene.seed);

@@ -42,15 +42,22 @@ fn python(script: &str, args: &[&Path]) -> String {
 fn calibrate_writes_files_that_opencv_and_yaml_read() {
     let dir = scratch("calibrate-cli");
     let sigma = 0.1;
-    let rig = SyntheticRig::paper(8, sigma, 41);
-    let input = dir.join("correspondences.json");
-    let c = Correspondences {
-        board: "hex600".into(),
-        devices: rig.device_infos(),
-        poses: rig.boards.len(),
-        views: rig.views(),
+    let rig = SyntheticRig::paper(9, sigma, 41);
+    // Poses 0–6 calibrate, 7–8 are held out for `hexcal verify`.
+    let (train, test): (Vec<_>, Vec<_>) = rig.views().into_iter().partition(|v| v.pose < 7);
+    let write = |name: &str, views| {
+        let c = Correspondences {
+            board: "hex600".into(),
+            devices: rig.device_infos(),
+            poses: rig.boards.len(),
+            views,
+        };
+        let path = dir.join(name);
+        std::fs::write(&path, serde_json::to_string(&c).unwrap()).unwrap();
+        path
     };
-    std::fs::write(&input, serde_json::to_string(&c).unwrap()).unwrap();
+    let input = write("correspondences.json", train);
+    let held_out = write("held-out.json", test);
     let out = dir.join("out");
     let run = hexcal(&[
         "calibrate",
@@ -118,6 +125,33 @@ fn calibrate_writes_files_that_opencv_and_yaml_read() {
         "{chain}"
     );
     assert!(out.join("residuals.txt").exists() && out.join("residuals.json").exists());
+
+    // Held-out lengths: σ = 0.1 px is ≈ 0.06 mm per view at 1.5 m; 0.2 mm bounds a pair's RMS.
+    let run = hexcal(&[
+        "verify",
+        "--calibration",
+        out.join("calibration.json").to_str().unwrap(),
+        held_out.to_str().unwrap(),
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    let last = stdout.lines().last().unwrap();
+    let rms: f64 = last
+        .split_whitespace()
+        .rev()
+        .nth(1)
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(rms < 0.2, "{stdout}");
+    assert!(
+        stdout.contains("proj0") && stdout.contains("cam1"),
+        "{stdout}"
+    );
 }
 
 #[test]

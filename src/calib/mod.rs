@@ -11,6 +11,7 @@ pub mod circle;
 pub mod pipeline;
 pub mod posegraph;
 pub mod synthetic;
+pub mod verify;
 pub mod views;
 pub mod zhang;
 

@@ -319,3 +319,62 @@ mod pipeline {
         }
     }
 }
+
+mod verification {
+    use super::super::pipeline::{calibrate, CalibrateOptions};
+    use super::super::synthetic::SyntheticRig;
+    use super::super::verify::verify;
+
+    /// Calibrate on poses 0–7 of a 10-pose rig, verify on poses 8 and 9.
+    fn held_out(sigma: f64) -> Vec<super::super::verify::PairCheck> {
+        let rig = SyntheticRig::paper(10, sigma, 51);
+        let views = rig.views();
+        let (train, test): (Vec<_>, Vec<_>) = views.into_iter().partition(|v| v.pose < 8);
+        let cal = calibrate(
+            &rig.board,
+            &rig.device_infos(),
+            rig.boards.len(),
+            &train,
+            &CalibrateOptions::default(),
+        )
+        .unwrap();
+        assert_eq!(cal.devices.len(), rig.devices.len());
+        let checks = verify(&rig.board, &cal.devices, &test);
+        assert!(checks.iter().any(|c| c.second.starts_with("proj")));
+        assert!(checks.iter().any(|c| c.second.starts_with("cam")));
+        checks
+    }
+
+    #[test]
+    fn exact_observations_triangulate_to_the_board() {
+        // Without noise the calibration is exact, so what remains is the triangulation and
+        // its removal of the ellipse-centre bias (0.1–0.3 px here, ~0.1 mm if left in).
+        for c in held_out(1e-6) {
+            assert!(
+                c.length_rms < 1e-3 && c.flatness_rms < 1e-3,
+                "{} + {} pose {}: length {} mm, flatness {} mm",
+                c.first,
+                c.second,
+                c.pose,
+                c.length_rms,
+                c.flatness_rms
+            );
+        }
+    }
+
+    #[test]
+    fn held_out_lengths_at_detector_noise() {
+        // σ = 0.03 px (the detector's centre error at default noise): a point triangulated
+        // from two views 1.5 m away (f = 2400 px, 0.6 mm per px) at ≥ 35° convergence is
+        // good to ≈ 0.03·0.6/sin 35° ≈ 0.03 mm in depth, so lengths must be well inside the
+        // 0.1 mm acceptance.
+        let checks = held_out(0.03);
+        let rms =
+            (checks.iter().map(|c| c.length_rms.powi(2)).sum::<f64>() / checks.len() as f64).sqrt();
+        eprintln!(
+            "held-out length RMS over {} pairs: {rms:.4} mm",
+            checks.len()
+        );
+        assert!(rms < 0.1, "{rms} mm");
+    }
+}
