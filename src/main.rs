@@ -55,6 +55,9 @@ enum Command {
         /// Hold k3 at zero.
         #[arg(long)]
         fix_k3: bool,
+        /// Estimate the board's bend (bowl and two saddles).
+        #[arg(long)]
+        refine_flatness: bool,
     },
     /// Check a calibration on held-out board poses: triangulate them from camera pairs and
     /// camera–projector pairs, report length errors and flatness against the board.
@@ -198,6 +201,7 @@ fn calibrate(
     out: &std::path::Path,
     reference: Option<&str>,
     fix_k3: bool,
+    refine_flatness: bool,
 ) -> anyhow::Result<()> {
     use hexcal::calib::pipeline::{calibrate, CalibrateOptions, Correspondences};
     let text = std::fs::read_to_string(input)
@@ -207,6 +211,7 @@ fn calibrate(
     let board = Board::resolve(&c.board)?;
     let mut options = CalibrateOptions::default();
     options.bundle.fix_k3 = fix_k3;
+    options.bundle.refine_flatness = refine_flatness;
     if let Some(name) = reference {
         options.bundle.reference = c
             .devices
@@ -322,7 +327,8 @@ fn main() -> anyhow::Result<()> {
             out,
             reference,
             fix_k3,
-        } => calibrate(&input, &out, reference.as_deref(), fix_k3)?,
+            refine_flatness,
+        } => calibrate(&input, &out, reference.as_deref(), fix_k3, refine_flatness)?,
         Command::Verify { calibration, input } => verify(&calibration, &input)?,
         Command::Simulate { scene, out, seed } => {
             let mut scene = load_scene(scene.as_ref())?;

@@ -77,6 +77,8 @@ pub struct Options {
     pub reference: usize,
     /// Refine T_front_back (6 parameters).
     pub refine_side_transform: bool,
+    /// Refine the board's bend (3 parameters, see [`Bend`]).
+    pub refine_flatness: bool,
     /// Model the perspective bias of circle centres (§8); off only for tests and comparison.
     pub bias_free: bool,
     /// Huber threshold (px) for the robust phase.
@@ -95,12 +97,50 @@ impl Default for Options {
         Options {
             reference: 0,
             refine_side_transform: true,
+            refine_flatness: false,
             bias_free: true,
             huber: 1.0,
             outlier_sigmas: 4.0,
             fix_k3: false,
             max_iterations: 50,
         }
+    }
+}
+
+/// A smooth out-of-plane bend of the board: both sides displaced along the board's z by
+/// w(x, y) = a·(x² + y²)/L² + b·(x² − y²)/L² + c·2xy/L² in the board frame (mm), L the
+/// largest distance of a circle from the board centre: a bowl and two saddles.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Bend {
+    /// (a, b, c) in mm: the displacement at distance L along the respective shape.
+    pub coefficients: Vector3<f64>,
+    /// L (mm).
+    pub scale: f64,
+}
+
+impl Bend {
+    /// No bend, scaled for `board`.
+    pub fn flat(board: &Board) -> Bend {
+        let scale = board
+            .lattice()
+            .into_iter()
+            .map(|h| board.position(h).coords.norm())
+            .fold(1.0, f64::max);
+        Bend {
+            coefficients: Vector3::zeros(),
+            scale,
+        }
+    }
+
+    /// The three shape functions at a board-frame point (x, y).
+    fn basis(&self, x: f64, y: f64) -> Vector3<f64> {
+        let l2 = self.scale * self.scale;
+        Vector3::new((x * x + y * y) / l2, (x * x - y * y) / l2, 2.0 * x * y / l2)
+    }
+
+    /// Displacement w(x, y) along the board's z (mm).
+    pub fn displacement(&self, x: f64, y: f64) -> f64 {
+        self.coefficients.dot(&self.basis(x, y))
     }
 }
 
@@ -135,6 +175,10 @@ pub struct Solution {
     pub boards: Vec<Isometry3<f64>>,
     /// Adjusted T_front_back.
     pub front_back: Isometry3<f64>,
+    /// Adjusted board bend (flat unless [`Options::refine_flatness`]).
+    pub bend: Bend,
+    /// Standard deviations of the bend coefficients (mm); zero when not refined.
+    pub bend_std: [f64; 3],
     /// One residual per observation, in input order.
     pub residuals: Vec<Residual>,
     /// Posterior σ per coordinate: √(Σ r² / (n − p)).
@@ -171,6 +215,7 @@ struct Layout {
     pose: Vec<Option<usize>>,
     board: Vec<usize>,
     side: Option<usize>,
+    bend: Option<usize>,
     len: usize,
 }
 
@@ -199,11 +244,16 @@ impl Layout {
         if side.is_some() {
             at += 6;
         }
+        let bend = o.refine_flatness.then_some(at);
+        if bend.is_some() {
+            at += 3;
+        }
         Layout {
             lens,
             pose,
             board,
             side,
+            bend,
             len: at,
         }
     }
@@ -215,6 +265,7 @@ struct State {
     devices: Vec<Device>,
     boards: Vec<Isometry3<f64>>,
     front_back: Isometry3<f64>,
+    bend: Bend,
 }
 
 impl State {
@@ -248,6 +299,9 @@ impl State {
         if let Some(at) = l.side {
             let inc: Vec<f64> = (0..6).map(|j| step(at + j)).collect();
             s.front_back = apply_increment(&s.front_back, &inc);
+        }
+        if let Some(at) = l.bend {
+            s.bend.coefficients += Vector3::new(step(at), step(at + 1), step(at + 2));
         }
         s
     }
@@ -300,6 +354,12 @@ impl Linearised {
         self.blocks.push((at, params.len()));
         self.jac
             .extend(params.iter().map(|p| Vector2::from(j.column(p.index()))));
+    }
+
+    /// Columns of the bend coefficients: d pixel / d(board-frame z) times the shapes.
+    fn push_bend(&mut self, at: usize, dz: Vector2<f64>, basis: Vector3<f64>) {
+        self.blocks.push((at, 3));
+        self.jac.extend(basis.iter().map(|b| dz * *b));
     }
 
     /// Columns of a pose increment (ω, τ) from d pixel/dω (2×3) and d pixel/dτ (2×3).
@@ -408,7 +468,9 @@ fn linearise(
     match (*anchor, ob.via) {
         (Anchor::Camera { bias }, _) => {
             let plane = p.board.position(ob.hex);
-            let z = side * Point3::new(plane.x, plane.y, 0.0); // board frame
+            let mut z = side * Point3::new(plane.x, plane.y, 0.0); // board frame
+            let basis = s.bend.basis(z.x, z.y);
+            z.z += s.bend.coefficients.dot(&basis);
             let y = s.boards[ob.pose] * z; // reference frame
             let pc = dev.pose * y; // device frame
                                    // The observed ellipse centre sits `bias` pixels from the projected centre (§4).
@@ -425,9 +487,12 @@ fn linearise(
                 lin.push_pose(at, -jp * skew(&pc.coords), jp);
             }
             lin.push_pose(l.board[ob.pose], -jp * rc * skew(&y.coords), jp * rc);
+            let rk = *s.boards[ob.pose].rotation.to_rotation_matrix().matrix();
             if let (Some(at), Side::Back) = (l.side, ob.side) {
-                let rk = *s.boards[ob.pose].rotation.to_rotation_matrix().matrix();
                 lin.push_pose(at, -jp * rc * rk * skew(&z.coords), jp * rc * rk);
+            }
+            if let Some(at) = l.bend {
+                lin.push_bend(at, jp * rc * rk * Vector3::z(), basis);
             }
             Some(lin)
         }
@@ -441,7 +506,15 @@ fn linearise(
             let to_board = s.boards[ob.pose];
             let plane_pose = cam.pose * to_board * side;
             let normal = plane_pose.rotation * Vector3::z();
-            let lambda = normal.dot(&plane_pose.translation.vector) / normal.dot(&r);
+            // The bend moves the surface along the board's z by w at the flat intersection
+            // (one fixed-point step: w varies by < 1e-6 mm over the step's shift).
+            let board_z = (cam.pose * to_board).rotation * Vector3::z();
+            let flat = normal.dot(&plane_pose.translation.vector) / normal.dot(&r);
+            let at_board = (cam.pose * to_board).inverse() * Point3::from(r * flat);
+            let basis = s.bend.basis(at_board.x, at_board.y);
+            let lambda = (normal.dot(&plane_pose.translation.vector)
+                + s.bend.coefficients.dot(&basis) * normal.dot(&board_z))
+                / normal.dot(&r);
             if lambda <= 0.0 {
                 return None;
             }
@@ -476,6 +549,11 @@ fn linearise(
             if let (Some(at), Side::Back) = (l.side, ob.side) {
                 let (aw, at_) = plane_increment(&r, &normal, lambda, &(cam.pose * to_board));
                 lin.push_pose(at, jpc * aw, jpc * at_);
+            }
+            // dP_c/dw = r·(N·z_board)/(N·r).
+            if let Some(at) = l.bend {
+                let dz = jpc * r * (normal.dot(&board_z) / normal.dot(&r));
+                lin.push_bend(at, dz, basis);
             }
             // Camera c's lens moves the ray: dP_c = λ·(I − r·Nᵀ/(N·r))·(dn, 0).
             let slide = (Matrix3::identity() - r * normal.transpose() / normal.dot(&r)) * lambda;
@@ -651,6 +729,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         devices: p.devices.clone(),
         boards: p.boards.clone(),
         front_back: p.board.side_transform(Side::Back),
+        bend: Bend::flat(&p.board),
     };
     let mut active = vec![true; p.observations.len()];
     let (s, it1) = levenberg_marquardt(p, start, &l, o, &active, Some(o.huber));
@@ -723,10 +802,15 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
             outlier: !a,
         })
         .collect();
+    let bend_std = l
+        .bend
+        .map_or([0.0; 3], |at| std::array::from_fn(|j| std(at + j)));
     Ok(Solution {
         devices: s.devices,
         boards: s.boards,
         front_back: s.front_back,
+        bend: s.bend,
+        bend_std,
         residuals,
         sigma,
         dof: (n, free),
@@ -759,12 +843,16 @@ mod tests {
             boards: rig.boards.clone(),
             observations: rig.observations.clone(),
         };
-        let o = Options::default();
+        let o = Options {
+            refine_flatness: true,
+            ..Options::default()
+        };
         let l = Layout::new(&problem, &o);
         let mut state = State {
             devices: problem.devices.clone(),
             boards: problem.boards.clone(),
             front_back: problem.board.side_transform(Side::Back),
+            bend: Bend::flat(&problem.board),
         };
         // Move off the truth so no term vanishes by symmetry.
         let wiggle = DVector::from_fn(l.len, |i, _| 1e-4 * ((i * 7919 % 13) as f64 - 6.0));

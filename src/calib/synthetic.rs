@@ -2,11 +2,11 @@
 //! calibration stage: cameras and projectors around a double-sided board, some facing each
 //! other across it, board poses turned so both sides are seen.
 
-use super::bundle::{Device, DeviceKind, Observation, Problem, Via};
+use super::bundle::{Bend, Device, DeviceKind, Observation, Problem, Via};
 use super::circle::ellipse_center;
 use super::pipeline::DeviceInfo;
 use super::views::{CameraView, Frame, ProjectorPixel, ViewPoint};
-use crate::board::{Board, Side};
+use crate::board::{Board, Hex, Side};
 use crate::camera::{CameraModel, Distortion, Intrinsics};
 use nalgebra::{
     Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
@@ -59,7 +59,26 @@ impl SyntheticRig {
             .enumerate()
             .map(|(i, az)| (az, 12.0 * ((i % 3) as f64 - 1.0)))
             .collect::<Vec<_>>();
-        Self::build(&cameras, &[15.0, -20.0, 170.0], poses, sigma, seed)
+        Self::build(&cameras, &[15.0, -20.0, 170.0], poses, sigma, seed, None)
+    }
+
+    /// The paper-like rig with a bent board: every circle displaced along the board's z by
+    /// the bend's w at its centre (the circle itself stays planar: a bend of a few mm over
+    /// 300 mm tilts a 12 mm circle by < 0.1°).
+    pub fn paper_bent(poses: usize, sigma: f64, seed: u64, bend: Vector3<f64>) -> SyntheticRig {
+        let cameras = [0.0, -35.0, 35.0, 180.0, 150.0, 210.0]
+            .into_iter()
+            .enumerate()
+            .map(|(i, az)| (az, 12.0 * ((i % 3) as f64 - 1.0)))
+            .collect::<Vec<_>>();
+        Self::build(
+            &cameras,
+            &[15.0, -20.0, 170.0],
+            poses,
+            sigma,
+            seed,
+            Some(bend),
+        )
     }
 
     /// A large rig: `cameras` on a ring around the board, half facing each side (azimuths
@@ -92,7 +111,7 @@ impl SyntheticRig {
         let projs: Vec<f64> = (0..projectors)
             .map(|i| spread(i, projectors) + 7.0)
             .collect();
-        Self::build(&cams, &projs, poses, sigma, seed)
+        Self::build(&cams, &projs, poses, sigma, seed, None)
     }
 
     /// Cameras at (azimuth, elevation) in degrees at 1500 mm, projectors at azimuths at
@@ -103,9 +122,19 @@ impl SyntheticRig {
         poses: usize,
         sigma: f64,
         seed: u64,
+        bend: Option<Vector3<f64>>,
     ) -> SyntheticRig {
         let mut rng = StdRng::seed_from_u64(seed);
         let board = Board::hex600();
+        let bend = Bend {
+            coefficients: bend.unwrap_or_default(),
+            ..Bend::flat(&board)
+        };
+        // T_board_side of one circle's side, moved along the board's z by the bend there.
+        let face = |side: Side, hex: Hex| {
+            let p = board.point(side, hex);
+            Translation3::new(0.0, 0.0, bend.displacement(p.x, p.y)) * board.side_transform(side)
+        };
         let cam_model = |rng: &mut StdRng| CameraModel {
             width: 1920,
             height: 1200,
@@ -199,6 +228,7 @@ impl SyntheticRig {
                         continue;
                     }
                     for circle in board.circles(side) {
+                        let dev_side = cam.pose * s_k * face(side, circle.hex);
                         let Some(e) =
                             ellipse_center(&cam.model, &dev_side, circle.center_2d, board.radius)
                         else {
@@ -230,7 +260,7 @@ impl SyntheticRig {
                             .enumerate()
                             .filter(|(_, d)| d.kind == DeviceKind::Projector)
                         {
-                            let proj_side = proj.pose * s_k * board.side_transform(side);
+                            let proj_side = proj.pose * s_k * face(side, circle.hex);
                             if (proj_side.inverse() * Point3::origin()).z <= 0.0 {
                                 continue;
                             }

@@ -90,6 +90,14 @@ pub struct CalibrationFile {
     pub board: String,
     /// Refined T_board_back (the back side's frame in the board frame).
     pub front_back: PoseRecord,
+    /// Board bend (mm): displacement along the board's z at distance `bend_scale` from the
+    /// centre for the bowl (x² + y²), saddle (x² − y²) and saddle (2xy) shapes; zero unless
+    /// refined.
+    pub bend: [f64; 3],
+    /// Standard deviations of `bend` (mm).
+    pub bend_std: [f64; 3],
+    /// L of the bend shapes (mm).
+    pub bend_scale: f64,
     /// Name of the reference device (pose identity).
     pub reference: String,
     /// Calibrated devices.
@@ -153,6 +161,9 @@ impl CalibrationFile {
             },
             board: cal.board.name.clone(),
             front_back: PoseRecord::from_isometry(&sol.front_back),
+            bend: sol.bend.coefficients.into(),
+            bend_std: sol.bend_std,
+            bend_scale: sol.bend.scale,
             reference: cal.devices[reference].name.clone(),
             devices: cal
                 .devices
