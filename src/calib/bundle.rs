@@ -339,58 +339,74 @@ fn anchors(p: &Problem, s: &State, o: &Options) -> Vec<Option<Anchor>> {
         .collect()
 }
 
-/// Predicted pixel and its Jacobian, as blocks of contiguous parameter columns.
+/// Most Jacobian blocks of one observation (projector: its lens and pose, the camera's pose
+/// and lens, board pose, side transform, bend).
+const MAX_BLOCKS: usize = 8;
+/// Most Jacobian columns of one observation (12 + 6 + 6 + 6 + 6 + 3 + 12).
+const MAX_COLUMNS: usize = 51;
+
+/// Predicted pixel and its Jacobian, as blocks of contiguous parameter columns (on the
+/// stack: one is made per observation and iteration).
 struct Linearised {
     predicted: Point2<f64>,
     /// (first parameter index, column count) of each block, in `jac` order.
-    blocks: Vec<(usize, usize)>,
+    blocks: [(usize, usize); MAX_BLOCKS],
+    nblocks: usize,
     /// d pixel / d parameter, the blocks' columns one after another.
-    jac: Vec<Vector2<f64>>,
+    jac: [Vector2<f64>; MAX_COLUMNS],
+    ncolumns: usize,
 }
 
 impl Linearised {
-    /// Columns of a device's free lens parameters from d pixel/d lens (all twelve).
-    fn push_lens(&mut self, (at, params): (usize, LensParams), j: &LensJacobian) {
-        self.blocks.push((at, params.len()));
-        self.jac
-            .extend(params.iter().map(|p| Vector2::from(j.column(p.index()))));
-    }
-
-    /// Columns of the bend coefficients: d pixel / d(board-frame z) times the shapes.
-    fn push_bend(&mut self, at: usize, dz: Vector2<f64>, basis: Vector3<f64>) {
-        self.blocks.push((at, 3));
-        self.jac.extend(basis.iter().map(|b| dz * *b));
-    }
-
-    /// Columns of a pose increment (ω, τ) from d pixel/dω (2×3) and d pixel/dτ (2×3).
-    fn push_pose(&mut self, at: usize, dw: Matrix2x3<f64>, dt: Matrix2x3<f64>) {
-        self.blocks.push((at, 6));
-        self.jac.extend((0..3).map(|c| Vector2::from(dw.column(c))));
-        self.jac.extend((0..3).map(|c| Vector2::from(dt.column(c))));
-    }
-
     /// Without a Jacobian.
     fn value(predicted: Point2<f64>) -> Linearised {
         Linearised {
             predicted,
-            blocks: Vec::new(),
-            jac: Vec::new(),
+            blocks: [(0, 0); MAX_BLOCKS],
+            nblocks: 0,
+            jac: [Vector2::zeros(); MAX_COLUMNS],
+            ncolumns: 0,
         }
     }
 
-    /// With room for a Jacobian of `columns` columns in `blocks` blocks.
-    fn with_capacity(predicted: Point2<f64>, blocks: usize, columns: usize) -> Linearised {
-        Linearised {
-            predicted,
-            blocks: Vec::with_capacity(blocks),
-            jac: Vec::with_capacity(columns),
+    /// Append a block of columns starting at parameter `at`.
+    fn push_block(&mut self, at: usize, columns: impl Iterator<Item = Vector2<f64>>) {
+        let start = self.ncolumns;
+        for c in columns {
+            self.jac[self.ncolumns] = c;
+            self.ncolumns += 1;
         }
+        self.blocks[self.nblocks] = (at, self.ncolumns - start);
+        self.nblocks += 1;
+    }
+
+    /// Columns of a device's free lens parameters from d pixel/d lens (all twelve).
+    fn push_lens(&mut self, (at, params): (usize, LensParams), j: &LensJacobian) {
+        self.push_block(
+            at,
+            params.iter().map(|p| Vector2::from(j.column(p.index()))),
+        );
+    }
+
+    /// Columns of the bend coefficients: d pixel / d(board-frame z) times the shapes.
+    fn push_bend(&mut self, at: usize, dz: Vector2<f64>, basis: Vector3<f64>) {
+        self.push_block(at, basis.iter().map(|b| dz * *b));
+    }
+
+    /// Columns of a pose increment (ω, τ) from d pixel/dω (2×3) and d pixel/dτ (2×3).
+    fn push_pose(&mut self, at: usize, dw: Matrix2x3<f64>, dt: Matrix2x3<f64>) {
+        self.push_block(
+            at,
+            (0..3)
+                .map(|c| Vector2::from(dw.column(c)))
+                .chain((0..3).map(|c| Vector2::from(dt.column(c)))),
+        );
     }
 
     /// Every column with its parameter index.
     #[cfg(test)]
     fn columns(&self) -> impl Iterator<Item = (usize, Vector2<f64>)> + '_ {
-        self.blocks
+        self.blocks[..self.nblocks]
             .iter()
             .flat_map(|&(at, n)| at..at + n)
             .zip(self.jac.iter().copied())
@@ -398,14 +414,18 @@ impl Linearised {
 
     /// Add w·JᵀJ to the upper triangle of `jtj` (column-major, n × n) and w·Jᵀe to `jtr`.
     fn accumulate(&self, w: f64, e: &Vector2<f64>, jtj: &mut [f64], n: usize, jtr: &mut [f64]) {
-        let wj: Vec<Vector2<f64>> = self.jac.iter().map(|j| j * w).collect();
+        let blocks = &self.blocks[..self.nblocks];
+        let mut wj = [Vector2::zeros(); MAX_COLUMNS];
+        for (x, j) in wj.iter_mut().zip(&self.jac[..self.ncolumns]) {
+            *x = j * w;
+        }
         let mut oa = 0;
-        for (ia, &(ga, la)) in self.blocks.iter().enumerate() {
+        for (ia, &(ga, la)) in blocks.iter().enumerate() {
             for (g, j) in jtr[ga..ga + la].iter_mut().zip(&wj[oa..oa + la]) {
                 *g += j.dot(e);
             }
             let mut ob = oa;
-            for &(gb, lb) in &self.blocks[ia..] {
+            for &(gb, lb) in &blocks[ia..] {
                 if gb == ga {
                     // Diagonal block: its upper triangle.
                     for c in 0..la {
@@ -481,7 +501,7 @@ fn linearise(
                 .model
                 .project_with_jacobians(&Isometry3::identity(), &pc)?;
             let jp = pj.d_point;
-            let mut lin = Linearised::with_capacity(pj.pixel + bias, 4, 27);
+            let mut lin = Linearised::value(pj.pixel + bias);
             lin.push_lens(l.lens[ob.device], &pj.d_lens);
             if let Some(at) = l.pose[ob.device] {
                 lin.push_pose(at, -jp * skew(&pc.coords), jp);
@@ -529,7 +549,7 @@ fn linearise(
                 .project_with_jacobians(&Isometry3::identity(), &p_p)?;
             let jp = pj.d_point;
             let jpc = jp * *proj_from_cam.rotation.to_rotation_matrix().matrix();
-            let mut lin = Linearised::with_capacity(pj.pixel, 6, 42);
+            let mut lin = Linearised::value(pj.pixel);
             lin.push_lens(l.lens[ob.device], &pj.d_lens);
             if let Some(at) = l.pose[ob.device] {
                 lin.push_pose(at, -jp * skew(&p_p.coords), jp);
