@@ -41,6 +41,21 @@ enum Command {
         #[arg(long)]
         seed: Option<u64>,
     },
+    /// Detect the board's circles in images and label them with lattice positions (JSON).
+    Detect {
+        /// A built-in board (hex600) or a board file (docs/board-file.md).
+        #[arg(long, default_value = "hex600")]
+        board: String,
+        /// The JSON file to write: one object per image, in the order given.
+        #[arg(long)]
+        json: PathBuf,
+        /// Write an overlay PNG per image into this directory.
+        #[arg(long)]
+        overlay: Option<PathBuf>,
+        /// Images: 8- or 16-bit, grey or colour PNG, JPEG or TIFF.
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+    },
     /// Speed benchmarks that print figures.
     Bench {
         #[command(subcommand)]
@@ -169,6 +184,48 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
         .with_context(|| format!("cannot write {}", path.display()))
 }
 
+/// `hexcal detect`: every image in turn, the JSON written even when some fail; the failures
+/// are reported and make the command fail.
+fn detect_command(
+    board: &str,
+    json: &Path,
+    overlay: Option<&Path>,
+    images: &[PathBuf],
+) -> anyhow::Result<()> {
+    use hexcal::detection::{process_all, to_json, Settings};
+    let board = Board::resolve(board)?;
+    if let Some(dir) = overlay {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create overlay directory {}", dir.display()))?;
+    }
+    let results = process_all(images, &board, &Settings::default(), overlay);
+    write_atomic(json, to_json(images, &results).as_bytes())?;
+    let mut failed = 0;
+    for r in &results {
+        match r {
+            Ok(rec) => println!(
+                "{}: {} circles, {} labelled{}",
+                rec.image,
+                rec.circles.len(),
+                rec.points.len(),
+                if rec.points.iter().any(|p| p.anchored) {
+                    ", anchored"
+                } else {
+                    ""
+                }
+            ),
+            Err(e) => {
+                eprintln!("error: {e}");
+                failed += 1;
+            }
+        }
+    }
+    if failed > 0 {
+        anyhow::bail!("{failed} of {} images failed", images.len());
+    }
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
@@ -201,6 +258,12 @@ fn main() -> anyhow::Result<()> {
                 json.display()
             );
         }
+        Command::Detect {
+            board,
+            json,
+            overlay,
+            images,
+        } => detect_command(&board, &json, overlay.as_deref(), &images)?,
         Command::Bench {
             what: Bench::Render { scene, repeat },
         } => {
