@@ -92,7 +92,10 @@ fn detect_reads_grey_16_bit_and_colour_and_reports_broken_files() {
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&run.stderr);
-    assert!(!run.status.success(), "a failed image must fail the command");
+    assert!(
+        !run.status.success(),
+        "a failed image must fail the command"
+    );
     assert!(stderr.contains("broken.png"), "{stderr}");
     assert!(stderr.contains("missing.tiff"), "{stderr}");
 

@@ -37,11 +37,7 @@ pub fn draw_overlay(image: &GrayImage, analysis: &Analysis) -> RgbImage {
         // Directions 0–2 reach each link once.
         for k in 0..3 {
             if let Some(&j) = by_hex.get(&p.hex.neighbour(k)) {
-                let colour = if p.anchored {
-                    ANCHORED_LINK
-                } else {
-                    FREE_LINK
-                };
+                let colour = if p.anchored { ANCHORED_LINK } else { FREE_LINK };
                 let o = analysis.grid.points[j].image;
                 line(&mut out, (p.image.x, p.image.y), (o.x, o.y), colour);
             }
