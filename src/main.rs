@@ -83,6 +83,17 @@ enum Bench {
         #[arg(long, default_value_t = 7)]
         runs: usize,
     },
+    /// Detection + grid building on rendered 1920×1200 and 4096×3000 board views, with
+    /// recall and centre error against the truth.
+    DetectGrid {
+        /// Timed runs per image (after one warm-up run); medians are printed.
+        #[arg(long, default_value_t = 7)]
+        runs: usize,
+        /// Write the views, their truth and the figures here (for
+        /// scripts/bench_opencv_blobs.py).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Decode one camera's default phase-shift stack (synthetic scene, gamma 2.2).
     Decode {
         /// Camera width (px).
@@ -273,6 +284,14 @@ fn main() -> anyhow::Result<()> {
         Command::Bench {
             what: Bench::Detect { images, runs },
         } => bench_detect(&images, runs)?,
+        Command::Bench {
+            what: Bench::DetectGrid { runs, out },
+        } => {
+            let scenes = hexcal::detection::bench::scenes();
+            let report =
+                hexcal::detection::bench::bench_detect_grid(&scenes, runs, out.as_deref())?;
+            print!("{report}");
+        }
         Command::Bench {
             what:
                 Bench::Decode {

@@ -7,6 +7,7 @@
 //! order, and an error naming the file for each image that cannot be read. Pixel (0, 0) is
 //! the centre of the top-left pixel (DESIGN.md §2).
 
+pub mod bench;
 mod overlay;
 
 pub use overlay::draw_overlay;
