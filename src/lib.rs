@@ -3,7 +3,8 @@
 //!
 //! The stages, in the order data flows through them:
 //! [`board`] and [`camera`] (the models every stage shares) → [`detect`] (circles) →
-//! [`grid`] (labelled lattice points); [`sim`] renders board views with ground truth.
+//! [`grid`] (labelled lattice points), both run on image files by [`detection`]; [`sim`]
+//! renders board views with ground truth.
 #![warn(missing_docs)]
 
 pub mod atomic;
@@ -11,6 +12,7 @@ pub mod board;
 pub mod calib;
 pub mod camera;
 pub mod detect;
+pub mod detection;
 pub mod grid;
 pub mod imageio;
 pub mod phase;

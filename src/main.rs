@@ -3,7 +3,7 @@
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use hexcal::board::{Board, Side};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Calibrate a structured-light rig of many cameras and projectors.
 #[derive(Parser)]
@@ -68,6 +68,21 @@ enum Command {
         /// Correspondences of the held-out poses.
         input: PathBuf,
     },
+    /// Detect the board's circles in images and label them with lattice positions (JSON).
+    Detect {
+        /// A built-in board (hex600) or a board file (docs/board-file.md).
+        #[arg(long, default_value = "hex600")]
+        board: String,
+        /// The JSON file to write: one object per image, in the order given.
+        #[arg(long)]
+        json: PathBuf,
+        /// Write an overlay PNG per image into this directory.
+        #[arg(long)]
+        overlay: Option<PathBuf>,
+        /// Images: 8- or 16-bit, grey or colour PNG, JPEG or TIFF.
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+    },
     /// Speed benchmarks that print figures.
     Bench {
         #[command(subcommand)]
@@ -110,6 +125,17 @@ enum Bench {
         /// Timed runs per image (after one warm-up run); the median is printed.
         #[arg(long, default_value_t = 7)]
         runs: usize,
+    },
+    /// Detection + grid building on rendered 1920×1200 and 4096×3000 board views, with
+    /// recall and centre error against the truth.
+    DetectGrid {
+        /// Timed runs per image (after one warm-up run); medians are printed.
+        #[arg(long, default_value_t = 7)]
+        runs: usize,
+        /// Write the views, their truth and the figures here (for
+        /// scripts/bench_opencv_blobs.py).
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
     /// Decode one camera's default phase-shift stack (synthetic scene, gamma 2.2).
     Decode {
@@ -197,8 +223,8 @@ fn load_scene(path: Option<&PathBuf>) -> anyhow::Result<hexcal::sim::Scene> {
 
 /// `hexcal calibrate`: read, calibrate, write, print the residual table.
 fn calibrate(
-    input: &std::path::Path,
-    out: &std::path::Path,
+    input: &Path,
+    out: &Path,
     reference: Option<&str>,
     fix_k3: bool,
     refine_flatness: bool,
@@ -245,7 +271,7 @@ fn calibrate(
 }
 
 /// `hexcal verify`: triangulate held-out poses and print the length and flatness table.
-fn verify(calibration: &std::path::Path, input: &std::path::Path) -> anyhow::Result<()> {
+fn verify(calibration: &Path, input: &Path) -> anyhow::Result<()> {
     use hexcal::calib::bundle::Device;
     use hexcal::calib::pipeline::Correspondences;
     let text = std::fs::read_to_string(calibration)
@@ -303,6 +329,49 @@ fn verify(calibration: &std::path::Path, input: &std::path::Path) -> anyhow::Res
     Ok(())
 }
 
+/// `hexcal detect`: every image in turn, the JSON written even when some fail; the failures
+/// are reported and make the command fail.
+fn detect_command(
+    board: &str,
+    json: &Path,
+    overlay: Option<&Path>,
+    images: &[PathBuf],
+) -> anyhow::Result<()> {
+    use hexcal::detection::{process_all, to_json, Settings};
+    let board = Board::resolve(board)?;
+    if let Some(dir) = overlay {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create overlay directory {}", dir.display()))?;
+    }
+    let results = process_all(images, &board, &Settings::default(), overlay);
+    hexcal::atomic::write(json, to_json(images, &results).as_bytes())
+        .with_context(|| format!("cannot write {}", json.display()))?;
+    let mut failed = 0;
+    for r in &results {
+        match r {
+            Ok(rec) => println!(
+                "{}: {} circles, {} labelled{}",
+                rec.image,
+                rec.circles.len(),
+                rec.points.len(),
+                if rec.points.iter().any(|p| p.anchored) {
+                    ", anchored"
+                } else {
+                    ""
+                }
+            ),
+            Err(e) => {
+                eprintln!("error: {e}");
+                failed += 1;
+            }
+        }
+    }
+    if failed > 0 {
+        anyhow::bail!("{failed} of {} images failed", images.len());
+    }
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
@@ -344,6 +413,12 @@ fn main() -> anyhow::Result<()> {
                 json.display()
             );
         }
+        Command::Detect {
+            board,
+            json,
+            overlay,
+            images,
+        } => detect_command(&board, &json, overlay.as_deref(), &images)?,
         Command::Bench {
             what:
                 Bench::Calib {
@@ -380,6 +455,14 @@ fn main() -> anyhow::Result<()> {
         Command::Bench {
             what: Bench::Detect { images, runs },
         } => bench_detect(&images, runs)?,
+        Command::Bench {
+            what: Bench::DetectGrid { runs, out },
+        } => {
+            let scenes = hexcal::detection::bench::scenes();
+            let report =
+                hexcal::detection::bench::bench_detect_grid(&scenes, runs, out.as_deref())?;
+            print!("{report}");
+        }
         Command::Bench {
             what:
                 Bench::Decode {

@@ -188,10 +188,24 @@ pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &Grid
     stats.cells = cells.len();
     stats.full_cells = cells.iter().filter(|c| c.is_full()).count();
 
+    // A ring dims a small circle's own foreground level (blur darkens the white left around
+    // it), which would hide the ring: read each ring against the brightest foreground of
+    // the cells it belongs to. Every ringed circle neighbours its marker's plain centre.
+    let mut white: Vec<f32> = circles.iter().map(|c| c.foreground).collect();
+    for cell in &cells {
+        let top = cell
+            .members()
+            .map(|(_, i)| circles[i as usize].foreground)
+            .fold(f32::MIN, f32::max);
+        for (_, i) in cell.members() {
+            white[i as usize] = white[i as usize].max(top);
+        }
+    }
     let readings: Vec<Ring> = circles
         .iter()
-        .map(|c| {
-            let contrast = ring::ring_contrast(image, c, board.ring);
+        .zip(&white)
+        .map(|(c, &white)| {
+            let contrast = ring::ring_contrast(image, c, white, board.ring);
             ring::classify(contrast, params.ring_plain_below, params.ring_ringed_above)
         })
         .collect();

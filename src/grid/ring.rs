@@ -20,15 +20,22 @@ const ANGLES: usize = 32;
 /// Radial samples across the annulus, as fractions of its width (centres of equal parts).
 const RADIAL: [f64; 3] = [1.0 / 6.0, 0.5, 5.0 / 6.0];
 
-/// Darkening of the annulus of `circle`: (foreground − annulus mean) / (foreground −
-/// background), 0 for a plain white circle, up to 1 for a sharp, fully dark ring. `band` is
+/// Darkening of the annulus of `circle`: (white − annulus mean) / (white − background), 0
+/// for a plain white circle, up to 1 for a sharp, fully dark ring. `white` is the level of
+/// the board's white near the circle (its own foreground, or a brighter plain neighbour's:
+/// blur dims the white left around a small ring). `band` is
 /// the annulus as fractions (inner, outer) of the circle's radius, applied to the fitted
 /// outer-boundary ellipse scaled about its centre.
 ///
 /// Each sample is weighted by the ellipse's radius along its ray: where the ellipse is
 /// foreshortened the ring is thin, blurred away, and would only dilute the reading.
-pub(crate) fn ring_contrast(image: &GrayImage, circle: &Circle, band: [f64; 2]) -> Option<f64> {
-    let contrast = f64::from(circle.foreground) - f64::from(circle.background);
+pub(crate) fn ring_contrast(
+    image: &GrayImage,
+    circle: &Circle,
+    white: f32,
+    band: [f64; 2],
+) -> Option<f64> {
+    let contrast = f64::from(white) - f64::from(circle.background);
     if contrast <= 0.0 {
         return None;
     }
@@ -55,7 +62,7 @@ pub(crate) fn ring_contrast(image: &GrayImage, circle: &Circle, band: [f64; 2]) 
         }
     }
     let mean = sum / weight;
-    Some((f64::from(circle.foreground) - mean) / contrast)
+    Some((f64::from(white) - mean) / contrast)
 }
 
 /// Classify a ring contrast against the two thresholds of [`super::GridParams`].
@@ -154,12 +161,12 @@ mod tests {
         let band = [0.45, 0.75];
         for r in [5.0, 12.0] {
             let (img, c) = disk(r, true, band);
-            let ringed = ring_contrast(&img, &c, band).unwrap();
+            let ringed = ring_contrast(&img, &c, c.foreground, band).unwrap();
             // Samples sit in the middle 2/3 of the annulus: fully dark up to the partial
             // coverage of pixels straddling the ring edges (≤ 1 px of a ≥ 1.5 px wide ring).
             assert!(ringed > 0.6, "r = {r}: ringed contrast {ringed}");
             let (img, c) = disk(r, false, band);
-            let plain = ring_contrast(&img, &c, band).unwrap();
+            let plain = ring_contrast(&img, &c, c.foreground, band).unwrap();
             assert!(plain.abs() < 1e-3, "r = {r}: plain contrast {plain}");
         }
     }
@@ -175,7 +182,7 @@ mod tests {
         let read = |r, ringed, sigma| {
             let (img, c) = blurred_disk(r, ringed, band, sigma);
             classify(
-                ring_contrast(&img, &c, band),
+                ring_contrast(&img, &c, c.foreground, band),
                 p.ring_plain_below,
                 p.ring_ringed_above,
             )
@@ -197,7 +204,7 @@ mod tests {
         let (img, mut c) = disk(8.0, false, band);
         c.ellipse.center.x = 1.0;
         assert_eq!(
-            classify(ring_contrast(&img, &c, band), 0.2, 0.3),
+            classify(ring_contrast(&img, &c, c.foreground, band), 0.2, 0.3),
             Ring::Unsure
         );
     }

@@ -1,0 +1,221 @@
+//! `hexcal bench detect-grid`: detection + grid building timed on rendered board views
+//! (1920×1200 and 4096×3000), with the recall and centre error against the renderer's truth;
+//! the views, their truth and these figures can be written to a directory for
+//! `scripts/bench_opencv_blobs.py` (OpenCV's SimpleBlobDetector on the same images).
+
+use super::{analyse, Settings};
+use crate::board::Board;
+use crate::detect::{detect, GrayImage};
+use crate::grid::build;
+use crate::sim::{render, write_view, Scene, SimError};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::time::Instant;
+
+/// A failure of the benchmark.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    /// Rendering or writing a view failed.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// Writing the figures failed.
+    #[error("cannot write {path}: {source}")]
+    Write {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What went wrong.
+        source: std::io::Error,
+    },
+}
+
+/// The two built-in benchmark scenes: the default 1920×1200 view (circles 8–11 px), and a
+/// 4096×3000 camera (f = 3300 px) seeing the front tilted ~30° from 1.1 m (circles ≈ 17 px).
+pub fn scenes() -> Vec<Scene> {
+    let mut small = Scene::default_scene();
+    small.name = "bench_1920x1200".into();
+    let mut large = Scene::default_scene();
+    large.name = "bench_4096x3000".into();
+    large.camera.width = 4096;
+    large.camera.height = 3000;
+    let k = &mut large.camera.intrinsics;
+    (k.fx, k.fy, k.cx, k.cy) = (3300.0, 3300.0, 2051.7, 1496.2);
+    large.pose.eye = Some([260.0, -480.0, 980.0]);
+    large.seed = 2;
+    vec![small, large]
+}
+
+/// Figures of one image.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BenchRow {
+    /// The image file name (as written with `--out`).
+    pub image: String,
+    /// Width (px).
+    pub width: u32,
+    /// Height (px).
+    pub height: u32,
+    /// Circles detected.
+    pub circles: usize,
+    /// Points labelled.
+    pub points: usize,
+    /// Whole circles in the truth.
+    pub whole: usize,
+    /// Whole circles with a detection within a third of their radius.
+    pub matched: usize,
+    /// RMS distance of those detections from the truth's outline-ellipse centres (px).
+    pub centre_rms: f64,
+    /// Median time of detection (ms).
+    pub detect_ms: f64,
+    /// Median time of grid building (ms).
+    pub grid_ms: f64,
+    /// Median time of detection + grid building, timed together (ms).
+    pub total_ms: f64,
+    /// Fastest detection + grid building (ms).
+    pub total_min_ms: f64,
+}
+
+/// The benchmark's figures.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BenchReport {
+    /// Rayon threads.
+    pub threads: usize,
+    /// Timed runs per image (medians reported).
+    pub runs: usize,
+    /// /proc/loadavg before the runs.
+    pub load_average: String,
+    /// One row per image.
+    pub rows: Vec<BenchRow>,
+}
+
+impl std::fmt::Display for BenchReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "detect + grid: {} threads, median of {} runs; load average before: {}",
+            self.threads, self.runs, self.load_average
+        )?;
+        writeln!(
+            f,
+            "{:>10} {:>8} {:>7} {:>13} {:>10} {:>9} {:>7} {:>9} {:>8}  image",
+            "size",
+            "circles",
+            "points",
+            "recall",
+            "rms px",
+            "detect ms",
+            "grid ms",
+            "total ms",
+            "min ms"
+        )?;
+        for r in &self.rows {
+            writeln!(
+                f,
+                "{:>10} {:>8} {:>7} {:>13} {:>10.4} {:>9.1} {:>7.1} {:>9.1} {:>8.1}  {}",
+                format!("{}x{}", r.width, r.height),
+                r.circles,
+                r.points,
+                format!("{}/{}", r.matched, r.whole),
+                r.centre_rms,
+                r.detect_ms,
+                r.grid_ms,
+                r.total_ms,
+                r.total_min_ms,
+                r.image
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// Median and minimum of timed runs of `f` (ms), after one warm-up run.
+fn time_ms(runs: usize, mut f: impl FnMut()) -> (f64, f64) {
+    f();
+    let mut ms: Vec<f64> = (0..runs.max(1))
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    ms.sort_by(f64::total_cmp);
+    (ms[ms.len() / 2], ms[0])
+}
+
+/// Render each scene, time detection + grid building `runs` times, and measure recall and
+/// centre error against the truth. With `out`, each view is written there as `NAME.png` and
+/// `NAME.json` (the renderer's truth) and the figures as `hexcal_bench.json`.
+pub fn bench_detect_grid(
+    scenes: &[Scene],
+    runs: usize,
+    out: Option<&Path>,
+) -> Result<BenchReport, BenchError> {
+    let settings = Settings::default();
+    let load_average = std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.trim().to_owned())
+        .unwrap_or_else(|_| "n/a".into());
+    let mut rows = Vec::new();
+    for scene in scenes {
+        let view = render(scene)?;
+        if let Some(dir) = out {
+            write_view(&view, dir)?;
+        }
+        let (w, h) = (view.frame.size.width, view.frame.size.height);
+        let image = GrayImage::from_raw(w, h, view.frame.data.iter().map(|&v| v as f32).collect())
+            .expect("frame size matches its data");
+        let board: &Board = &scene.board;
+        let analysis = analyse(&image, board, &settings);
+        let (detect_ms, _) = time_ms(runs, || {
+            std::hint::black_box(detect(&image, &settings.detect));
+        });
+        let (grid_ms, _) = time_ms(runs, || {
+            std::hint::black_box(build(&image, &analysis.circles, board, &settings.grid));
+        });
+        let (total_ms, total_min_ms) = time_ms(runs, || {
+            std::hint::black_box(analyse(&image, board, &settings));
+        });
+        // Whole circles: outline-ellipse centre and radius.
+        let whole: Vec<([f64; 2], f64)> = view
+            .truth
+            .circles
+            .iter()
+            .filter(|c| c.whole)
+            .filter_map(|c| c.ellipse.zip(c.radius))
+            .collect();
+        let mut sq = Vec::new();
+        for (t, r) in &whole {
+            let nearest = analysis
+                .circles
+                .iter()
+                .map(|c| (c.ellipse.center.x - t[0]).hypot(c.ellipse.center.y - t[1]))
+                .fold(f64::INFINITY, f64::min);
+            if nearest < r / 3.0 {
+                sq.push(nearest * nearest);
+            }
+        }
+        rows.push(BenchRow {
+            image: view.truth.image.clone(),
+            width: w,
+            height: h,
+            circles: analysis.circles.len(),
+            points: analysis.grid.points.len(),
+            whole: whole.len(),
+            matched: sq.len(),
+            centre_rms: (sq.iter().sum::<f64>() / sq.len().max(1) as f64).sqrt(),
+            detect_ms,
+            grid_ms,
+            total_ms,
+            total_min_ms,
+        });
+    }
+    let report = BenchReport {
+        threads: rayon::current_num_threads(),
+        runs,
+        load_average,
+        rows,
+    };
+    if let Some(dir) = out {
+        let path = dir.join("hexcal_bench.json");
+        let text = serde_json::to_string_pretty(&report).expect("figures serialise");
+        std::fs::write(&path, text).map_err(|source| BenchError::Write { path, source })?;
+    }
+    Ok(report)
+}
