@@ -14,48 +14,7 @@ use crate::board::{Hex, Side};
 use nalgebra::Point2;
 use std::collections::HashMap;
 
-/// How a view's lattice labels relate to the board.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Frame {
-    /// Labels are in this side's own board frame.
-    Anchored(Side),
-    /// Labels are in an arbitrary lattice frame, the side unknown.
-    Unanchored,
-}
-
-/// A projector's decoded pixel at a camera's ellipse centre.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct ProjectorPixel {
-    /// Device index of the projector.
-    pub projector: usize,
-    /// Decoded (u, v) (projector px).
-    pub pixel: Point2<f64>,
-}
-
-/// One labelled circle of a view.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct ViewPoint {
-    /// Lattice position in the view's frame.
-    pub hex: Hex,
-    /// Observed ellipse centre (px).
-    pub image: Point2<f64>,
-    /// Projector coordinates decoded at the ellipse centre, one per lighting projector.
-    pub projectors: Vec<ProjectorPixel>,
-}
-
-/// One camera's labelled view of one board pose.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct CameraView {
-    /// Device index of the camera.
-    pub camera: usize,
-    /// Board pose index.
-    pub pose: usize,
-    /// Frame of the labels.
-    pub frame: Frame,
-    /// The labelled circles.
-    pub points: Vec<ViewPoint>,
-}
+pub use crate::correspond::{CameraView, Frame, ProjectorPixel, ViewPoint};
 
 /// An unanchored view that registration placed on the board.
 #[derive(Clone, Debug, PartialEq)]

@@ -1,0 +1,240 @@
+//! Correspondences (DESIGN.md §7): a camera's labelled grid and the projectors' decoded maps
+//! in that camera become one [`CameraView`] — every labelled circle with its ellipse centre
+//! and, for each projector lighting it, the projector pixel (u, v) at that centre.
+//!
+//! The projector pixel at an ellipse centre e comes from a least-squares fit of the decoded
+//! u(x, y) and v(x, y) over the valid pixels of the circle and its labelled neighbours (one
+//! planar patch, ≈ 7× a circle's pixels), evaluated at e. The fit is quadratic in (x − e):
+//! lens distortion curves the camera→projector map, and a plain plane or homography over
+//! the patch is biased by up to 0.2 projector px in the corners of a k1 = −0.3 lens.
+
+use crate::board::{Hex, Side};
+use crate::detect::{Circle, Ellipse};
+use crate::grid::Grid;
+use nalgebra::{Point2, SMatrix, SVector};
+use std::collections::HashMap;
+
+/// How a view's lattice labels relate to the board.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Frame {
+    /// Labels are in this side's own board frame.
+    Anchored(Side),
+    /// Labels are in an arbitrary lattice frame, the side unknown.
+    Unanchored,
+}
+
+/// A projector's decoded pixel at a camera's ellipse centre.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ProjectorPixel {
+    /// Device index of the projector.
+    pub projector: usize,
+    /// Decoded (u, v) (projector px).
+    pub pixel: Point2<f64>,
+}
+
+/// One labelled circle of a view.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ViewPoint {
+    /// Lattice position in the view's frame.
+    pub hex: Hex,
+    /// Observed ellipse centre (px).
+    pub image: Point2<f64>,
+    /// Projector coordinates decoded at the ellipse centre, one per lighting projector.
+    pub projectors: Vec<ProjectorPixel>,
+}
+
+/// One camera's labelled view of one board pose.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CameraView {
+    /// Device index of the camera.
+    pub camera: usize,
+    /// Board pose index.
+    pub pose: usize,
+    /// Frame of the labels.
+    pub frame: Frame,
+    /// The labelled circles.
+    pub points: Vec<ViewPoint>,
+}
+
+/// One projector's decoded maps in one camera, as the fit reads them.
+#[derive(Clone, Copy, Debug)]
+pub struct ProjectorMap<'a> {
+    /// Device index of the projector.
+    pub projector: usize,
+    /// Map width (camera px).
+    pub width: u32,
+    /// Map height (camera px).
+    pub height: u32,
+    /// Projector column per camera pixel, row-major.
+    pub u: &'a [f32],
+    /// Projector row per camera pixel, row-major.
+    pub v: &'a [f32],
+    /// Whether (u, v) is valid, row-major.
+    pub valid: &'a [bool],
+}
+
+impl<'a> ProjectorMap<'a> {
+    /// The view of a decoder's maps for projector `projector`.
+    pub fn from_decoded(projector: usize, maps: &'a crate::phase::ProjectorMaps) -> Self {
+        ProjectorMap {
+            projector,
+            width: maps.u.width(),
+            height: maps.u.height(),
+            u: maps.u.as_raw(),
+            v: maps.v.as_raw(),
+            valid: maps.valid.as_slice(),
+        }
+    }
+}
+
+/// Settings of the local fit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FitParams {
+    /// Pixels used lie inside each patch circle's ellipse shrunk by this factor (keeps the
+    /// blurred rim, where white and black mix, out of the fit).
+    pub shrink: f64,
+    /// Valid pixels a fit needs.
+    pub min_pixels: usize,
+    /// Fraction of the centre circle's own pixels that must be valid (a projector that
+    /// lights only part of a circle gives no observation of it).
+    pub min_own_valid: f64,
+}
+
+impl Default for FitParams {
+    fn default() -> Self {
+        FitParams {
+            shrink: 0.85,
+            min_pixels: 30,
+            min_own_valid: 0.8,
+        }
+    }
+}
+
+/// Pixels (x, y) whose centres lie inside `e` shrunk by `shrink`.
+fn pixels_inside(e: &Ellipse, shrink: f64, width: u32, height: u32) -> Vec<(u32, u32)> {
+    let (a, b) = (e.a * shrink, e.b * shrink);
+    let (c, s) = (e.angle.cos(), e.angle.sin());
+    let reach = a.ceil() as i64 + 1;
+    let (cx, cy) = (e.center.x.round() as i64, e.center.y.round() as i64);
+    let mut out = Vec::new();
+    for y in (cy - reach).max(0)..=(cy + reach).min(i64::from(height) - 1) {
+        for x in (cx - reach).max(0)..=(cx + reach).min(i64::from(width) - 1) {
+            let (dx, dy) = (x as f64 - e.center.x, y as f64 - e.center.y);
+            let (p, q) = (dx * c + dy * s, -dx * s + dy * c);
+            if (p / a).powi(2) + (q / b).powi(2) <= 1.0 {
+                out.push((x as u32, y as u32));
+            }
+        }
+    }
+    out
+}
+
+/// Quadratic fit of u and v over `pixels` around `e`, evaluated at `e` (the constant term).
+fn fit_at(
+    map: &ProjectorMap,
+    pixels: &[(u32, u32)],
+    e: Point2<f64>,
+    scale: f64,
+) -> Option<Point2<f64>> {
+    let mut ata = SMatrix::<f64, 6, 6>::zeros();
+    let (mut atu, mut atv) = (SVector::<f64, 6>::zeros(), SVector::<f64, 6>::zeros());
+    let mut n = 0;
+    for &(x, y) in pixels {
+        let i = (y * map.width + x) as usize;
+        let (u, v) = (map.u[i], map.v[i]);
+        if !map.valid[i] || !u.is_finite() || !v.is_finite() {
+            continue;
+        }
+        let (dx, dy) = ((x as f64 - e.x) / scale, (y as f64 - e.y) / scale);
+        let row = SVector::<f64, 6>::from([1.0, dx, dy, dx * dx, dx * dy, dy * dy]);
+        ata += row * row.transpose();
+        atu += row * f64::from(u);
+        atv += row * f64::from(v);
+        n += 1;
+    }
+    if n < 6 {
+        return None;
+    }
+    let chol = ata.cholesky()?;
+    Some(Point2::new(chol.solve(&atu)[0], chol.solve(&atv)[0]))
+}
+
+/// The camera view of one grid: labelled circles with their ellipse centres and the
+/// projector pixels at them. `circles` are the detections the grid was built from; `None`
+/// when the grid has no labelled point. An unanchored grid gives an unanchored view (to be
+/// registered by the calibration stage).
+pub fn camera_view(
+    camera: usize,
+    pose: usize,
+    grid: &Grid,
+    circles: &[Circle],
+    maps: &[ProjectorMap],
+    params: &FitParams,
+) -> Option<CameraView> {
+    if grid.points.is_empty() {
+        return None;
+    }
+    let frame = match (grid.anchored, grid.side) {
+        (true, Some(side)) => Frame::Anchored(side),
+        _ => Frame::Unanchored,
+    };
+    let by_hex: HashMap<_, _> = grid.points.iter().map(|p| (p.hex, p)).collect();
+    let points = grid
+        .points
+        .iter()
+        .map(|p| {
+            let own = &circles[p.circle].ellipse;
+            // The patch: this circle and its labelled neighbours.
+            let patch: Vec<&Ellipse> = std::iter::once(own)
+                .chain(
+                    p.hex
+                        .neighbours()
+                        .iter()
+                        .filter_map(|h| by_hex.get(h))
+                        .map(|q| &circles[q.circle].ellipse),
+                )
+                .collect();
+            let projectors = maps
+                .iter()
+                .filter_map(|m| {
+                    let own_px = pixels_inside(own, params.shrink, m.width, m.height);
+                    let own_valid = own_px
+                        .iter()
+                        .filter(|&&(x, y)| m.valid[(y * m.width + x) as usize])
+                        .count();
+                    if (own_valid as f64) < params.min_own_valid * own_px.len() as f64 {
+                        return None;
+                    }
+                    let pixels: Vec<(u32, u32)> = patch
+                        .iter()
+                        .flat_map(|e| pixels_inside(e, params.shrink, m.width, m.height))
+                        .collect();
+                    if pixels.len() < params.min_pixels {
+                        return None;
+                    }
+                    // Coordinates scaled to the patch size keep the normal equations tame.
+                    let scale = 3.0 * own.a.max(1.0);
+                    fit_at(m, &pixels, p.image, scale).map(|pixel| ProjectorPixel {
+                        projector: m.projector,
+                        pixel,
+                    })
+                })
+                .collect();
+            ViewPoint {
+                hex: p.hex,
+                image: p.image,
+                projectors,
+            }
+        })
+        .collect();
+    Some(CameraView {
+        camera,
+        pose,
+        frame,
+        points,
+    })
+}
+
+#[cfg(test)]
+mod tests;
