@@ -609,58 +609,87 @@ fn normal_equations(
     huber: Option<f64>,
     with_jacobian: bool,
 ) -> Normal {
-    let residuals: Vec<Option<Vector2<f64>>> = p
-        .observations
-        .par_iter()
-        .zip(an)
-        .map(|(ob, a)| {
-            let lin = linearise(p, s, l, ob, a.as_ref()?, false)?;
-            Some(ob.pixel - lin.predicted)
-        })
-        .collect();
-    let cost = residuals
-        .iter()
-        .zip(active)
-        .filter_map(|(r, a)| r.filter(|_| *a))
-        .map(|e| match huber {
-            Some(k) if e.norm() > k => 2.0 * k * e.norm() - k * k,
-            _ => e.norm_squared(),
-        })
-        .sum();
-    let n = if with_jacobian { l.len } else { 0 };
-    // JᵀWJ and JᵀWr, accumulated per thread over the upper triangle, then summed.
-    // A few large chunks per thread bound the number of n × n accumulators.
+    let loss = |e: &Vector2<f64>| match huber {
+        Some(k) if e.norm() > k => 2.0 * k * e.norm() - k * k,
+        _ => e.norm_squared(),
+    };
+    if !with_jacobian {
+        let residuals: Vec<Option<Vector2<f64>>> = p
+            .observations
+            .par_iter()
+            .zip(an)
+            .map(|(ob, a)| {
+                let lin = linearise(p, s, l, ob, a.as_ref()?, false)?;
+                Some(ob.pixel - lin.predicted)
+            })
+            .collect();
+        let cost = residuals
+            .iter()
+            .zip(active)
+            .filter_map(|(r, a)| r.filter(|_| *a))
+            .map(|e| loss(&e))
+            .sum();
+        return Normal {
+            jtj: DMatrix::zeros(0, 0),
+            jtr: DVector::zeros(0),
+            cost,
+            residuals,
+        };
+    }
+    // JᵀWJ (upper triangle), JᵀWr, the cost and the residuals in one pass over chunks of
+    // observations, one accumulator per chunk (a few per thread bound their number), summed.
+    let n = l.len;
     let chunk = p.observations.len() / (4 * rayon::current_num_threads()) + 1;
-    let (mut jtj, jtr) = (0..p.observations.len())
+    struct Acc {
+        jtj: DMatrix<f64>,
+        jtr: DVector<f64>,
+        cost: f64,
+        residuals: Vec<(usize, Vector2<f64>)>,
+    }
+    let empty = || Acc {
+        jtj: DMatrix::zeros(n, n),
+        jtr: DVector::zeros(n),
+        cost: 0.0,
+        residuals: Vec::new(),
+    };
+    let acc = (0..p.observations.len())
         .into_par_iter()
         .with_min_len(chunk)
-        .filter(|&i| with_jacobian && active[i] && residuals[i].is_some())
-        .fold(
-            || (DMatrix::<f64>::zeros(n, n), DVector::<f64>::zeros(n)),
-            |(mut jtj, mut jtr), i| {
-                let ob = &p.observations[i];
-                if let Some(lin) = an[i].as_ref().and_then(|a| linearise(p, s, l, ob, a, true)) {
-                    let e = ob.pixel - lin.predicted;
+        .fold(empty, |mut acc, i| {
+            let ob = &p.observations[i];
+            if let Some(lin) = an[i].as_ref().and_then(|a| linearise(p, s, l, ob, a, true)) {
+                let e = ob.pixel - lin.predicted;
+                acc.residuals.push((i, e));
+                if active[i] {
+                    acc.cost += loss(&e);
                     lin.accumulate(
                         weight(&e, huber),
                         &e,
-                        jtj.as_mut_slice(),
+                        acc.jtj.as_mut_slice(),
                         n,
-                        jtr.as_mut_slice(),
+                        acc.jtr.as_mut_slice(),
                     );
                 }
-                (jtj, jtr)
-            },
-        )
-        .reduce(
-            || (DMatrix::<f64>::zeros(n, n), DVector::<f64>::zeros(n)),
-            |(a, b), (c, d)| (a + c, b + d),
-        );
+            }
+            acc
+        })
+        .reduce(empty, |mut a, b| {
+            a.jtj += b.jtj;
+            a.jtr += b.jtr;
+            a.cost += b.cost;
+            a.residuals.extend(b.residuals);
+            a
+        });
+    let mut residuals = vec![None; p.observations.len()];
+    for (i, e) in acc.residuals {
+        residuals[i] = Some(e);
+    }
+    let mut jtj = acc.jtj;
     jtj.fill_lower_triangle_with_upper_triangle();
     Normal {
         jtj,
-        jtr,
-        cost,
+        jtr: acc.jtr,
+        cost: acc.cost,
         residuals,
     }
 }
@@ -682,6 +711,11 @@ fn levenberg_marquardt(
 ) -> (State, usize) {
     let mut lambda = 1e-3;
     let mut iterations = 0;
+    // Converged when a step lowers the cost by less than 0.1·σ̂² (σ̂² ≈ cost/n, one
+    // residual's variance): near the minimum the drop is the squared Mahalanobis length of
+    // the step, so what is left is ~0.3 standard deviations in the parameters' metric —
+    // nothing beside the √p spread of the estimate itself.
+    let n = 2 * active.iter().filter(|a| **a).count().max(1);
     let mut an = anchors(p, &s, o);
     for _ in 0..o.max_iterations {
         iterations += 1;
@@ -711,8 +745,8 @@ fn levenberg_marquardt(
             if c < ne.cost {
                 let rel = (ne.cost - c) / ne.cost.max(1e-300);
                 s = trial;
-                lambda = (lambda / 3.0).max(1e-12);
-                improved = rel > 1e-9;
+                lambda = (lambda / 10.0).max(1e-12);
+                improved = ne.cost - c > 0.1 * ne.cost / n as f64;
                 // The circle biases move with the poses: refresh them after large steps
                 // (near convergence a step changes them by far less than the noise).
                 if rel > 1e-2 {
