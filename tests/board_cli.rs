@@ -2,23 +2,10 @@
 //! left beside it), and bad input fails with a message naming what is wrong.
 
 use hexcal::board::{Board, Side};
-use std::path::PathBuf;
-use std::process::Command;
 
-/// A fresh empty directory for this test.
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("hexcal-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn hexcal(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_hexcal"))
-        .args(args)
-        .output()
-        .unwrap()
-}
+#[path = "support/cli.rs"]
+mod cli;
+use cli::{hexcal, scratch};
 
 #[test]
 fn board_writes_each_side() {

@@ -6,22 +6,12 @@
 use hexcal::calib::pipeline::Correspondences;
 use hexcal::calib::synthetic::SyntheticRig;
 use hexcal::report::CalibrationFile;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("hexcal-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn hexcal(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_hexcal"))
-        .args(args)
-        .output()
-        .unwrap()
-}
+#[path = "support/cli.rs"]
+mod cli;
+use cli::{hexcal, scratch};
 
 fn python(script: &str, args: &[&Path]) -> String {
     let out = Command::new("python3")

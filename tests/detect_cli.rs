@@ -6,16 +6,12 @@
 use hexcal::camera::{CameraModel, Distortion, Intrinsics};
 use hexcal::sim::{render, write_view, Imaging, PoseSpec, Scene};
 use serde_json::Value;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
-/// A fresh empty directory for this test.
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("hexcal-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+#[path = "support/cli.rs"]
+mod cli;
+use cli::scratch;
 
 /// A 960×600 view of the front, centre cell in view, circles ≈ 9 px; `bits` deep.
 fn scene(name: &str, bits: u8) -> Scene {
