@@ -20,3 +20,4 @@ pub mod phase;
 pub mod report;
 pub mod rig;
 pub mod sim;
+pub(crate) mod tomlspan;

@@ -30,7 +30,6 @@
 //! ```
 
 use super::{Board, Invalid};
-use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 /// Why a board could not be read: the origin (file path or `<string>`), the field and, where
@@ -152,18 +151,20 @@ impl Board {
 fn parse(text: &str, origin: &str) -> Result<Board, BoardError> {
     // One parse keeps the spans: every key's for errors after deserialising, the root's to
     // recognise a missing top-level key (its error spans the root table: no line helps).
-    let mut keys = KeySpans::default();
+    let mut keys = crate::tomlspan::KeySpans::default();
     let board: Result<Board, toml_edit::de::Error> = toml_edit::ImDocument::parse(text.to_owned())
         .map_err(Into::into)
         .and_then(|doc| {
-            keys = KeySpans::of(doc.as_table());
+            keys = crate::tomlspan::KeySpans::of(doc.as_table());
             toml_edit::de::from_document(doc)
         });
     let board = board.map_err(|e| {
         let span = e.span().filter(|s| Some(s) != keys.root.as_ref());
         BoardError::Parse {
             origin: origin.to_owned(),
-            line: span.as_ref().map(|s| line_of(text, s.start)),
+            line: span
+                .as_ref()
+                .map(|s| crate::tomlspan::line_of(text, s.start)),
             field: span.and_then(|s| keys.field_at(&s)),
             message: e.message().trim().replace('\n', ", "),
         }
@@ -174,87 +175,6 @@ fn parse(text: &str, origin: &str) -> Result<Board, BoardError> {
         invalid,
     })?;
     Ok(board)
-}
-
-/// 1-based line of a byte offset.
-fn line_of(text: &str, offset: usize) -> usize {
-    text.as_bytes()[..offset.min(text.len())]
-        .iter()
-        .filter(|&&b| b == b'\n')
-        .count()
-        + 1
-}
-
-/// Where one key of a TOML document is written.
-struct KeySpan {
-    /// Dotted path, e.g. `codes.front_side`.
-    path: String,
-    /// Byte range of the key.
-    key: Option<Range<usize>>,
-    /// Byte range of its value (a table's header for a table).
-    value: Option<Range<usize>>,
-}
-
-/// Spans in a TOML document: of the root table's own keys and of every key.
-#[derive(Default)]
-struct KeySpans {
-    root: Option<Range<usize>>,
-    keys: Vec<KeySpan>,
-}
-
-impl KeySpans {
-    fn of(root: &toml_edit::Table) -> KeySpans {
-        let mut out = KeySpans {
-            root: root.span(),
-            keys: Vec::new(),
-        };
-        out.walk("", root);
-        out
-    }
-
-    fn walk(&mut self, prefix: &str, table: &dyn toml_edit::TableLike) {
-        for (name, item) in table.iter() {
-            let path = if prefix.is_empty() {
-                name.to_owned()
-            } else {
-                format!("{prefix}.{name}")
-            };
-            self.keys.push(KeySpan {
-                path: path.clone(),
-                key: table.key(name).and_then(|k| k.span()),
-                value: item.span(),
-            });
-            if let Some(t) = item.as_table_like() {
-                self.walk(&path, t);
-            }
-        }
-    }
-
-    /// The innermost key whose key or value text covers `span`.
-    fn field_at(&self, span: &Range<usize>) -> Option<String> {
-        let covers = |r: &Option<Range<usize>>| {
-            r.as_ref()
-                .filter(|r| r.start <= span.start && span.end <= r.end.max(r.start + 1))
-                .map(|r| r.len())
-        };
-        self.keys
-            .iter()
-            .filter_map(|k| Some((covers(&k.key).into_iter().chain(covers(&k.value)).min()?, k)))
-            .min_by_key(|&(len, _)| len)
-            .map(|(_, k)| k.path.clone())
-    }
-
-    /// Line of a field's key, or of its nearest written parent table.
-    fn line_of(&self, field: &str, text: &str) -> Option<usize> {
-        let mut path = field;
-        loop {
-            if let Some(k) = self.keys.iter().find(|k| k.path == path) {
-                let at = k.key.as_ref().or(k.value.as_ref());
-                return at.map(|s| line_of(text, s.start));
-            }
-            path = &path[..path.rfind('.')?];
-        }
-    }
 }
 
 #[cfg(test)]

@@ -2,4 +2,5 @@
 //! trigger controller ([`trigger`]), which pulses the cameras' trigger lines and reports
 //! each frame's controller timestamp.
 
+pub mod file;
 pub mod trigger;

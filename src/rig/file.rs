@@ -1,0 +1,472 @@
+//! Rig files (DESIGN.md §13): one TOML file describes a rig — board, cameras, projectors,
+//! trigger controller, phase-shift sequence, timing and, for simulated devices, their
+//! ground truth and the board poses. Unknown keys and impossible values are errors that
+//! name the key and its line. The format is documented in `docs/rig-file.md`.
+
+use crate::camera::{Distortion, Intrinsics};
+use crate::tomlspan::{line_of, KeySpans};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::Path;
+
+/// Camera drivers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CameraDriver {
+    /// Rendered by the simulator.
+    Sim,
+    /// GenICam camera through Aravis.
+    Aravis,
+    /// Video4Linux2 device.
+    V4l2,
+}
+
+/// Projector drivers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ProjectorDriver {
+    /// Rendered by the simulator.
+    Sim,
+    /// A borderless full-screen window on a monitor.
+    Window,
+}
+
+/// A device's pose in the rig for simulated devices: the device at `eye` looking at
+/// `target` (rig frame, mm, y up).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LookAt {
+    /// Device centre (mm).
+    pub eye: [f64; 3],
+    /// A point on the optical axis (mm).
+    pub target: [f64; 3],
+}
+
+/// Ground truth of a simulated device.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimTruth {
+    /// Pinhole intrinsics (px).
+    pub intrinsics: Intrinsics,
+    /// Lens distortion.
+    #[serde(default)]
+    pub distortion: Distortion,
+    /// Where it is.
+    pub pose: LookAt,
+}
+
+/// One camera.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    /// Unique name.
+    pub name: String,
+    /// Driver.
+    pub driver: CameraDriver,
+    /// Device address: IP or serial (Aravis), `/dev/videoN` (V4L2); none for `sim`.
+    #[serde(default)]
+    pub address: Option<String>,
+    /// Image width (px).
+    pub width: u32,
+    /// Image height (px).
+    pub height: u32,
+    /// Bits per pixel stored: 8, 12 or 16.
+    #[serde(default = "default_bits")]
+    pub bits: u8,
+    /// Exposure time (ms).
+    pub exposure_ms: f64,
+    /// Analogue gain (dB).
+    #[serde(default)]
+    pub gain_db: f64,
+    /// Trigger-controller output line; none for software trigger.
+    #[serde(default)]
+    pub trigger_line: Option<u8>,
+    /// Ground truth (`sim` only).
+    #[serde(default)]
+    pub sim: Option<SimTruth>,
+}
+
+fn default_bits() -> u8 {
+    8
+}
+
+/// One projector.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProjectorSpec {
+    /// Unique name.
+    pub name: String,
+    /// Driver.
+    pub driver: ProjectorDriver,
+    /// Monitor (connector name, e.g. `HDMI-1`) for `window`.
+    #[serde(default)]
+    pub monitor: Option<String>,
+    /// Raster width (px).
+    pub width: u32,
+    /// Raster height (px).
+    pub height: u32,
+    /// Time from a frame's present to light on the board (ms).
+    #[serde(default)]
+    pub latency_ms: f64,
+    /// Projector gamma (1 when the rig linearises it).
+    #[serde(default = "default_gamma")]
+    pub gamma: f64,
+    /// Trigger-controller line it signals on, if any.
+    #[serde(default)]
+    pub trigger_line: Option<u8>,
+    /// Ground truth (`sim` only).
+    #[serde(default)]
+    pub sim: Option<SimTruth>,
+}
+
+fn default_gamma() -> f64 {
+    2.2
+}
+
+/// The serial trigger controller.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TriggerSpec {
+    /// Serial port, e.g. `/dev/ttyACM0`.
+    pub port: String,
+    /// Pulse width (µs).
+    #[serde(default = "default_pulse")]
+    pub pulse_us: u32,
+}
+
+fn default_pulse() -> u32 {
+    100
+}
+
+/// The phase-shift sequence (DESIGN.md §6).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SequenceSpec {
+    /// Fringe counts across the projector, for columns and rows.
+    #[serde(default = "default_counts")]
+    pub fringe_counts: Vec<u32>,
+    /// Phase steps N per fringe count; default 5P (uncorrected gamma) or 2P + 1 (gamma 1).
+    #[serde(default)]
+    pub steps: Option<u32>,
+}
+
+fn default_counts() -> Vec<u32> {
+    vec![20, 21, 25]
+}
+
+impl Default for SequenceSpec {
+    fn default() -> Self {
+        SequenceSpec {
+            fringe_counts: default_counts(),
+            steps: None,
+        }
+    }
+}
+
+/// Timing of the capture.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimingSpec {
+    /// Display time of one pattern (ms): the frame period.
+    pub frame_period_ms: f64,
+    /// Wait after a pattern is shown before the exposure starts (ms).
+    #[serde(default)]
+    pub settle_ms: f64,
+    /// Pause between board poses (s).
+    #[serde(default)]
+    pub pose_pause_s: f64,
+    /// Repeats of every frame (averaged).
+    #[serde(default = "default_repeats")]
+    pub repeats: u32,
+}
+
+fn default_repeats() -> u32 {
+    1
+}
+
+/// Board poses of a simulated rig: `count` poses turned about the vertical by up to ±`yaw`
+/// degrees, tilted and rolled by up to ±`tilt` degrees, moved by up to ±`shift` mm, seeded.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PosesSpec {
+    /// Number of poses.
+    pub count: usize,
+    /// Largest turn about the vertical (deg).
+    pub yaw_deg: f64,
+    /// Largest tilt and roll (deg).
+    pub tilt_deg: f64,
+    /// Largest shift (mm).
+    pub shift_mm: f64,
+    /// Seed.
+    #[serde(default)]
+    pub seed: u64,
+}
+
+/// A rig file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RigFile {
+    /// Rig name.
+    pub name: String,
+    /// Built-in board name or board-file path (relative to the rig file).
+    #[serde(default = "default_board")]
+    pub board: String,
+    /// Cameras.
+    #[serde(rename = "camera")]
+    pub cameras: Vec<CameraSpec>,
+    /// Projectors.
+    #[serde(rename = "projector", default)]
+    pub projectors: Vec<ProjectorSpec>,
+    /// Trigger controller; none for software triggering.
+    #[serde(default)]
+    pub trigger: Option<TriggerSpec>,
+    /// Phase-shift sequence.
+    #[serde(default)]
+    pub sequence: SequenceSpec,
+    /// Timing.
+    pub timing: TimingSpec,
+    /// Board poses of a simulated rig.
+    #[serde(default)]
+    pub poses: Option<PosesSpec>,
+}
+
+fn default_board() -> String {
+    "hex600".into()
+}
+
+/// Why a rig file was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum RigError {
+    /// Not readable.
+    #[error("cannot read {origin}: {source}")]
+    Io {
+        /// The file.
+        origin: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// Not valid TOML of the format, or an impossible value.
+    #[error("{origin}{}: {field}: {message}", line.map_or(String::new(), |l| format!(":{l}")))]
+    Invalid {
+        /// The file.
+        origin: String,
+        /// Line of the key (1-based), when known.
+        line: Option<usize>,
+        /// Dotted key, e.g. `camera[2].exposure_ms`.
+        field: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+impl RigError {
+    /// The key the error is about, if any.
+    pub fn field(&self) -> Option<&str> {
+        match self {
+            RigError::Invalid { field, .. } => Some(field),
+            RigError::Io { .. } => None,
+        }
+    }
+
+    /// The line the error is about, if known.
+    pub fn line(&self) -> Option<usize> {
+        match self {
+            RigError::Invalid { line, .. } => *line,
+            RigError::Io { .. } => None,
+        }
+    }
+}
+
+impl RigFile {
+    /// Read and check a rig file.
+    pub fn load(path: impl AsRef<Path>) -> Result<RigFile, RigError> {
+        let path = path.as_ref();
+        let origin = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| RigError::Io {
+            origin: origin.clone(),
+            source,
+        })?;
+        RigFile::parse(&text, &origin)
+    }
+
+    /// Parse and check rig-file text; errors name `origin`, the key and its line.
+    pub fn parse(text: &str, origin: &str) -> Result<RigFile, RigError> {
+        let mut keys = KeySpans::default();
+        let rig: Result<RigFile, toml_edit::de::Error> =
+            toml_edit::ImDocument::parse(text.to_owned())
+                .map_err(Into::into)
+                .and_then(|doc| {
+                    keys = KeySpans::of(doc.as_table());
+                    toml_edit::de::from_document(doc)
+                });
+        let rig = rig.map_err(|e| {
+            let span = e.span().filter(|s| Some(s) != keys.root.as_ref());
+            RigError::Invalid {
+                origin: origin.to_owned(),
+                line: span.as_ref().map(|s| line_of(text, s.start)),
+                field: span
+                    .and_then(|s| keys.field_at(&s))
+                    .unwrap_or_else(|| "(file)".into()),
+                message: e.message().trim().replace('\n', ", "),
+            }
+        })?;
+        rig.check().map_err(|(field, message)| RigError::Invalid {
+            origin: origin.to_owned(),
+            line: keys.line_of(&field, text),
+            field,
+            message,
+        })?;
+        Ok(rig)
+    }
+
+    /// The checks serde cannot make: (dotted key, message) of the first violation.
+    fn check(&self) -> Result<(), (String, String)> {
+        let t = &self.timing;
+        if t.frame_period_ms <= 0.0 {
+            return Err(("timing.frame_period_ms".into(), "must be positive".into()));
+        }
+        if t.settle_ms < 0.0 || t.settle_ms >= t.frame_period_ms {
+            return Err((
+                "timing.settle_ms".into(),
+                format!(
+                    "must lie in [0, frame_period_ms = {}) ms",
+                    t.frame_period_ms
+                ),
+            ));
+        }
+        if self.cameras.is_empty() {
+            return Err(("camera".into(), "a rig needs at least one camera".into()));
+        }
+        let mut names: HashMap<&str, String> = HashMap::new();
+        let mut lines: HashMap<u8, String> = HashMap::new();
+        let window = t.frame_period_ms - t.settle_ms;
+        for (i, c) in self.cameras.iter().enumerate() {
+            let at = |k: &str| format!("camera[{i}].{k}");
+            check_device(&mut names, &c.name, at("name"))?;
+            if c.width == 0 || c.height == 0 {
+                return Err((at("width"), "image size must be positive".into()));
+            }
+            if ![8, 12, 16].contains(&c.bits) {
+                return Err((at("bits"), format!("{} bits: use 8, 12 or 16", c.bits)));
+            }
+            if !(c.exposure_ms > 0.0 && c.exposure_ms <= window) {
+                return Err((
+                    at("exposure_ms"),
+                    format!(
+                        "{} ms does not fit in a pattern's display time after settling \
+                         ({} − {} = {window} ms)",
+                        c.exposure_ms, t.frame_period_ms, t.settle_ms
+                    ),
+                ));
+            }
+            check_driver(
+                c.driver == CameraDriver::Sim,
+                c.sim.is_some(),
+                &c.address,
+                &at,
+            )?;
+            if let Some(l) = c.trigger_line {
+                check_line(&mut lines, l, &c.name, at("trigger_line"))?;
+            }
+        }
+        for (i, p) in self.projectors.iter().enumerate() {
+            let at = |k: &str| format!("projector[{i}].{k}");
+            check_device(&mut names, &p.name, at("name"))?;
+            if p.width == 0 || p.height == 0 {
+                return Err((at("width"), "raster size must be positive".into()));
+            }
+            if !(p.gamma > 0.0 && p.gamma < 5.0) {
+                return Err((at("gamma"), format!("{} is not a projector gamma", p.gamma)));
+            }
+            if p.latency_ms < 0.0 || p.latency_ms >= t.frame_period_ms {
+                return Err((
+                    at("latency_ms"),
+                    format!(
+                        "must lie in [0, frame_period_ms = {}) ms",
+                        t.frame_period_ms
+                    ),
+                ));
+            }
+            match p.driver {
+                ProjectorDriver::Sim if p.sim.is_none() => {
+                    return Err((at("sim"), "a sim projector needs its ground truth".into()))
+                }
+                ProjectorDriver::Window if p.monitor.is_none() => {
+                    return Err((at("monitor"), "a window projector needs a monitor".into()))
+                }
+                ProjectorDriver::Window if p.sim.is_some() => {
+                    return Err((at("sim"), "only sim projectors have ground truth".into()))
+                }
+                _ => {}
+            }
+            if let Some(l) = p.trigger_line {
+                check_line(&mut lines, l, &p.name, at("trigger_line"))?;
+            }
+        }
+        if !lines.is_empty() && self.trigger.is_none() {
+            return Err((
+                "trigger".into(),
+                "trigger lines are given but no trigger controller".into(),
+            ));
+        }
+        if self.sequence.fringe_counts.len() < 2 {
+            return Err((
+                "sequence.fringe_counts".into(),
+                "temporal unwrapping needs at least two fringe counts".into(),
+            ));
+        }
+        let simulated = self.cameras.iter().any(|c| c.driver == CameraDriver::Sim);
+        if simulated && self.poses.is_none() {
+            return Err(("poses".into(), "a simulated rig needs board poses".into()));
+        }
+        if let Some(p) = &self.poses {
+            if p.count == 0 {
+                return Err(("poses.count".into(), "at least one pose".into()));
+            }
+        }
+        Ok(())
+    }
+}
+
+fn check_device<'a>(
+    names: &mut HashMap<&'a str, String>,
+    name: &'a str,
+    field: String,
+) -> Result<(), (String, String)> {
+    if name.is_empty() {
+        return Err((field, "a device needs a name".into()));
+    }
+    match names.insert(name, field.clone()) {
+        Some(first) => Err((field, format!("{name:?} is already the name of {first}"))),
+        None => Ok(()),
+    }
+}
+
+fn check_line(
+    lines: &mut HashMap<u8, String>,
+    line: u8,
+    device: &str,
+    field: String,
+) -> Result<(), (String, String)> {
+    match lines.insert(line, device.to_owned()) {
+        Some(other) => Err((field, format!("line {line} is already {other}'s"))),
+        None => Ok(()),
+    }
+}
+
+fn check_driver(
+    sim: bool,
+    has_truth: bool,
+    address: &Option<String>,
+    at: &dyn Fn(&str) -> String,
+) -> Result<(), (String, String)> {
+    match (sim, has_truth, address) {
+        (true, false, _) => Err((at("sim"), "a sim camera needs its ground truth".into())),
+        (false, true, _) => Err((at("sim"), "only sim cameras have ground truth".into())),
+        (false, _, None) => Err((at("address"), "a real camera needs an address".into())),
+        _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests;
