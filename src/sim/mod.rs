@@ -6,6 +6,7 @@
 //! both atomically as `NAME.png` and `NAME.json`.
 
 pub mod scene;
+pub mod stack;
 pub mod texture;
 pub mod truth;
 
