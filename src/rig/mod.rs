@@ -1,6 +1,12 @@
-//! The rig: drivers for the hardware a capture drives (DESIGN.md §11). So far the serial
-//! trigger controller ([`trigger`]), which pulses the cameras' trigger lines and reports
-//! each frame's controller timestamp.
+//! The rig (DESIGN.md §11, §13): rig files, the device traits every driver implements, and
+//! the drivers — the serial trigger controller ([`trigger`]), which pulses the cameras'
+//! trigger lines and reports each frame's controller timestamp, and the simulated rig.
 
+pub mod device;
 pub mod file;
 pub mod trigger;
+
+pub use device::{
+    Camera, CameraConfig, CameraFrame, DeviceError, Pixels, Projector, Slide, Trigger,
+    TriggerSource,
+};

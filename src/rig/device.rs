@@ -1,0 +1,230 @@
+//! Device traits (DESIGN.md §11): what the capture engine needs from a camera, a projector
+//! and a trigger. Every driver (Aravis, V4L2, window, serial controller) and the simulated
+//! rig implement them, so one capture loop drives them all.
+//!
+//! Errors name the device; the engine adds the pose and frame.
+
+use crate::phase::Sequence;
+use std::time::Duration;
+
+/// Pixels of one camera frame, row-major.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Pixels {
+    /// 8-bit samples.
+    Gray8(Vec<u8>),
+    /// 16-bit samples (10-, 12- or 16-bit sensors, right-aligned).
+    Gray16(Vec<u16>),
+}
+
+impl Pixels {
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        match self {
+            Pixels::Gray8(p) => p.len(),
+            Pixels::Gray16(p) => p.len(),
+        }
+    }
+
+    /// Whether there are no samples.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// One frame as a camera delivered it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraFrame {
+    /// Width (px).
+    pub width: u32,
+    /// Height (px).
+    pub height: u32,
+    /// Significant bits per sample (8, 10, 12 or 16).
+    pub bits: u8,
+    /// The samples (width × height of them).
+    pub pixels: Pixels,
+    /// The camera's own frame counter: one more for every frame it exposed, so a gap means
+    /// a dropped frame.
+    pub counter: u64,
+    /// Timestamp of the exposure (ns, the camera's clock).
+    pub timestamp_ns: u64,
+    /// Exposure time actually used (µs).
+    pub exposure_us: f64,
+}
+
+/// Where a camera's exposures start.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TriggerSource {
+    /// One software trigger per frame ([`Camera::trigger`]).
+    Software,
+    /// A pulse on the camera's trigger input (from the trigger controller).
+    Line,
+}
+
+/// Settings a capture applies to a camera before it starts.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraConfig {
+    /// Width (px).
+    pub width: u32,
+    /// Height (px).
+    pub height: u32,
+    /// Bits per sample (8 for Mono8, more for Mono16-packed formats).
+    pub bits: u8,
+    /// Exposure time (µs).
+    pub exposure_us: f64,
+    /// Analogue gain (dB).
+    pub gain_db: f64,
+    /// Where exposures start.
+    pub trigger: TriggerSource,
+}
+
+/// A camera.
+pub trait Camera: Send {
+    /// The device's name (the rig file's).
+    fn name(&self) -> &str;
+    /// Apply `config`; refused (naming the setting) when the device cannot do it.
+    fn configure(&mut self, config: &CameraConfig) -> Result<(), DeviceError>;
+    /// Start acquisition: from now on every trigger gives one frame.
+    fn start(&mut self) -> Result<(), DeviceError>;
+    /// Expose one frame now (software trigger).
+    fn trigger(&mut self) -> Result<(), DeviceError>;
+    /// The next frame, waiting at most `timeout`.
+    fn next_frame(&mut self, timeout: Duration) -> Result<CameraFrame, DeviceError>;
+    /// Stop acquisition.
+    fn stop(&mut self) -> Result<(), DeviceError>;
+}
+
+/// What a projector shows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Slide {
+    /// All black.
+    Black,
+    /// All white.
+    White,
+    /// Frame k of the prepared sequence.
+    Pattern(usize),
+}
+
+/// A projector.
+pub trait Projector: Send {
+    /// The device's name (the rig file's).
+    fn name(&self) -> &str;
+    /// Raster size (width, height) in px.
+    fn resolution(&self) -> (u32, u32);
+    /// Get ready to show `sequence`'s frames as its projector `code` (index into
+    /// [`Sequence::projectors`]).
+    fn prepare(&mut self, sequence: &Sequence, code: usize) -> Result<(), DeviceError>;
+    /// Show `slide` and return once it is on screen.
+    fn show(&mut self, slide: Slide) -> Result<(), DeviceError>;
+}
+
+/// A hardware trigger: one pulse on every camera line per frame.
+pub trait Trigger: Send {
+    /// The device's name (its port).
+    fn name(&self) -> &str;
+    /// Arm a sequence of `frames` frames fired one by one.
+    fn arm(&mut self, frames: u32) -> Result<(), DeviceError>;
+    /// Fire the next frame; gives the controller's frame index.
+    fn fire(&mut self) -> Result<u32, DeviceError>;
+    /// Abort the armed sequence.
+    fn disarm(&mut self) -> Result<(), DeviceError>;
+}
+
+/// Why a device failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    /// No frame arrived in time.
+    #[error("{device}: no frame within {timeout:?}")]
+    Timeout {
+        /// Device name.
+        device: String,
+        /// How long it waited.
+        timeout: Duration,
+    },
+    /// A frame arrived incomplete (lost packets, wrong size): worth a retry.
+    #[error("{device}: incomplete frame: {reason}")]
+    Incomplete {
+        /// Device name.
+        device: String,
+        /// What was wrong.
+        reason: String,
+    },
+    /// The device cannot do what was asked.
+    #[error("{device}: {setting}: {reason}")]
+    Unsupported {
+        /// Device name.
+        device: String,
+        /// The setting (a rig-file key or a feature name).
+        setting: String,
+        /// Why not.
+        reason: String,
+    },
+    /// The device went away (unplugged, window closed, port gone).
+    #[error("{device}: device lost: {reason}")]
+    Gone {
+        /// Device name.
+        device: String,
+        /// What happened.
+        reason: String,
+    },
+    /// Any other driver failure.
+    #[error("{device}: {reason}")]
+    Failed {
+        /// Device name.
+        device: String,
+        /// What happened.
+        reason: String,
+    },
+}
+
+impl DeviceError {
+    /// Whether triggering the frame again may help (a timeout or an incomplete frame).
+    pub fn retryable(&self) -> bool {
+        matches!(
+            self,
+            DeviceError::Timeout { .. } | DeviceError::Incomplete { .. }
+        )
+    }
+
+    /// The device named.
+    pub fn device(&self) -> &str {
+        match self {
+            DeviceError::Timeout { device, .. }
+            | DeviceError::Incomplete { device, .. }
+            | DeviceError::Unsupported { device, .. }
+            | DeviceError::Gone { device, .. }
+            | DeviceError::Failed { device, .. } => device,
+        }
+    }
+}
+
+impl Trigger for super::trigger::TriggerController {
+    fn name(&self) -> &str {
+        self.port_name()
+    }
+
+    fn arm(&mut self, frames: u32) -> Result<(), DeviceError> {
+        super::trigger::TriggerController::arm(
+            self,
+            frames,
+            hexcal_firmware_protocol::Pacing::PerFire,
+        )
+        .map_err(|e| self.device_error(e))
+    }
+
+    fn fire(&mut self) -> Result<u32, DeviceError> {
+        super::trigger::TriggerController::fire(self).map_err(|e| self.device_error(e))
+    }
+
+    fn disarm(&mut self) -> Result<(), DeviceError> {
+        super::trigger::TriggerController::disarm(self).map_err(|e| self.device_error(e))
+    }
+}
+
+impl super::trigger::TriggerController {
+    fn device_error(&self, e: super::trigger::TriggerError) -> DeviceError {
+        DeviceError::Failed {
+            device: self.port_name().to_string(),
+            reason: e.to_string(),
+        }
+    }
+}
