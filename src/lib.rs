@@ -11,6 +11,7 @@ pub mod atomic;
 pub mod board;
 pub mod calib;
 pub mod camera;
+pub mod capture;
 pub mod correspond;
 pub mod detect;
 pub mod detection;

@@ -5,6 +5,8 @@ use clap::{Parser, Subcommand};
 use hexcal::board::{Board, Side};
 use std::path::{Path, PathBuf};
 
+mod cli;
+
 /// Calibrate a structured-light rig of many cameras and projectors.
 #[derive(Parser)]
 #[command(version, about)]
@@ -82,6 +84,33 @@ enum Command {
         /// Images: 8- or 16-bit, grey or colour PNG, JPEG or TIFF.
         #[arg(required = true)]
         images: Vec<PathBuf>,
+    },
+    /// Drive a rig (rig file, docs/rig-file.md) through the phase-shift sequence for each
+    /// board pose and write the stacks to a dataset folder (docs/dataset.md); resumes an
+    /// interrupted capture.
+    Capture {
+        /// The rig file.
+        #[arg(long)]
+        rig: PathBuf,
+        /// The dataset folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Board poses (default: the rig file's [poses] count).
+        #[arg(long)]
+        poses: Option<usize>,
+        /// Do not wait for Enter between poses of a real rig.
+        #[arg(long)]
+        auto: bool,
+    },
+    /// Decode one camera's stack folder (a dataset's pose-KKK/CAMERA): per projector the
+    /// (u, v) maps (32-bit float TIFF), validity, lit and projector-view images, the ambient
+    /// image and summary.json.
+    Decode {
+        /// The stack folder (frames and stack.json).
+        stack: PathBuf,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
     },
     /// Speed benchmarks that print figures.
     Bench {
@@ -375,6 +404,13 @@ fn detect_command(
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
+        Command::Capture {
+            rig,
+            out,
+            poses,
+            auto,
+        } => cli::capture(&rig, &out, poses, auto)?,
+        Command::Decode { stack, out } => cli::decode(&stack, &out)?,
         Command::Info => {
             let b = hexcal::board::Board::hex600();
             println!("{}: {} circles per side", b.name, b.lattice().len());

@@ -5,6 +5,7 @@
 //! Takes the [`Sequence`] and the camera frames in order; gives a [`DecodedStack`] per camera.
 
 mod decode;
+pub mod files;
 mod sequence;
 pub mod synthetic;
 mod unwrap;

@@ -4,6 +4,7 @@
 
 pub mod device;
 pub mod file;
+pub mod sim;
 pub mod trigger;
 
 pub use device::{

@@ -1,0 +1,468 @@
+//! Captured board poses on disk (format: `docs/dataset.md`).
+//!
+//! Takes [`StackFrame`]s as the engine delivers them; gives a dataset folder with, per pose
+//! and camera, the stack's frames as PNG (8 or 16 bit) and a `stack.json` describing them
+//! and the sequence, and reads such stacks back. Every file is written atomically (temporary
+//! file + rename); a pose is complete when its `pose.json` exists, so an interrupted capture
+//! keeps every finished pose and resumes at the first incomplete one.
+
+use super::{StackFrame, Timeline};
+use crate::phase::Sequence;
+use crate::rig::{CameraFrame, Pixels};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The format name in `dataset.json`.
+pub const FORMAT: &str = "hexcal-dataset";
+/// The format version this build writes and reads.
+pub const VERSION: u32 = 1;
+
+/// A dataset problem, naming the file.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    /// Reading or writing a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        source: std::io::Error,
+    },
+    /// A file's content is wrong.
+    #[error("{path}: {reason}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A frame of a stack is missing, unreadable or does not match the others.
+    #[error("camera {camera}, frame {frame} ({path}): {reason}")]
+    Frame {
+        /// Camera name.
+        camera: String,
+        /// Frame index.
+        frame: usize,
+        /// The frame's file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
+    move |source| DatasetError::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// A camera of the dataset.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraEntry {
+    /// Name.
+    pub name: String,
+    /// Width (px).
+    pub width: u32,
+    /// Height (px).
+    pub height: u32,
+    /// Bits per sample.
+    pub bits: u8,
+}
+
+/// A projector of the dataset.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProjectorEntry {
+    /// Name.
+    pub name: String,
+    /// Width (px).
+    pub width: u32,
+    /// Height (px).
+    pub height: u32,
+}
+
+/// `dataset.json`: what was captured, with what.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetInfo {
+    /// Always [`FORMAT`].
+    pub format: String,
+    /// Format version.
+    pub version: u32,
+    /// Rig name.
+    pub rig: String,
+    /// Board: built-in name or the board file's path relative to the dataset.
+    pub board: String,
+    /// The sequence every projector showed (projector i shows code i).
+    pub sequence: Sequence,
+    /// Cameras, in capture order.
+    pub cameras: Vec<CameraEntry>,
+    /// Projectors, in sequence order.
+    pub projectors: Vec<ProjectorEntry>,
+}
+
+/// One frame of a stack on disk.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FrameEntry {
+    /// Index k in the sequence.
+    pub index: usize,
+    /// File name, relative to the stack folder.
+    pub file: String,
+    /// The camera's frame counter.
+    pub counter: u64,
+    /// Exposure timestamp (ns, camera clock).
+    pub timestamp_ns: u64,
+    /// Exposure time (µs).
+    pub exposure_us: f64,
+}
+
+/// `stack.json`: one camera's stack of one pose (self-contained: `hexcal decode` reads it).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StackInfo {
+    /// Camera name.
+    pub camera: String,
+    /// Width (px).
+    pub width: u32,
+    /// Height (px).
+    pub height: u32,
+    /// Bits per sample (full scale 2^bits − 1).
+    pub bits: u8,
+    /// The sequence shown.
+    pub sequence: Sequence,
+    /// The frames, in sequence order.
+    pub frames: Vec<FrameEntry>,
+}
+
+/// `pose.json`: a completed pose and its capture timeline.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseInfo {
+    /// Pose index.
+    pub pose: usize,
+    /// Cameras with a stack in the pose folder.
+    pub cameras: Vec<String>,
+    /// Capture time (s).
+    pub seconds: f64,
+    /// Frames lost and retaken.
+    pub dropped: u64,
+    /// Per frame: presented, triggered, collected (ms from the pose's start) and retries.
+    pub timeline: Vec<[f64; 4]>,
+}
+
+/// A dataset folder.
+#[derive(Clone, Debug)]
+pub struct Dataset {
+    root: PathBuf,
+    /// Its description.
+    pub info: DatasetInfo,
+}
+
+fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), DatasetError> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| DatasetError::Invalid {
+        path: path.to_owned(),
+        reason: e.to_string(),
+    })?;
+    crate::atomic::write(path, format!("{text}\n").as_bytes()).map_err(io(path))
+}
+
+fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, DatasetError> {
+    let text = std::fs::read_to_string(path).map_err(io(path))?;
+    serde_json::from_str(&text).map_err(|e| DatasetError::Invalid {
+        path: path.to_owned(),
+        reason: e.to_string(),
+    })
+}
+
+impl Dataset {
+    /// Create the dataset at `root`, or resume the one there when it describes the same
+    /// capture (same cameras, projectors and sequence); anything else is refused.
+    pub fn create_or_resume(root: &Path, info: DatasetInfo) -> Result<Dataset, DatasetError> {
+        let path = root.join("dataset.json");
+        if path.exists() {
+            let found = Dataset::open(root)?;
+            if (
+                &found.info.cameras,
+                &found.info.projectors,
+                &found.info.sequence,
+            ) != (&info.cameras, &info.projectors, &info.sequence)
+            {
+                return Err(DatasetError::Invalid {
+                    path,
+                    reason: "a different capture (cameras, projectors or sequence) is already \
+                             here; choose another folder"
+                        .into(),
+                });
+            }
+            return Ok(found);
+        }
+        std::fs::create_dir_all(root).map_err(io(root))?;
+        write_json(&path, &info)?;
+        Ok(Dataset {
+            root: root.to_owned(),
+            info,
+        })
+    }
+
+    /// Open the dataset at `root`.
+    pub fn open(root: &Path) -> Result<Dataset, DatasetError> {
+        let path = root.join("dataset.json");
+        let info: DatasetInfo = read_json(&path)?;
+        if info.format != FORMAT || info.version != VERSION {
+            return Err(DatasetError::Invalid {
+                path,
+                reason: format!(
+                    "format {} version {}; this build reads {FORMAT} version {VERSION}",
+                    info.format, info.version
+                ),
+            });
+        }
+        Ok(Dataset {
+            root: root.to_owned(),
+            info,
+        })
+    }
+
+    /// The dataset folder.
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// Folder of pose `pose`.
+    pub fn pose_dir(&self, pose: usize) -> PathBuf {
+        self.root.join(format!("pose-{pose:03}"))
+    }
+
+    /// Stack folder of camera `camera` at pose `pose`.
+    pub fn stack_dir(&self, pose: usize, camera: &str) -> PathBuf {
+        self.pose_dir(pose).join(camera)
+    }
+
+    /// The completed pose `pose`, if it is.
+    pub fn pose(&self, pose: usize) -> Result<Option<PoseInfo>, DatasetError> {
+        let path = self.pose_dir(pose).join("pose.json");
+        if !path.exists() {
+            return Ok(None);
+        }
+        read_json(&path).map(Some)
+    }
+
+    /// Indices of the completed poses, ascending.
+    pub fn completed(&self) -> Result<Vec<usize>, DatasetError> {
+        let mut poses = Vec::new();
+        for entry in std::fs::read_dir(&self.root).map_err(io(&self.root))? {
+            let entry = entry.map_err(io(&self.root))?;
+            let name = entry.file_name().to_string_lossy().into_owned();
+            if let Some(k) = name.strip_prefix("pose-").and_then(|k| k.parse().ok()) {
+                if entry.path().join("pose.json").exists() {
+                    poses.push(k);
+                }
+            }
+        }
+        poses.sort_unstable();
+        Ok(poses)
+    }
+
+    /// A writer of pose `pose` (its folder is created; frames of an earlier, interrupted
+    /// attempt are overwritten).
+    pub fn pose_writer(&self, pose: usize) -> Result<PoseWriter, DatasetError> {
+        let dir = self.pose_dir(pose);
+        let stacks = self
+            .info
+            .cameras
+            .iter()
+            .map(|c| {
+                let d = dir.join(&c.name);
+                std::fs::create_dir_all(&d).map_err(io(&d))?;
+                Ok(StackInfo {
+                    camera: c.name.clone(),
+                    width: c.width,
+                    height: c.height,
+                    bits: c.bits,
+                    sequence: self.info.sequence.clone(),
+                    frames: Vec::new(),
+                })
+            })
+            .collect::<Result<Vec<_>, DatasetError>>()?;
+        Ok(PoseWriter { pose, dir, stacks })
+    }
+}
+
+/// Writes one pose's stacks frame by frame.
+#[derive(Debug)]
+pub struct PoseWriter {
+    pose: usize,
+    dir: PathBuf,
+    stacks: Vec<StackInfo>,
+}
+
+impl PoseWriter {
+    /// Write one frame atomically as `CAMERA/frame-KKK.png`.
+    pub fn write(&mut self, f: &StackFrame) -> Result<(), DatasetError> {
+        let stack = self
+            .stacks
+            .get_mut(f.camera)
+            .ok_or_else(|| DatasetError::Invalid {
+                path: self.dir.clone(),
+                reason: format!("no camera {} in the dataset", f.camera),
+            })?;
+        let file = format!("frame-{:03}.png", f.index);
+        let path = self.dir.join(&stack.camera).join(&file);
+        let frame_error = |reason: String| DatasetError::Frame {
+            camera: stack.camera.clone(),
+            frame: f.index,
+            path: path.clone(),
+            reason,
+        };
+        let fr = &f.frame;
+        if (fr.width, fr.height) != (stack.width, stack.height) {
+            return Err(frame_error(format!(
+                "{}×{} frame in a {}×{} stack",
+                fr.width, fr.height, stack.width, stack.height
+            )));
+        }
+        crate::atomic::write_with(
+            &path,
+            |tmp| encode_png(tmp, fr).map_err(|e| frame_error(e.to_string())),
+            |e| frame_error(e.to_string()),
+        )?;
+        stack.frames.push(FrameEntry {
+            index: f.index,
+            file,
+            counter: fr.counter,
+            timestamp_ns: fr.timestamp_ns,
+            exposure_us: fr.exposure_us,
+        });
+        Ok(())
+    }
+
+    /// Write every camera's `stack.json`, then `pose.json` (the pose is complete).
+    pub fn finish(self, timeline: &Timeline) -> Result<PoseInfo, DatasetError> {
+        for s in &self.stacks {
+            write_json(&self.dir.join(&s.camera).join("stack.json"), s)?;
+        }
+        let ms = |d: std::time::Duration| 1e3 * d.as_secs_f64();
+        let info = PoseInfo {
+            pose: self.pose,
+            cameras: self.stacks.iter().map(|s| s.camera.clone()).collect(),
+            seconds: timeline.total.as_secs_f64(),
+            dropped: timeline.dropped,
+            timeline: timeline
+                .frames
+                .iter()
+                .map(|t| {
+                    [
+                        ms(t.shown),
+                        ms(t.triggered),
+                        ms(t.collected),
+                        f64::from(t.retries),
+                    ]
+                })
+                .collect(),
+        };
+        write_json(&self.dir.join("pose.json"), &info)?;
+        Ok(info)
+    }
+}
+
+fn encode_png(path: &Path, f: &CameraFrame) -> image::ImageResult<()> {
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    use image::{ExtendedColorType, ImageEncoder};
+    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+    let enc = PngEncoder::new_with_quality(file, CompressionType::Fast, FilterType::Sub);
+    match &f.pixels {
+        Pixels::Gray8(p) => enc.write_image(p, f.width, f.height, ExtendedColorType::L8),
+        Pixels::Gray16(p) => {
+            let bytes: Vec<u8> = p.iter().flat_map(|v| v.to_be_bytes()).collect();
+            enc.write_image(&bytes, f.width, f.height, ExtendedColorType::L16)
+        }
+    }
+}
+
+/// A stack folder opened for reading (`stack.json` checked against its sequence).
+#[derive(Clone, Debug)]
+pub struct StackReader {
+    dir: PathBuf,
+    /// Its description.
+    pub info: StackInfo,
+}
+
+impl StackReader {
+    /// Open the stack in `dir`; a frame list that does not cover the sequence in order is
+    /// an error naming the camera and the first missing frame.
+    pub fn open(dir: &Path) -> Result<StackReader, DatasetError> {
+        let info: StackInfo = read_json(&dir.join("stack.json"))?;
+        let n = info.sequence.frame_count();
+        for k in 0..n {
+            match info.frames.get(k) {
+                Some(f) if f.index == k => {}
+                _ => {
+                    return Err(DatasetError::Frame {
+                        camera: info.camera.clone(),
+                        frame: k,
+                        path: dir.join(format!("frame-{k:03}.png")),
+                        reason: format!(
+                            "missing from stack.json ({} frames listed, the sequence has {n})",
+                            info.frames.len()
+                        ),
+                    })
+                }
+            }
+        }
+        if info.frames.len() > n {
+            return Err(DatasetError::Invalid {
+                path: dir.join("stack.json"),
+                reason: format!("{} frames for a sequence of {n}", info.frames.len()),
+            });
+        }
+        Ok(StackReader {
+            dir: dir.to_owned(),
+            info,
+        })
+    }
+
+    /// Frame k as 16-bit samples (8-bit files widen); any size or depth other than the
+    /// stack's, or an unreadable file, is an error naming the camera and frame.
+    pub fn frame(&self, k: usize) -> Result<Vec<u16>, DatasetError> {
+        let entry = &self.info.frames[k];
+        let path = self.dir.join(&entry.file);
+        let err = |reason: String| DatasetError::Frame {
+            camera: self.info.camera.clone(),
+            frame: k,
+            path: path.clone(),
+            reason,
+        };
+        let img = image::ImageReader::open(&path)
+            .map_err(|e| err(e.to_string()))?
+            .decode()
+            .map_err(|e| err(e.to_string()))?;
+        if (img.width(), img.height()) != (self.info.width, self.info.height) {
+            return Err(err(format!(
+                "{}×{} in a {}×{} stack",
+                img.width(),
+                img.height(),
+                self.info.width,
+                self.info.height
+            )));
+        }
+        match img {
+            image::DynamicImage::ImageLuma8(i) if self.info.bits <= 8 => {
+                Ok(i.into_raw().into_iter().map(u16::from).collect())
+            }
+            image::DynamicImage::ImageLuma16(i) if self.info.bits > 8 => Ok(i.into_raw()),
+            other => Err(err(format!(
+                "{:?} pixels in a {}-bit grey stack",
+                other.color(),
+                self.info.bits
+            ))),
+        }
+    }
+
+    /// Full scale of the samples (2^bits − 1).
+    pub fn full_scale(&self) -> f32 {
+        ((1u32 << self.info.bits) - 1) as f32
+    }
+}

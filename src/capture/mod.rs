@@ -1,0 +1,692 @@
+//! Lockstep capture (DESIGN.md §11): drive every projector and camera of a rig through the
+//! phase-shift sequence, one board pose at a time.
+//!
+//! Takes boxed [`Camera`]s, [`Projector`]s and an optional hardware [`Trigger`]; gives, per
+//! pose, every camera's frame k of the sequence in order to a caller's sink, and the pose's
+//! measured [`Timeline`]. Per frame k: every projector shows pattern k, the engine waits for
+//! the projectors' latency and the settle time, triggers (the controller's pulse, or one
+//! software trigger per camera), and collects frame k from every camera over one crossbeam
+//! channel per camera (each camera runs in its own thread). A frame that times out or
+//! arrives incomplete is triggered again, a bounded number of times; stale frames (a
+//! counter not newer than the last accepted) are dropped; any failure names the device,
+//! the pose and the frame. Repeats of a frame are averaged.
+//!
+//! [`dataset`] stores captured poses on disk.
+
+pub mod dataset;
+pub mod open;
+
+use crate::phase::Sequence;
+use crate::rig::{
+    Camera, CameraConfig, CameraFrame, DeviceError, Pixels, Projector, Slide, Trigger,
+    TriggerSource,
+};
+use crossbeam_channel::{bounded, Receiver, Sender};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Timing of a capture.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CaptureTiming {
+    /// Wait after the slowest projector presented a pattern, before triggering.
+    pub settle: Duration,
+    /// Each projector's latency from presented to light on the board.
+    pub latency: Vec<Duration>,
+    /// How long to wait for a camera's frame.
+    pub frame_timeout: Duration,
+    /// Extra triggers of a frame that timed out or arrived incomplete.
+    pub retries: u32,
+    /// Frames taken and averaged per pattern.
+    pub repeats: u32,
+}
+
+/// Why a capture failed.
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureError {
+    /// A device failed while starting or stopping.
+    #[error("{0}")]
+    Device(#[from] DeviceError),
+    /// A frame could not be captured.
+    #[error("pose {pose}, frame {frame}: {source}")]
+    Frame {
+        /// Board pose index.
+        pose: usize,
+        /// Frame index k in the sequence.
+        frame: usize,
+        /// What the device said.
+        source: DeviceError,
+    },
+    /// A camera's thread ended (it panicked or its channel closed).
+    #[error("camera {camera}: its capture thread ended")]
+    ThreadEnded {
+        /// Camera name.
+        camera: String,
+    },
+    /// The caller's sink refused a frame (e.g. a full disk).
+    #[error("pose {pose}, frame {frame}, camera {camera}: {reason}")]
+    Sink {
+        /// Board pose index.
+        pose: usize,
+        /// Frame index k.
+        frame: usize,
+        /// Camera name.
+        camera: String,
+        /// What went wrong.
+        reason: String,
+    },
+    /// The rig cannot run this capture.
+    #[error("{0}")]
+    Setup(String),
+}
+
+/// One camera's frame k of a pose.
+#[derive(Clone, Debug)]
+pub struct StackFrame {
+    /// Camera index.
+    pub camera: usize,
+    /// Frame index k in the sequence.
+    pub index: usize,
+    /// The frame (averaged over the repeats).
+    pub frame: CameraFrame,
+}
+
+/// When frame k's steps happened, from the start of the pose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameTiming {
+    /// Frame index k.
+    pub index: usize,
+    /// Every projector presented pattern k.
+    pub shown: Duration,
+    /// The (first) trigger.
+    pub triggered: Duration,
+    /// Every camera's frame k was in.
+    pub collected: Duration,
+    /// Triggers repeated for this frame.
+    pub retries: u32,
+}
+
+/// The measured timeline of one pose.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Timeline {
+    /// Per frame, in order.
+    pub frames: Vec<FrameTiming>,
+    /// Whole pose.
+    pub total: Duration,
+    /// Frames lost on the way (counter gaps).
+    pub dropped: u64,
+}
+
+impl Timeline {
+    /// Frames per second through the engine (sequence frames × cameras / total time).
+    pub fn frames_per_second(&self, cameras: usize) -> f64 {
+        (self.frames.len() * cameras) as f64 / self.total.as_secs_f64().max(1e-9)
+    }
+
+    /// A one-line summary.
+    pub fn summary(&self, cameras: usize) -> String {
+        let n = self.frames.len().max(1) as f64;
+        let mean = |f: fn(&FrameTiming, Duration) -> Duration| {
+            let mut prev = Duration::ZERO;
+            let mut sum = 0.0;
+            for t in &self.frames {
+                sum += f(t, prev).as_secs_f64();
+                prev = t.collected;
+            }
+            1e3 * sum / n
+        };
+        let show = mean(|t, prev| t.shown.saturating_sub(prev));
+        let expose = mean(|t, _| t.collected.saturating_sub(t.triggered));
+        let retries: u32 = self.frames.iter().map(|t| t.retries).sum();
+        format!(
+            "{} frames × {cameras} cameras in {:.2} s ({:.1} frames/s): show {show:.1} ms, \
+             trigger → all frames {expose:.1} ms per frame; {retries} retries, {} dropped",
+            self.frames.len(),
+            self.total.as_secs_f64(),
+            self.frames_per_second(cameras),
+            self.dropped
+        )
+    }
+}
+
+enum Command {
+    /// Discard frames already delivered (late ones of an earlier retry).
+    Drain,
+    /// Take a frame: trigger it first when software-triggered.
+    Take {
+        software: bool,
+    },
+    Stop,
+}
+
+enum Reply {
+    Drained,
+    Frame(Result<CameraFrame, DeviceError>),
+}
+
+struct Worker {
+    name: String,
+    commands: Sender<Command>,
+    frames: Receiver<Reply>,
+    thread: Option<JoinHandle<Result<(), DeviceError>>>,
+    last_counter: Option<u64>,
+}
+
+/// A running capture: cameras started in their threads, projectors prepared.
+pub struct Session {
+    workers: Vec<Worker>,
+    projectors: Vec<Box<dyn Projector>>,
+    trigger: Option<Box<dyn Trigger>>,
+    sequence: Sequence,
+    timing: CaptureTiming,
+}
+
+impl Session {
+    /// Configure and start `cameras` (one config each), prepare `projectors` for
+    /// `sequence` (projector i shows code i), arm nothing yet.
+    pub fn start(
+        cameras: Vec<Box<dyn Camera>>,
+        configs: &[CameraConfig],
+        projectors: Vec<Box<dyn Projector>>,
+        trigger: Option<Box<dyn Trigger>>,
+        sequence: &Sequence,
+        timing: CaptureTiming,
+    ) -> Result<Session, CaptureError> {
+        if configs.len() != cameras.len() || projectors.len() != sequence.projectors().len() {
+            return Err(CaptureError::Setup(format!(
+                "{} cameras with {} settings, {} projectors for a sequence of {}",
+                cameras.len(),
+                configs.len(),
+                projectors.len(),
+                sequence.projectors().len()
+            )));
+        }
+        if timing.latency.len() != projectors.len() || timing.repeats == 0 {
+            return Err(CaptureError::Setup(
+                "a latency per projector and at least one repeat are needed".into(),
+            ));
+        }
+        let mut projectors = projectors;
+        for (code, p) in projectors.iter_mut().enumerate() {
+            p.prepare(sequence, code)?;
+        }
+        let hardware = trigger.is_some();
+        let mut workers = Vec::with_capacity(cameras.len());
+        for (mut cam, config) in cameras.into_iter().zip(configs) {
+            let config = CameraConfig {
+                trigger: if hardware {
+                    TriggerSource::Line
+                } else {
+                    TriggerSource::Software
+                },
+                ..*config
+            };
+            cam.configure(&config)?;
+            cam.start()?;
+            let name = cam.name().to_string();
+            let (cmd_tx, cmd_rx) = bounded::<Command>(4);
+            let (frame_tx, frame_rx) = bounded(4);
+            let timeout = timing.frame_timeout;
+            let thread = std::thread::Builder::new()
+                .name(format!("camera {name}"))
+                .spawn(move || camera_loop(cam, cmd_rx, frame_tx, timeout))
+                .map_err(|e| CaptureError::Setup(format!("camera {name}: no thread: {e}")))?;
+            workers.push(Worker {
+                name,
+                commands: cmd_tx,
+                frames: frame_rx,
+                thread: Some(thread),
+                last_counter: None,
+            });
+        }
+        Ok(Session {
+            workers,
+            projectors,
+            trigger,
+            sequence: sequence.clone(),
+            timing,
+        })
+    }
+
+    /// Camera names, in order.
+    pub fn camera_names(&self) -> Vec<String> {
+        self.workers.iter().map(|w| w.name.clone()).collect()
+    }
+
+    /// The sequence shown.
+    pub fn sequence(&self) -> &Sequence {
+        &self.sequence
+    }
+
+    /// Capture pose `pose`: every frame of the sequence from every camera, each handed to
+    /// `sink` as soon as all cameras delivered it (frame by frame, in order).
+    pub fn capture_pose(
+        &mut self,
+        pose: usize,
+        sink: &mut dyn FnMut(StackFrame) -> Result<(), String>,
+    ) -> Result<Timeline, CaptureError> {
+        let start = Instant::now();
+        let frames = self.sequence.frame_count();
+        let repeats = self.timing.repeats;
+        if let Some(t) = self.trigger.as_mut() {
+            t.arm(frames as u32 * repeats)
+                .map_err(|source| CaptureError::Frame {
+                    pose,
+                    frame: 0,
+                    source,
+                })?;
+        }
+        let mut timeline = Timeline::default();
+        for k in 0..frames {
+            let err = |source| CaptureError::Frame {
+                pose,
+                frame: k,
+                source,
+            };
+            for p in &mut self.projectors {
+                p.show(Slide::Pattern(k)).map_err(err)?;
+            }
+            let shown = start.elapsed();
+            let wait = self
+                .timing
+                .latency
+                .iter()
+                .max()
+                .copied()
+                .unwrap_or_default()
+                + self.timing.settle;
+            std::thread::sleep(wait);
+            self.drain()?;
+            let triggered = start.elapsed();
+            let mut sums: Vec<Option<Accumulator>> = vec![None; self.workers.len()];
+            let mut retries = 0;
+            for _ in 0..repeats {
+                let (got, r, dropped) = self.take_all(pose, k)?;
+                retries += r;
+                timeline.dropped += dropped;
+                for (i, (s, f)) in sums.iter_mut().zip(got).enumerate() {
+                    match s {
+                        None => *s = Some(Accumulator::new(f)),
+                        Some(a) => a.add(&f).map_err(|reason| CaptureError::Frame {
+                            pose,
+                            frame: k,
+                            source: DeviceError::Incomplete {
+                                device: self.workers[i].name.clone(),
+                                reason,
+                            },
+                        })?,
+                    }
+                }
+            }
+            for (camera, acc) in sums.into_iter().enumerate() {
+                let frame = acc.expect("at least one repeat").finish();
+                sink(StackFrame {
+                    camera,
+                    index: k,
+                    frame,
+                })
+                .map_err(|reason| CaptureError::Sink {
+                    pose,
+                    frame: k,
+                    camera: self.workers[camera].name.clone(),
+                    reason,
+                })?;
+            }
+            timeline.frames.push(FrameTiming {
+                index: k,
+                shown,
+                triggered,
+                collected: start.elapsed(),
+                retries,
+            });
+        }
+        for p in &mut self.projectors {
+            p.show(Slide::Black).map_err(|source| CaptureError::Frame {
+                pose,
+                frame: frames,
+                source,
+            })?;
+        }
+        if let Some(t) = self.trigger.as_mut() {
+            t.disarm().map_err(|source| CaptureError::Frame {
+                pose,
+                frame: frames,
+                source,
+            })?;
+        }
+        timeline.total = start.elapsed();
+        Ok(timeline)
+    }
+
+    /// Discard late frames in every camera (acknowledged, so none is pending after).
+    fn drain(&mut self) -> Result<(), CaptureError> {
+        for w in &self.workers {
+            let ended = || CaptureError::ThreadEnded {
+                camera: w.name.clone(),
+            };
+            w.commands.send(Command::Drain).map_err(|_| ended())?;
+        }
+        for w in &self.workers {
+            match w.frames.recv() {
+                Ok(Reply::Drained) => {}
+                _ => {
+                    return Err(CaptureError::ThreadEnded {
+                        camera: w.name.clone(),
+                    })
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// One frame from every camera, retrying failed ones; gives the frames, the retries
+    /// and the frames lost on the way.
+    fn take_all(
+        &mut self,
+        pose: usize,
+        k: usize,
+    ) -> Result<(Vec<CameraFrame>, u32, u64), CaptureError> {
+        let n = self.workers.len();
+        let mut got: Vec<Option<CameraFrame>> = vec![None; n];
+        let mut retries = 0;
+        let mut dropped = 0;
+        let mut attempt = 0;
+        loop {
+            // Hardware: one pulse reaches every camera, so all take a frame (those that
+            // already have theirs discard the extra one). Software: only the missing.
+            let hardware = self.trigger.is_some();
+            let takers: Vec<usize> = (0..n).filter(|&i| hardware || got[i].is_none()).collect();
+            for &i in &takers {
+                let w = &self.workers[i];
+                w.commands
+                    .send(Command::Take {
+                        software: !hardware,
+                    })
+                    .map_err(|_| CaptureError::ThreadEnded {
+                        camera: w.name.clone(),
+                    })?;
+            }
+            if let Some(t) = self.trigger.as_mut() {
+                t.fire().map_err(|source| CaptureError::Frame {
+                    pose,
+                    frame: k,
+                    source,
+                })?;
+            }
+            let mut failure = None;
+            for &i in &takers {
+                let w = &mut self.workers[i];
+                let reply = match w.frames.recv() {
+                    Ok(Reply::Frame(r)) => r,
+                    _ => {
+                        return Err(CaptureError::ThreadEnded {
+                            camera: w.name.clone(),
+                        })
+                    }
+                };
+                match reply {
+                    Ok(frame) => {
+                        if w.last_counter.is_some_and(|c| frame.counter <= c) {
+                            // Stale: a late delivery of a frame already given up on.
+                            failure.get_or_insert(DeviceError::Incomplete {
+                                device: w.name.clone(),
+                                reason: format!("stale frame (counter {})", frame.counter),
+                            });
+                            continue;
+                        }
+                        if let Some(c) = w.last_counter {
+                            dropped += frame.counter - c - 1;
+                        }
+                        w.last_counter = Some(frame.counter);
+                        if got[i].is_none() {
+                            got[i] = Some(frame);
+                        }
+                    }
+                    Err(e) if e.retryable() => {
+                        failure.get_or_insert(e);
+                    }
+                    Err(source) => {
+                        return Err(CaptureError::Frame {
+                            pose,
+                            frame: k,
+                            source,
+                        })
+                    }
+                }
+            }
+            if got.iter().all(Option::is_some) {
+                return Ok((got.into_iter().flatten().collect(), retries, dropped));
+            }
+            attempt += 1;
+            if attempt > self.timing.retries {
+                let source = failure.unwrap_or_else(|| DeviceError::Failed {
+                    device: self.workers[got.iter().position(Option::is_none).unwrap_or(0)]
+                        .name
+                        .clone(),
+                    reason: "no frame".into(),
+                });
+                return Err(CaptureError::Frame {
+                    pose,
+                    frame: k,
+                    source,
+                });
+            }
+            retries += 1;
+        }
+    }
+
+    /// Stop every camera and blank every projector; the first failure is returned after
+    /// all were asked.
+    pub fn finish(mut self) -> Result<(), CaptureError> {
+        let mut first = None;
+        for p in &mut self.projectors {
+            if let Err(e) = p.show(Slide::Black) {
+                first.get_or_insert(CaptureError::Device(e));
+            }
+        }
+        for w in &mut self.workers {
+            let _ = w.commands.send(Command::Stop);
+            if let Some(t) = w.thread.take() {
+                match t.join() {
+                    Ok(Ok(())) => {}
+                    Ok(Err(e)) => {
+                        first.get_or_insert(CaptureError::Device(e));
+                    }
+                    Err(_) => {
+                        first.get_or_insert(CaptureError::ThreadEnded {
+                            camera: w.name.clone(),
+                        });
+                    }
+                }
+            }
+        }
+        first.map_or(Ok(()), Err)
+    }
+}
+
+impl Drop for Session {
+    fn drop(&mut self) {
+        for w in &mut self.workers {
+            let _ = w.commands.send(Command::Stop);
+            if let Some(t) = w.thread.take() {
+                let _ = t.join();
+            }
+        }
+    }
+}
+
+fn camera_loop(
+    mut cam: Box<dyn Camera>,
+    commands: Receiver<Command>,
+    frames: Sender<Reply>,
+    timeout: Duration,
+) -> Result<(), DeviceError> {
+    loop {
+        let reply = match commands.recv() {
+            Ok(Command::Drain) => {
+                while cam.next_frame(Duration::ZERO).is_ok() {}
+                Reply::Drained
+            }
+            Ok(Command::Take { software }) => Reply::Frame(if software {
+                cam.trigger().and_then(|()| cam.next_frame(timeout))
+            } else {
+                cam.next_frame(timeout)
+            }),
+            Ok(Command::Stop) | Err(_) => break,
+        };
+        if frames.send(reply).is_err() {
+            break;
+        }
+    }
+    cam.stop()
+}
+
+/// Sum of repeated frames of one camera.
+#[derive(Clone)]
+struct Accumulator {
+    first: CameraFrame,
+    sum: Vec<u32>,
+    count: u32,
+}
+
+impl Accumulator {
+    fn new(first: CameraFrame) -> Accumulator {
+        Accumulator {
+            first,
+            sum: Vec::new(),
+            count: 1,
+        }
+    }
+
+    fn add(&mut self, f: &CameraFrame) -> Result<(), String> {
+        if (f.width, f.height, f.bits) != (self.first.width, self.first.height, self.first.bits) {
+            return Err("repeats of different sizes".into());
+        }
+        if self.sum.is_empty() {
+            self.sum = samples(&self.first.pixels);
+        }
+        for (s, v) in self.sum.iter_mut().zip(samples(&f.pixels)) {
+            *s += v;
+        }
+        self.count += 1;
+        Ok(())
+    }
+
+    fn finish(self) -> CameraFrame {
+        if self.count == 1 {
+            return self.first;
+        }
+        let (c, half) = (self.count, self.count / 2);
+        let pixels = match self.first.pixels {
+            Pixels::Gray8(_) => {
+                Pixels::Gray8(self.sum.iter().map(|s| ((s + half) / c) as u8).collect())
+            }
+            Pixels::Gray16(_) => {
+                Pixels::Gray16(self.sum.iter().map(|s| ((s + half) / c) as u16).collect())
+            }
+        };
+        CameraFrame {
+            pixels,
+            ..self.first
+        }
+    }
+}
+
+fn samples(p: &Pixels) -> Vec<u32> {
+    match p {
+        Pixels::Gray8(v) => v.iter().map(|&x| u32::from(x)).collect(),
+        Pixels::Gray16(v) => v.iter().map(|&x| u32::from(x)).collect(),
+    }
+}
+
+/// What [`capture_dataset`] did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CaptureSummary {
+    /// Poses captured now.
+    pub captured: Vec<usize>,
+    /// Poses already complete in the dataset (skipped).
+    pub skipped: Vec<usize>,
+    /// Per captured pose, its timeline.
+    pub timelines: Vec<Timeline>,
+}
+
+/// Capture `poses` board poses of the rig file at `rig_path` into the dataset folder `out`
+/// (created, or resumed: complete poses are skipped). `place(k)` puts the board at pose k
+/// (the simulated world's pose, or the operator's) and may refuse to go on (`Ok(false)`
+/// stops the capture, keeping every complete pose); `log` hears one line per pose.
+pub fn capture_dataset(
+    rig_path: &std::path::Path,
+    out: &std::path::Path,
+    poses: usize,
+    place: &mut dyn FnMut(usize, Option<&crate::rig::sim::SimWorld>) -> Result<bool, String>,
+    log: &mut dyn FnMut(&str),
+) -> Result<CaptureSummary, String> {
+    use dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry};
+    let rig = crate::rig::file::RigFile::load(rig_path).map_err(|e| e.to_string())?;
+    let base = rig_path.parent().unwrap_or(std::path::Path::new("."));
+    let opened = open::open(&rig, base)?;
+    let info = DatasetInfo {
+        format: dataset::FORMAT.into(),
+        version: dataset::VERSION,
+        rig: rig.name.clone(),
+        board: rig.board.clone(),
+        sequence: opened.sequence.clone(),
+        cameras: rig
+            .cameras
+            .iter()
+            .map(|c| CameraEntry {
+                name: c.name.clone(),
+                width: c.width,
+                height: c.height,
+                bits: c.bits,
+            })
+            .collect(),
+        projectors: rig
+            .projectors
+            .iter()
+            .map(|p| ProjectorEntry {
+                name: p.name.clone(),
+                width: p.width,
+                height: p.height,
+            })
+            .collect(),
+    };
+    let data = Dataset::create_or_resume(out, info).map_err(|e| e.to_string())?;
+    let rig_copy = out.join("rig.toml");
+    if !rig_copy.exists() {
+        let text = std::fs::read(rig_path).map_err(|e| format!("{}: {e}", rig_path.display()))?;
+        crate::atomic::write(&rig_copy, &text)
+            .map_err(|e| format!("{}: {e}", rig_copy.display()))?;
+    }
+    let done = data.completed().map_err(|e| e.to_string())?;
+    let world = opened.world.clone();
+    let cameras = opened.cameras.len();
+    let mut session = Session::start(
+        opened.cameras,
+        &opened.configs,
+        opened.projectors,
+        opened.trigger,
+        &opened.sequence,
+        opened.timing,
+    )
+    .map_err(|e| e.to_string())?;
+    let mut summary = CaptureSummary::default();
+    for k in 0..poses {
+        if done.contains(&k) {
+            summary.skipped.push(k);
+            continue;
+        }
+        if !place(k, world.as_deref())? {
+            break;
+        }
+        let mut writer = data.pose_writer(k).map_err(|e| e.to_string())?;
+        let timeline = session
+            .capture_pose(k, &mut |f| writer.write(&f).map_err(|e| e.to_string()))
+            .map_err(|e| e.to_string())?;
+        writer.finish(&timeline).map_err(|e| e.to_string())?;
+        log(&format!("pose {k}: {}", timeline.summary(cameras)));
+        summary.captured.push(k);
+        summary.timelines.push(timeline);
+    }
+    session.finish().map_err(|e| e.to_string())?;
+    Ok(summary)
+}

@@ -1,0 +1,80 @@
+//! The capture-side commands: `capture` and `decode`.
+
+use anyhow::Context;
+use std::io::BufRead;
+use std::path::Path;
+
+/// `hexcal capture`: drive the rig for `poses` poses into the dataset `out`.
+pub fn capture(rig: &Path, out: &Path, poses: Option<usize>, auto: bool) -> anyhow::Result<()> {
+    let file = hexcal::rig::file::RigFile::load(rig)?;
+    let poses = poses
+        .or(file.poses.map(|p| p.count))
+        .context("say how many poses with --poses (the rig file has no [poses] table)")?;
+    let stdin = std::io::stdin();
+    let mut place = |k: usize, world: Option<&hexcal::rig::sim::SimWorld>| {
+        if let Some(w) = world {
+            if k >= w.board_poses.len() {
+                return Err(format!(
+                    "the simulated rig has {} board poses ([poses] count)",
+                    w.board_poses.len()
+                ));
+            }
+            w.place(k);
+        }
+        if !auto && world.is_none() {
+            eprintln!("pose {k}: place the board, then press Enter (end of input stops)");
+            let mut line = String::new();
+            if stdin
+                .lock()
+                .read_line(&mut line)
+                .map_err(|e| e.to_string())?
+                == 0
+            {
+                return Ok(false);
+            }
+        }
+        Ok(true)
+    };
+    let mut log = |line: &str| eprintln!("{line}");
+    let summary = hexcal::capture::capture_dataset(rig, out, poses, &mut place, &mut log)
+        .map_err(anyhow::Error::msg)?;
+    if !summary.skipped.is_empty() {
+        eprintln!("already complete, skipped: poses {:?}", summary.skipped);
+    }
+    println!(
+        "captured {} poses into {}",
+        summary.captured.len(),
+        out.display()
+    );
+    Ok(())
+}
+
+/// `hexcal decode`: one camera's stack folder to maps, images and a summary.
+pub fn decode(stack: &Path, out: &Path) -> anyhow::Result<()> {
+    let t = std::time::Instant::now();
+    let (files, summary) = hexcal::phase::files::decode_to_files(stack, out)?;
+    println!(
+        "camera {}: {}×{}, decoded in {:.2} s; noise σ_I² = {:.2} + {:.3}·I",
+        summary.camera,
+        summary.width,
+        summary.height,
+        t.elapsed().as_secs_f64(),
+        summary.noise.offset,
+        summary.noise.slope
+    );
+    for p in &summary.projectors {
+        println!(
+            "projector {}: valid {:.1} %, B {:.1} DN, σ_I {:.2} DN, predicted σ_φ {:.4} rad, \
+             σ_u {:.3} px, σ_v {:.3} px",
+            p.projector,
+            100.0 * p.valid_fraction,
+            p.noise.modulation,
+            p.noise.sigma_i,
+            p.noise.sigma_phi,
+            p.noise.sigma_u,
+            p.noise.sigma_v
+        );
+    }
+    println!("wrote {} files to {}", files.len(), out.display());
+    Ok(())
+}

@@ -1,0 +1,409 @@
+//! The simulated rig: cameras and projectors of a rig file's `sim` devices, implementing the
+//! same device traits as the real drivers, so the capture engine runs unchanged on them.
+//!
+//! Takes a [`RigFile`] (devices with ground truth, board poses) and gives boxed
+//! [`Camera`]s and [`Projector`]s sharing one [`SimWorld`]: the board pose the "operator"
+//! placed and what every projector shows. A triggered camera renders frame k of its stack
+//! ([`StackRenderer`], geometry once per pose) when every projector shows pattern k.
+//! Faults can be injected per camera (stop delivering, drop frames) for the engine's tests.
+
+use super::device::{Camera, CameraConfig, CameraFrame, DeviceError, Pixels, Projector, Slide};
+use super::file::{LookAt, PosesSpec, RigFile, SimTruth};
+use crate::board::Board;
+use crate::camera::CameraModel;
+use crate::phase::Sequence;
+use crate::sim::stack::{StackProjector, StackRenderer};
+use crate::sim::{Imaging, PoseSpec, Scene};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use rand::{rngs::StdRng, Rng, SeedableRng};
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// Ambient light on white (DN) and the level every projector together adds up to on white
+/// (DESIGN.md §9 default stack conditions).
+const AMBIENT_DN: f64 = 40.0;
+const WHITE_DN: f64 = 235.0;
+
+/// A simulated device's truth: model and T_device_rig.
+#[derive(Clone, Debug)]
+pub struct SimDevice {
+    /// Name (the rig file's).
+    pub name: String,
+    /// Lens model and image size.
+    pub model: CameraModel,
+    /// T_device_rig.
+    pub pose: Isometry3<f64>,
+}
+
+/// What the simulated projectors show and where the board is.
+#[derive(Clone, Debug)]
+struct State {
+    pose: usize,
+    slides: Vec<Slide>,
+    sequence: Option<Sequence>,
+}
+
+/// The shared world of a simulated rig: ground truth and current state.
+#[derive(Debug)]
+pub struct SimWorld {
+    /// The board.
+    pub board: Board,
+    /// Simulated cameras.
+    pub cameras: Vec<SimDevice>,
+    /// Simulated projectors.
+    pub projectors: Vec<SimDevice>,
+    /// Board poses T_rig_board.
+    pub board_poses: Vec<Isometry3<f64>>,
+    imaging: Imaging,
+    state: Mutex<State>,
+}
+
+/// T_device_rig of a device at `eye` looking at `target` (rig y up, image y down).
+pub fn look_at(l: &LookAt) -> Result<Isometry3<f64>, String> {
+    PoseSpec {
+        eye: Some(l.eye),
+        target: Some(l.target),
+        ..PoseSpec::default()
+    }
+    .cam_from_board()
+    .map_err(|e| e.to_string())
+}
+
+/// The board poses T_rig_board of a `[poses]` table: turned about the vertical evenly over
+/// ±yaw, tilted and rolled at random within ±tilt, shifted within ±shift (seeded).
+pub fn board_poses(spec: &PosesSpec) -> Vec<Isometry3<f64>> {
+    let mut rng = StdRng::seed_from_u64(spec.seed);
+    (0..spec.count)
+        .map(|k| {
+            let f = if spec.count > 1 {
+                k as f64 / (spec.count - 1) as f64
+            } else {
+                0.5
+            };
+            let yaw = (spec.yaw_deg * (2.0 * f - 1.0)).to_radians();
+            let mut r = || rng.random_range(-1.0..=1.0);
+            let (tilt, roll) = (
+                (spec.tilt_deg * r()).to_radians(),
+                (spec.tilt_deg * r()).to_radians(),
+            );
+            let shift = Vector3::new(r(), r(), r()) * spec.shift_mm;
+            let rot = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw)
+                * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), tilt)
+                * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), roll);
+            Isometry3::from_parts(Translation3::from(shift), rot)
+        })
+        .collect()
+}
+
+fn device(
+    name: &str,
+    truth: Option<&SimTruth>,
+    width: u32,
+    height: u32,
+) -> Result<SimDevice, String> {
+    let t =
+        truth.ok_or_else(|| format!("{name}: a sim device needs sim.intrinsics and sim.pose"))?;
+    Ok(SimDevice {
+        name: name.to_string(),
+        model: CameraModel {
+            width,
+            height,
+            intrinsics: t.intrinsics,
+            distortion: t.distortion,
+        },
+        pose: look_at(&t.pose).map_err(|e| format!("{name}: sim.pose: {e}"))?,
+    })
+}
+
+impl SimWorld {
+    /// The world of `rig`'s simulated devices on `board` (devices of other drivers are left
+    /// out); fails naming the device whose truth is missing or the missing `[poses]`.
+    pub fn new(rig: &RigFile, board: Board) -> Result<SimWorld, String> {
+        use super::file::{CameraDriver, ProjectorDriver};
+        let cameras = rig
+            .cameras
+            .iter()
+            .filter(|c| c.driver == CameraDriver::Sim)
+            .map(|c| device(&c.name, c.sim.as_ref(), c.width, c.height))
+            .collect::<Result<Vec<_>, _>>()?;
+        let projectors = rig
+            .projectors
+            .iter()
+            .filter(|p| p.driver == ProjectorDriver::Sim)
+            .map(|p| device(&p.name, p.sim.as_ref(), p.width, p.height))
+            .collect::<Result<Vec<_>, _>>()?;
+        let poses = rig
+            .poses
+            .as_ref()
+            .ok_or("a simulated rig needs a [poses] table")?;
+        Ok(SimWorld {
+            board,
+            board_poses: board_poses(poses),
+            state: Mutex::new(State {
+                pose: 0,
+                slides: vec![Slide::Black; projectors.len()],
+                sequence: None,
+            }),
+            cameras,
+            projectors,
+            imaging: Imaging::default(),
+        })
+    }
+
+    /// Place the board at pose `pose` (what the operator does between poses).
+    pub fn place(&self, pose: usize) {
+        self.lock().pose = pose;
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
+        // A panicking device thread cannot leave the state half-written: every write is
+        // one assignment.
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The simulated cameras and projectors of this world, as devices.
+    pub fn devices(self: &Arc<Self>) -> (Vec<SimCamera>, Vec<SimProjector>) {
+        let cams = (0..self.cameras.len())
+            .map(|index| SimCamera {
+                world: Arc::clone(self),
+                index,
+                renderer: None,
+                pending: VecDeque::new(),
+                counter: 0,
+                exposure_us: 0.0,
+                started: false,
+                faults: Faults::default(),
+            })
+            .collect();
+        let projs = (0..self.projectors.len())
+            .map(|index| SimProjector {
+                world: Arc::clone(self),
+                index,
+            })
+            .collect();
+        (cams, projs)
+    }
+
+    /// The renderer of camera `c` at board pose `pose` under `sequence`.
+    fn renderer(
+        &self,
+        c: usize,
+        pose: usize,
+        sequence: &Sequence,
+    ) -> Result<StackRenderer, String> {
+        let cam = &self.cameras[c];
+        let board = self.board_poses[pose];
+        let cam_from_board = cam.pose * board;
+        let r = cam_from_board.rotation.scaled_axis();
+        let t = cam_from_board.translation.vector;
+        let scene = Scene {
+            name: format!("{}-pose{pose}", cam.name),
+            seed: 1000 * pose as u64 + c as u64,
+            camera: cam.model,
+            pose: PoseSpec {
+                rvec: Some([r.x, r.y, r.z]),
+                tvec: Some([t.x, t.y, t.z]),
+                ..PoseSpec::default()
+            },
+            imaging: self.imaging,
+            board: self.board.clone(),
+        };
+        let gain = (WHITE_DN - AMBIENT_DN) / self.projectors.len().max(1) as f64;
+        let projectors: Vec<StackProjector> = self
+            .projectors
+            .iter()
+            .map(|p| StackProjector {
+                model: p.model,
+                proj_from_board: p.pose * board,
+                gain_dn: gain,
+            })
+            .collect();
+        StackRenderer::new(&scene, &projectors, AMBIENT_DN, sequence).map_err(|e| e.to_string())
+    }
+}
+
+/// Faults a simulated camera can be told to show.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Faults {
+    /// Stop delivering after this many frames (as if unplugged).
+    pub stop_after: Option<u64>,
+    /// Lose every frame whose counter is a multiple of this (exposed, never delivered).
+    pub drop_every: Option<u64>,
+}
+
+/// A simulated camera.
+pub struct SimCamera {
+    world: Arc<SimWorld>,
+    index: usize,
+    renderer: Option<(usize, StackRenderer)>,
+    pending: VecDeque<CameraFrame>,
+    counter: u64,
+    exposure_us: f64,
+    started: bool,
+    faults: Faults,
+}
+
+impl SimCamera {
+    /// Inject `faults`.
+    pub fn set_faults(&mut self, faults: Faults) {
+        self.faults = faults;
+    }
+
+    fn failed(&self, reason: impl Into<String>) -> DeviceError {
+        DeviceError::Failed {
+            device: self.name().to_string(),
+            reason: reason.into(),
+        }
+    }
+}
+
+impl Camera for SimCamera {
+    fn name(&self) -> &str {
+        &self.world.cameras[self.index].name
+    }
+
+    fn configure(&mut self, config: &CameraConfig) -> Result<(), DeviceError> {
+        let m = &self.world.cameras[self.index].model;
+        if (config.width, config.height) != (m.width, m.height) {
+            return Err(DeviceError::Unsupported {
+                device: self.name().to_string(),
+                setting: "width, height".into(),
+                reason: format!(
+                    "{}×{} asked, the simulated sensor is {}×{}",
+                    config.width, config.height, m.width, m.height
+                ),
+            });
+        }
+        if config.bits != self.world.imaging.bits {
+            return Err(DeviceError::Unsupported {
+                device: self.name().to_string(),
+                setting: "bits".into(),
+                reason: format!(
+                    "{} asked, the simulated sensor gives {}",
+                    config.bits, self.world.imaging.bits
+                ),
+            });
+        }
+        self.exposure_us = config.exposure_us;
+        Ok(())
+    }
+
+    fn start(&mut self) -> Result<(), DeviceError> {
+        self.started = true;
+        self.pending.clear();
+        Ok(())
+    }
+
+    fn trigger(&mut self) -> Result<(), DeviceError> {
+        if !self.started {
+            return Err(self.failed("triggered before start"));
+        }
+        if self.faults.stop_after.is_some_and(|n| self.counter >= n) {
+            return Ok(());
+        }
+        let state = self.world.lock().clone();
+        let k = match state.slides.first() {
+            Some(&Slide::Pattern(k)) if state.slides.iter().all(|s| *s == Slide::Pattern(k)) => k,
+            _ => {
+                return Err(self.failed(format!(
+                    "the simulator renders lockstep pattern frames only; projectors show {:?}",
+                    state.slides
+                )))
+            }
+        };
+        let sequence = state
+            .sequence
+            .as_ref()
+            .ok_or_else(|| self.failed("projectors not prepared"))?;
+        if self.renderer.as_ref().is_none_or(|(p, _)| *p != state.pose) {
+            self.renderer = None;
+            let r = self
+                .world
+                .renderer(self.index, state.pose, sequence)
+                .map_err(|e| self.failed(e))?;
+            self.renderer = Some((state.pose, r));
+        }
+        let Some((_, renderer)) = &self.renderer else {
+            unreachable!("set above")
+        };
+        let frame = renderer.frame(k);
+        let counter = self.counter;
+        self.counter += 1;
+        if self.faults.drop_every.is_some_and(|n| counter % n == n - 1) {
+            return Ok(());
+        }
+        let pixels = if frame.bits <= 8 {
+            Pixels::Gray8(frame.data.iter().map(|&v| v as u8).collect())
+        } else {
+            Pixels::Gray16(frame.data)
+        };
+        self.pending.push_back(CameraFrame {
+            width: frame.size.width,
+            height: frame.size.height,
+            bits: frame.bits,
+            pixels,
+            counter,
+            timestamp_ns: counter * 1_000_000,
+            exposure_us: self.exposure_us,
+        });
+        Ok(())
+    }
+
+    fn next_frame(&mut self, timeout: Duration) -> Result<CameraFrame, DeviceError> {
+        match self.pending.pop_front() {
+            Some(f) => Ok(f),
+            None => {
+                std::thread::sleep(timeout);
+                Err(DeviceError::Timeout {
+                    device: self.name().to_string(),
+                    timeout,
+                })
+            }
+        }
+    }
+
+    fn stop(&mut self) -> Result<(), DeviceError> {
+        self.started = false;
+        self.renderer = None;
+        Ok(())
+    }
+}
+
+/// A simulated projector.
+pub struct SimProjector {
+    world: Arc<SimWorld>,
+    index: usize,
+}
+
+impl Projector for SimProjector {
+    fn name(&self) -> &str {
+        &self.world.projectors[self.index].name
+    }
+
+    fn resolution(&self) -> (u32, u32) {
+        let m = &self.world.projectors[self.index].model;
+        (m.width, m.height)
+    }
+
+    fn prepare(&mut self, sequence: &Sequence, code: usize) -> Result<(), DeviceError> {
+        if code != self.index || code >= sequence.projectors().len() {
+            return Err(DeviceError::Unsupported {
+                device: self.name().to_string(),
+                setting: "sequence".into(),
+                reason: format!(
+                    "simulated projector {} cannot show code {code} of {}",
+                    self.index,
+                    sequence.projectors().len()
+                ),
+            });
+        }
+        self.world.lock().sequence = Some(sequence.clone());
+        Ok(())
+    }
+
+    fn show(&mut self, slide: Slide) -> Result<(), DeviceError> {
+        self.world.lock().slides[self.index] = slide;
+        Ok(())
+    }
+}
