@@ -78,3 +78,51 @@ pub fn decode(stack: &Path, out: &Path) -> anyhow::Result<()> {
     println!("wrote {} files to {}", files.len(), out.display());
     Ok(())
 }
+
+/// `hexcal bench capture`: one simulated pose through the engine, frames discarded.
+pub fn bench_capture(rig_path: &Path) -> anyhow::Result<()> {
+    use hexcal::capture::{open, Session};
+    let rig = hexcal::rig::file::RigFile::load(rig_path)?;
+    let base = rig_path.parent().unwrap_or(Path::new("."));
+    let opened = open::open(&rig, base).map_err(anyhow::Error::msg)?;
+    let world = opened.world.clone().context("bench capture needs a simulated rig")?;
+    let cameras = opened.cameras.len();
+    let mut session = Session::start(
+        opened.cameras,
+        &opened.configs,
+        opened.projectors,
+        opened.trigger,
+        &opened.sequence,
+        opened.timing,
+    )?;
+    println!(
+        "rig {}: {cameras} cameras, {} projectors, {} frames per pose, {} threads",
+        rig.name,
+        opened.sequence.projectors().len(),
+        opened.sequence.frame_count(),
+        rayon::current_num_threads()
+    );
+    world.place(0);
+    let timeline = session.capture_pose(0, &mut |f| {
+        std::hint::black_box(f);
+        Ok(())
+    })?;
+    session.finish()?;
+    println!("pose 0: {}", timeline.summary(cameras));
+    let frames: Vec<String> = timeline
+        .frames
+        .iter()
+        .take(3)
+        .map(|t| {
+            format!(
+                "frame {}: shown {:.1} ms, triggered {:.1} ms, collected {:.1} ms",
+                t.index,
+                1e3 * t.shown.as_secs_f64(),
+                1e3 * t.triggered.as_secs_f64(),
+                1e3 * t.collected.as_secs_f64()
+            )
+        })
+        .collect();
+    println!("timeline (first frames): {}", frames.join("; "));
+    Ok(())
+}

@@ -89,7 +89,8 @@ impl Sensor {
                     } else {
                         FULL_SCALE * (v / FULL_SCALE).powf(1.0 / self.gamma)
                     };
-                    *o = (v * scale).round().clamp(0.0, max) as u16;
+                    // round() without the libm call: v ≥ 0, so + ½ and truncation round.
+                    *o = ((v * scale).min(max) + 0.5) as u16;
                 }
             });
         Frame {

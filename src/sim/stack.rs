@@ -11,7 +11,7 @@
 use super::texture::face_side;
 use super::{geometry, sensor, Scene, SimError};
 use crate::camera::CameraModel;
-use crate::phase::Sequence;
+use crate::phase::{Direction, Sequence};
 use hexcal_simulator::{Frame, ImageSize, Sensor};
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
@@ -49,6 +49,8 @@ pub struct StackRenderer {
     sequence: Sequence,
     light: Vec<[f32; 256]>,
     seed: u64,
+    /// (cos θ, sin θ) of every pixel's spatial phase per projector for the last group used.
+    group: std::sync::Mutex<Option<(usize, Vec<Vec<[f32; 2]>>)>>,
 }
 
 impl StackRenderer {
@@ -112,6 +114,7 @@ impl StackRenderer {
                 .collect(),
             sequence: sequence.clone(),
             seed: scene.seed,
+            group: std::sync::Mutex::new(None),
         })
     }
 
@@ -130,20 +133,70 @@ impl StackRenderer {
         &self.truth[p]
     }
 
+    /// Per projector, (cos θ, sin θ) of the spatial phase θ = 2π·n·(pos + ½)/size of every
+    /// lit pixel for group `group`'s direction and fringe count (DESIGN.md §6).
+    fn spatial_phases(&self, group: usize, k: usize) -> Vec<Vec<[f32; 2]>> {
+        let frame = self.sequence.frame(k).expect("frame index within the sequence");
+        debug_assert_eq!(frame.group, group);
+        self.truth
+            .iter()
+            .zip(self.sequence.projectors())
+            .map(|(t, code)| {
+                let (pos, size) = match frame.direction {
+                    Direction::Columns => (&t.u, code.width),
+                    Direction::Rows => (&t.v, code.height),
+                };
+                let a = 2.0 * std::f64::consts::PI * f64::from(frame.count) / f64::from(size);
+                pos.par_iter()
+                    .zip(&t.lit)
+                    .map(|(&x, &lit)| {
+                        if lit {
+                            let (s, c) = (a * (f64::from(x) + 0.5)).sin_cos();
+                            [c as f32, s as f32]
+                        } else {
+                            [0.0, 0.0]
+                        }
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
     /// The noise-free irradiance of frame k (DN, before the sensor).
     fn irradiance(&self, k: usize) -> Vec<f32> {
+        let frame = self.sequence.frame(k).expect("frame index within the sequence");
+        let mut cache = self.group.lock().unwrap_or_else(|e| e.into_inner());
+        if cache.as_ref().is_none_or(|(g, _)| *g != frame.group) {
+            *cache = Some((frame.group, self.spatial_phases(frame.group, k)));
+        }
+        let Some((_, phases)) = cache.as_ref() else {
+            unreachable!("filled above")
+        };
+        // cos(θ − δ_p) = cos θ·cos δ_p + sin θ·sin δ_p, δ_p = 2π·f_p·s/N.
+        let shifts: Vec<[f32; 2]> = self
+            .sequence
+            .projectors()
+            .iter()
+            .map(|code| {
+                let n = self.sequence.steps();
+                let d = 2.0 * std::f64::consts::PI * f64::from(code.frequency * frame.step % n)
+                    / f64::from(n);
+                [d.cos() as f32, d.sin() as f32]
+            })
+            .collect();
         let w = self.size.width as usize;
         let mut irr = vec![0.0f32; self.albedo.len()];
         irr.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            let base = y * w;
             for (x, out) in row.iter_mut().enumerate() {
-                let i = y * w + x;
+                let i = base + x;
                 let mut e = self.ambient_dn;
                 for (p, t) in self.truth.iter().enumerate() {
                     if t.lit[i] {
-                        let c = self
-                            .sequence
-                            .intensity(p, k, f64::from(t.u[i]), f64::from(t.v[i]));
-                        e += self.gains[p] * self.light[p][(255.0 * c).round() as usize];
+                        let [c, s] = phases[p][i];
+                        let [cd, sd] = shifts[p];
+                        let level = 127.5 * (1.0 + c * cd + s * sd);
+                        e += self.gains[p] * self.light[p][(level + 0.5) as usize];
                     }
                 }
                 *out = self.albedo[i] * e;
