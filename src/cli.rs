@@ -85,7 +85,10 @@ pub fn bench_capture(rig_path: &Path) -> anyhow::Result<()> {
     let rig = hexcal::rig::file::RigFile::load(rig_path)?;
     let base = rig_path.parent().unwrap_or(Path::new("."));
     let opened = open::open(&rig, base).map_err(anyhow::Error::msg)?;
-    let world = opened.world.clone().context("bench capture needs a simulated rig")?;
+    let world = opened
+        .world
+        .clone()
+        .context("bench capture needs a simulated rig")?;
     let cameras = opened.cameras.len();
     let mut session = Session::start(
         opened.cameras,
@@ -125,4 +128,104 @@ pub fn bench_capture(rig_path: &Path) -> anyhow::Result<()> {
         .collect();
     println!("timeline (first frames): {}", frames.join("; "));
     Ok(())
+}
+
+/// How `run` and `calibrate DATASET` report progress.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Progress {
+    /// Lines for people (frame counters redrawn in place on a terminal).
+    Human,
+    /// Nothing but errors and the final summary.
+    Quiet,
+    /// One JSON object per event on stdout.
+    Json,
+}
+
+/// The event printer of a progress mode.
+pub fn printer(mode: Progress) -> impl FnMut(&hexcal::pipeline::Event) {
+    use hexcal::pipeline::Event;
+    use std::io::{IsTerminal, Write};
+    let tty = std::io::stderr().is_terminal();
+    move |e: &Event| match mode {
+        Progress::Json => {
+            println!("{}", serde_json::to_string(e).expect("events serialise"));
+        }
+        Progress::Quiet => {}
+        Progress::Human => match e {
+            Event::Frames { .. } if !tty => {}
+            Event::Frames { .. } => {
+                eprint!("\r{e}   ");
+                let _ = std::io::stderr().flush();
+            }
+            _ if tty => eprintln!("\r{e}   "),
+            _ => eprintln!("{e}"),
+        },
+    }
+}
+
+/// `hexcal run`: the one-button calibration.
+pub fn run(
+    rig: &Path,
+    out: &Path,
+    options: &hexcal::pipeline::RunOptions,
+    auto: bool,
+    progress: Progress,
+) -> anyhow::Result<()> {
+    let stdin = std::io::stdin();
+    let mut place = |k: usize, world: Option<&hexcal::rig::sim::SimWorld>| {
+        if let Some(w) = world {
+            if k >= w.board_poses.len() {
+                return Err(format!(
+                    "the simulated rig has {} board poses ([poses] count)",
+                    w.board_poses.len()
+                ));
+            }
+            w.place(k);
+            if auto {
+                return Ok(true);
+            }
+        } else if auto {
+            return Ok(true);
+        }
+        eprintln!("pose {k}: place the board, then press Enter (end of input stops)");
+        let mut line = String::new();
+        Ok(stdin
+            .lock()
+            .read_line(&mut line)
+            .map_err(|e| e.to_string())?
+            > 0)
+    };
+    let t = std::time::Instant::now();
+    let outcome = hexcal::pipeline::run(rig, out, options, &mut place, &mut printer(progress))
+        .map_err(anyhow::Error::msg)?;
+    summarise(&outcome, progress);
+    if progress != Progress::Json {
+        println!("run took {:.1} s", t.elapsed().as_secs_f64());
+    }
+    Ok(())
+}
+
+/// The residual table, verification and warnings of a finished run.
+pub fn summarise(outcome: &hexcal::pipeline::Outcome, progress: Progress) {
+    if progress == Progress::Json {
+        return;
+    }
+    let cal = &outcome.calibration;
+    print!(
+        "{}",
+        hexcal::report::format_table(&hexcal::report::residual_table(cal))
+    );
+    for e in &cal.excluded {
+        println!("not calibrated: {}: {}", e.name, e.reason);
+    }
+    if !outcome.verification.is_empty() {
+        print!(
+            "{}",
+            hexcal::report::format_verification(&outcome.verification)
+        );
+    }
+    for w in &outcome.warnings {
+        println!("warning: {w}");
+    }
+    println!("wrote {} files", outcome.files.len());
 }

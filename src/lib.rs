@@ -18,6 +18,7 @@ pub mod detection;
 pub mod grid;
 pub mod imageio;
 pub mod phase;
+pub mod pipeline;
 pub mod report;
 pub mod rig;
 pub mod sim;

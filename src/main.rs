@@ -102,6 +102,36 @@ enum Command {
         #[arg(long)]
         auto: bool,
     },
+    /// One button: capture every board pose of a rig (simulated or real), decoding,
+    /// detecting and fitting each pose while the next is captured; then calibrate, verify on
+    /// the held-out pose and write the calibration and its report (OUT/calibration). An
+    /// interrupted run resumes where it stopped.
+    Run {
+        /// The rig file.
+        #[arg(long)]
+        rig: PathBuf,
+        /// The dataset folder (views and, with --keep-stacks, every frame).
+        #[arg(long, default_value = "hexcal-run")]
+        out: PathBuf,
+        /// Board poses (default: the rig file's [poses] count).
+        #[arg(long)]
+        poses: Option<usize>,
+        /// Poses held out for verification (the last ones).
+        #[arg(long, default_value_t = 1)]
+        held_out: usize,
+        /// Do not wait for Enter between poses (simulated or scripted poses).
+        #[arg(long)]
+        auto: bool,
+        /// Keep every frame in the dataset (PNG, about 1 GB per pose of the paper rig).
+        #[arg(long)]
+        keep_stacks: bool,
+        /// Print only the final summary.
+        #[arg(long, conflicts_with = "json")]
+        quiet: bool,
+        /// Progress as JSON lines on stdout.
+        #[arg(long)]
+        json: bool,
+    },
     /// Decode one camera's stack folder (a dataset's pose-KKK/CAMERA): per projector the
     /// (u, v) maps (32-bit float TIFF), validity, lit and projector-view images, the ambient
     /// image and summary.json.
@@ -349,19 +379,7 @@ fn verify(calibration: &Path, input: &Path) -> anyhow::Result<()> {
         "{}: no device pair shares ten circles of a pose",
         input.display()
     );
-    println!(
-        "{:<10} {:<10} {:>5} {:>7} {:>14} {:>14} {:>14}",
-        "first", "second", "pose", "points", "length RMS mm", "length max mm", "flatness mm"
-    );
-    for k in &checks {
-        println!(
-            "{:<10} {:<10} {:>5} {:>7} {:>14.4} {:>14.4} {:>14.4}",
-            k.first, k.second, k.pose, k.points, k.length_rms, k.length_max, k.flatness_rms
-        );
-    }
-    let rms =
-        (checks.iter().map(|k| k.length_rms.powi(2)).sum::<f64>() / checks.len() as f64).sqrt();
-    println!("length error RMS over {} pairs: {rms:.4} mm", checks.len());
+    print!("{}", hexcal::report::format_verification(&checks));
     Ok(())
 }
 
@@ -433,6 +451,32 @@ fn main() -> anyhow::Result<()> {
             auto,
         } => cli::capture(&rig, &out, poses, auto)?,
         Command::Decode { stack, out } => cli::decode(&stack, &out)?,
+        Command::Run {
+            rig,
+            out,
+            poses,
+            held_out,
+            auto,
+            keep_stacks,
+            quiet,
+            json,
+        } => cli::run(
+            &rig,
+            &out,
+            &hexcal::pipeline::RunOptions {
+                poses,
+                held_out,
+                keep_stacks,
+            },
+            auto,
+            if json {
+                cli::Progress::Json
+            } else if quiet {
+                cli::Progress::Quiet
+            } else {
+                cli::Progress::Human
+            },
+        )?,
         Command::Bench {
             what: Bench::Capture { rig },
         } => cli::bench_capture(&rig)?,

@@ -137,7 +137,7 @@ pub struct StackInfo {
     pub frames: Vec<FrameEntry>,
 }
 
-/// `pose.json`: a completed pose and its capture timeline.
+/// `pose.json`: a completed pose and its capture timeline (written last).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PoseInfo {
@@ -266,6 +266,36 @@ impl Dataset {
         Ok(poses)
     }
 
+    /// Mark a pose complete: write its `pose.json`.
+    pub fn complete(&self, info: &PoseInfo) -> Result<(), DatasetError> {
+        write_json(&self.pose_dir(info.pose).join("pose.json"), info)
+    }
+
+    /// Write a JSON file `name` into pose `pose`'s folder (atomically).
+    pub fn write_pose_file<T: Serialize>(
+        &self,
+        pose: usize,
+        name: &str,
+        value: &T,
+    ) -> Result<(), DatasetError> {
+        let dir = self.pose_dir(pose);
+        std::fs::create_dir_all(&dir).map_err(io(&dir))?;
+        write_json(&dir.join(name), value)
+    }
+
+    /// Read JSON file `name` of pose `pose`, if it exists.
+    pub fn read_pose_file<T: for<'de> Deserialize<'de>>(
+        &self,
+        pose: usize,
+        name: &str,
+    ) -> Result<Option<T>, DatasetError> {
+        let path = self.pose_dir(pose).join(name);
+        if !path.exists() {
+            return Ok(None);
+        }
+        read_json(&path).map(Some)
+    }
+
     /// A writer of pose `pose` (its folder is created; frames of an earlier, interrupted
     /// attempt are overwritten).
     pub fn pose_writer(&self, pose: usize) -> Result<PoseWriter, DatasetError> {
@@ -339,9 +369,10 @@ impl PoseWriter {
         Ok(())
     }
 
-    /// Write every camera's `stack.json`, then `pose.json` (the pose is complete).
+    /// Write every camera's `stack.json` (when frames were written) and give the pose's
+    /// record, which [`Dataset::complete`] writes once everything of the pose is on disk.
     pub fn finish(self, timeline: &Timeline) -> Result<PoseInfo, DatasetError> {
-        for s in &self.stacks {
+        for s in self.stacks.iter().filter(|s| !s.frames.is_empty()) {
             write_json(&self.dir.join(&s.camera).join("stack.json"), s)?;
         }
         let ms = |d: std::time::Duration| 1e3 * d.as_secs_f64();
@@ -363,7 +394,6 @@ impl PoseWriter {
                 })
                 .collect(),
         };
-        write_json(&self.dir.join("pose.json"), &info)?;
         Ok(info)
     }
 }

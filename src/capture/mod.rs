@@ -682,7 +682,8 @@ pub fn capture_dataset(
         let timeline = session
             .capture_pose(k, &mut |f| writer.write(&f).map_err(|e| e.to_string()))
             .map_err(|e| e.to_string())?;
-        writer.finish(&timeline).map_err(|e| e.to_string())?;
+        let info = writer.finish(&timeline).map_err(|e| e.to_string())?;
+        data.complete(&info).map_err(|e| e.to_string())?;
         log(&format!("pose {k}: {}", timeline.summary(cameras)));
         summary.captured.push(k);
         summary.timelines.push(timeline);

@@ -419,3 +419,35 @@ pub fn write_outputs(cal: &Calibration, dir: &Path) -> Result<Vec<PathBuf>, Repo
     }
     Ok(outputs.into_iter().map(|(p, _)| p).collect())
 }
+
+/// The held-out verification as a table: per device pair and pose, points, length error
+/// RMS and maximum, flatness; then the RMS over all pairs.
+pub fn format_verification(checks: &[crate::calib::verify::PairCheck]) -> String {
+    let mut s = format!(
+        "{:<10} {:<10} {:>5} {:>7} {:>14} {:>14} {:>14}\n",
+        "first", "second", "pose", "points", "length RMS mm", "length max mm", "flatness mm"
+    );
+    for k in checks {
+        s += &format!(
+            "{:<10} {:<10} {:>5} {:>7} {:>14.4} {:>14.4} {:>14.4}\n",
+            k.first, k.second, k.pose, k.points, k.length_rms, k.length_max, k.flatness_rms
+        );
+    }
+    match verification_rms(checks) {
+        Some(rms) => {
+            s += &format!(
+                "length error RMS over {} pairs: {rms:.4} mm\n",
+                checks.len()
+            )
+        }
+        None => s += "no device pair shares ten circles of a held-out pose\n",
+    }
+    s
+}
+
+/// RMS of the pairs' length errors (mm), if any pair was checked.
+pub fn verification_rms(checks: &[crate::calib::verify::PairCheck]) -> Option<f64> {
+    (!checks.is_empty()).then(|| {
+        (checks.iter().map(|k| k.length_rms.powi(2)).sum::<f64>() / checks.len() as f64).sqrt()
+    })
+}

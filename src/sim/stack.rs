@@ -136,7 +136,10 @@ impl StackRenderer {
     /// Per projector, (cos θ, sin θ) of the spatial phase θ = 2π·n·(pos + ½)/size of every
     /// lit pixel for group `group`'s direction and fringe count (DESIGN.md §6).
     fn spatial_phases(&self, group: usize, k: usize) -> Vec<Vec<[f32; 2]>> {
-        let frame = self.sequence.frame(k).expect("frame index within the sequence");
+        let frame = self
+            .sequence
+            .frame(k)
+            .expect("frame index within the sequence");
         debug_assert_eq!(frame.group, group);
         self.truth
             .iter()
@@ -164,7 +167,10 @@ impl StackRenderer {
 
     /// The noise-free irradiance of frame k (DN, before the sensor).
     fn irradiance(&self, k: usize) -> Vec<f32> {
-        let frame = self.sequence.frame(k).expect("frame index within the sequence");
+        let frame = self
+            .sequence
+            .frame(k)
+            .expect("frame index within the sequence");
         let mut cache = self.group.lock().unwrap_or_else(|e| e.into_inner());
         if cache.as_ref().is_none_or(|(g, _)| *g != frame.group) {
             *cache = Some((frame.group, self.spatial_phases(frame.group, k)));
