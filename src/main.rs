@@ -435,7 +435,9 @@ fn keep_freed_blocks() {
     // SAFETY: mallopt only changes allocator parameters; called before any thread starts.
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 30);
-        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 64 << 20);
+        // Two arenas for two cores: per-thread arenas would each keep their own freed frames.
+        libc::mallopt(libc::M_ARENA_MAX, 2);
     }
 }
 

@@ -104,16 +104,29 @@ enum AnyDecoder {
     Sixteen(Decoder<u16>),
 }
 
-/// Decode one camera's stack as its frames arrive on `frames`, then process it.
-fn stack_worker(
-    frames: Receiver<CameraFrame>,
+/// One camera's stack of one pose to decode and process.
+struct StackJob {
     sequence: Sequence,
     entry: CameraEntry,
     board: Board,
     camera: usize,
     pose: usize,
     first_projector: usize,
-) -> StackResult {
+    /// Taken while finishing (one stack at a time).
+    finishing: std::sync::Arc<std::sync::Mutex<()>>,
+}
+
+/// Decode one camera's stack as its frames arrive on `frames`, then process it.
+fn stack_worker(frames: Receiver<CameraFrame>, job: StackJob) -> StackResult {
+    let StackJob {
+        sequence,
+        entry,
+        board,
+        camera,
+        pose,
+        first_projector,
+        finishing,
+    } = job;
     let failed = |error: String| StackResult {
         camera: entry.name.clone(),
         circles: 0,
@@ -161,6 +174,9 @@ fn stack_worker(
             return failed(e.to_string());
         }
     }
+    // One stack at a time turns its phases into maps and detects (bounds the memory of the
+    // maps while the next pose's decoders fill up).
+    let _turn = finishing.lock().unwrap_or_else(|e| e.into_inner());
     let decoded = match decoder {
         Some(Ok(AnyDecoder::Eight(d))) => d.finish(),
         Some(Ok(AnyDecoder::Sixteen(d))) => d.finish(),
@@ -410,7 +426,7 @@ pub fn run(
     rig_path: &Path,
     out: &Path,
     options: &RunOptions,
-    place: &mut dyn FnMut(usize, Option<&crate::rig::sim::SimWorld>) -> Result<bool, String>,
+    place: &mut crate::capture::PlaceBoard,
     events: &mut dyn FnMut(&Event),
 ) -> Result<Outcome, String> {
     let rig = crate::rig::file::RigFile::load(rig_path).map_err(|e| e.to_string())?;
@@ -538,14 +554,23 @@ pub fn run(
         // One decoding thread per camera, fed frame by frame.
         let mut senders: Vec<Sender<CameraFrame>> = Vec::new();
         let mut workers = Vec::new();
+        let finishing = std::sync::Arc::new(std::sync::Mutex::new(()));
         for (c, entry) in data.info.cameras.iter().enumerate() {
             let (tx, rx) = bounded(2);
             senders.push(tx);
-            let (seq, entry, board) = (sequence.clone(), entry.clone(), board.clone());
+            let job = StackJob {
+                sequence: sequence.clone(),
+                entry: entry.clone(),
+                board: board.clone(),
+                camera: c,
+                pose: k,
+                first_projector: cameras,
+                finishing: std::sync::Arc::clone(&finishing),
+            };
             workers.push(
                 std::thread::Builder::new()
                     .name(format!("stack {}", entry.name))
-                    .spawn(move || stack_worker(rx, seq, entry, board, c, k, cameras))
+                    .spawn(move || stack_worker(rx, job))
                     .map_err(|e| e.to_string())?,
             );
         }

@@ -598,6 +598,11 @@ fn samples(p: &Pixels) -> Vec<u32> {
     }
 }
 
+/// Puts the board at pose k before it is captured: the simulated world's pose (given when
+/// the rig is simulated), or the operator's; `Ok(false)` stops the capture.
+pub type PlaceBoard<'a> =
+    dyn FnMut(usize, Option<&crate::rig::sim::SimWorld>) -> Result<bool, String> + 'a;
+
 /// What [`capture_dataset`] did.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct CaptureSummary {
@@ -617,7 +622,7 @@ pub fn capture_dataset(
     rig_path: &std::path::Path,
     out: &std::path::Path,
     poses: usize,
-    place: &mut dyn FnMut(usize, Option<&crate::rig::sim::SimWorld>) -> Result<bool, String>,
+    place: &mut PlaceBoard,
     log: &mut dyn FnMut(&str),
 ) -> Result<CaptureSummary, String> {
     use dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry};

@@ -305,8 +305,15 @@ pub struct Decoder<T: Sample> {
     frames: Vec<T>,
     /// (cos, sin) of 2π·f_p·s/N at [p·N + s].
     twiddles: Vec<[f32; 2]>,
-    /// Per completed group: per pixel and projector (wrapped phase, modulation), 16 bit.
+    /// Per completed group: per candidate pixel and projector (wrapped phase, modulation),
+    /// 16 bit.
     groups: Vec<Vec<u16>>,
+    /// Per pixel: its slot among the candidates (pixels where some projector's modulation
+    /// in the first group reached [`CANDIDATE`] of full scale), or `u32::MAX`.
+    slots: Vec<u32>,
+    /// Per pixel and projector: Σ over groups of the quantised B² (every pixel, for the
+    /// modulation and ambient images).
+    bsq: Vec<f32>,
     pixels: Vec<PixelStats>,
     columns: Constellation,
     rows: Constellation,
@@ -314,6 +321,10 @@ pub struct Decoder<T: Sample> {
 
 /// Modulation quantisation: 2^15 steps per full scale (B ≤ 2·full scale).
 const B_STEPS: f32 = 32768.0;
+
+/// Fraction of full scale a pixel's first-group modulation must reach, for some projector,
+/// for its phases to be kept: half the validity floor of 3 %.
+const CANDIDATE: f32 = 0.015;
 
 /// Pixels per strip in the DFT kernel.
 const CHUNK: usize = 64;
@@ -366,19 +377,23 @@ impl<T: Sample> Decoder<T> {
             frames: vec![T::default(); n * npx],
             twiddles,
             groups: Vec::with_capacity(seq.groups()),
+            slots: Vec::new(),
+            bsq: vec![0.0; npx * seq.projectors().len()],
             pixels: vec![PixelStats::default(); npx],
             columns: cons(Direction::Columns),
             rows: cons(Direction::Rows),
         })
     }
 
-    /// Bytes the decoder holds once every group is in (its peak before [`Self::finish`]):
-    /// the group's frame buffer, the 16-bit phases and modulations, the per-pixel statistics.
+    /// Bytes the decoder holds now: the group's frame buffer, the candidates' 16-bit phases
+    /// and modulations, the per-pixel slots, B² sums and statistics (once every group is in,
+    /// its peak before [`Self::finish`]).
     pub fn buffer_bytes(&self) -> usize {
-        let npx = self.width as usize * self.height as usize;
         self.frames.len() * std::mem::size_of::<T>()
-            + self.seq.groups() * npx * self.seq.projectors().len() * 2 * std::mem::size_of::<u16>()
-            + npx * std::mem::size_of::<PixelStats>()
+            + self.groups.iter().map(|g| g.len() * 2).sum::<usize>()
+            + self.slots.len() * 4
+            + self.bsq.len() * 4
+            + self.pixels.len() * std::mem::size_of::<PixelStats>()
     }
 
     /// Feed frame k (frames must come in sequence order, each exactly once).
@@ -423,6 +438,10 @@ impl<T: Sample> Decoder<T> {
         self.next += 1;
         if step == n - 1 {
             self.close_group(k / n);
+            if self.next == count {
+                // The last group is in: the frame buffer is not needed any more.
+                self.frames = Vec::new();
+            }
         }
         Ok(())
     }
@@ -562,7 +581,41 @@ impl<T: Sample> Decoder<T> {
                     }
                 },
             );
-        self.groups.push(out);
+        // Σ B² of every pixel; then keep (ψ, B) of the candidates only (DESIGN.md §6: a pixel
+        // needs B ≥ 3 % of full scale to be valid, so one below half that in the first group
+        // cannot be).
+        let inv_b_scale = fs / B_STEPS;
+        self.bsq
+            .par_chunks_mut(w * np)
+            .zip(out.par_chunks(w * np * 2))
+            .for_each(|(acc, o)| {
+                for (a, pair) in acc.iter_mut().zip(o.chunks_exact(2)) {
+                    let b = f32::from(pair[1]) * inv_b_scale;
+                    *a += b * b;
+                }
+            });
+        if g == 0 {
+            let floor = (CANDIDATE * B_STEPS).round() as u16;
+            let mut next = 0u32;
+            self.slots = out
+                .chunks_exact(np * 2)
+                .map(|px| {
+                    if px.chunks_exact(2).any(|pair| pair[1] >= floor) {
+                        next += 1;
+                        next - 1
+                    } else {
+                        u32::MAX
+                    }
+                })
+                .collect();
+        }
+        let kept: Vec<u16> = out
+            .chunks_exact(np * 2)
+            .zip(&self.slots)
+            .filter(|(_, &slot)| slot != u32::MAX)
+            .flat_map(|(px, _)| px.iter().copied())
+            .collect();
+        self.groups.push(kept);
     }
 
     /// Unwrap, fuse and judge every pixel; fails when frames are missing.
@@ -583,6 +636,8 @@ impl<T: Sample> Decoder<T> {
             full_scale,
             frames,
             groups,
+            slots,
+            bsq: bsq_all,
             pixels,
             columns,
             rows,
@@ -714,18 +769,20 @@ impl<T: Sample> Decoder<T> {
                         // This pixel's (ψ, B) of projector p in every group.
                         let mut psi_g = [0f32; 2 * MAX_COUNTS];
                         let mut bsq_g = [0f32; 2 * MAX_COUNTS];
-                        let mut bsq = 0f32;
-                        for (g, data) in groups.iter().enumerate() {
-                            let o = &data[(px * np + p) * 2..][..2];
-                            psi_g[g] = f32::from(o[0]) * (1.0 / 65536.0);
-                            let b = f32::from(o[1]) * inv_b_scale;
-                            bsq_g[g] = b * b;
-                            bsq += b * b;
+                        let bsq = bsq_all[px * np + p];
+                        let slot = slots[px];
+                        if slot != u32::MAX {
+                            for (g, data) in groups.iter().enumerate() {
+                                let o = &data[(slot as usize * np + p) * 2..][..2];
+                                psi_g[g] = f32::from(o[0]) * (1.0 / 65536.0);
+                                let b = f32::from(o[1]) * inv_b_scale;
+                                bsq_g[g] = b * b;
+                            }
                         }
                         let bmod = (bsq / ng as f32 - var4).max(0.0).sqrt();
                         amb -= mean_ratio[p] * bmod;
                         row.b[p][x] = bmod;
-                        if st.saturated || bmod < min_b.max(5.0 * sigma) {
+                        if st.saturated || slot == u32::MAX || bmod < min_b.max(5.0 * sigma) {
                             // Invalid whatever the phases say: not unwrapped.
                             row.u[p][x] = f32::NAN;
                             row.v[p][x] = f32::NAN;
@@ -792,6 +849,8 @@ impl<T: Sample> Decoder<T> {
                 },
             );
         drop(groups);
+        drop(slots);
+        drop(bsq_all);
         let to_image = |data: Vec<f32>| {
             FloatImage::from_raw(width, height, data).expect("map has width × height values")
         };

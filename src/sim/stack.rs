@@ -49,8 +49,6 @@ pub struct StackRenderer {
     sequence: Sequence,
     light: Vec<[f32; 256]>,
     seed: u64,
-    /// (cos θ, sin θ) of every pixel's spatial phase per projector for the last group used.
-    group: std::sync::Mutex<Option<(usize, Vec<Vec<[f32; 2]>>)>>,
 }
 
 impl StackRenderer {
@@ -114,7 +112,6 @@ impl StackRenderer {
                 .collect(),
             sequence: sequence.clone(),
             seed: scene.seed,
-            group: std::sync::Mutex::new(None),
         })
     }
 
@@ -133,61 +130,28 @@ impl StackRenderer {
         &self.truth[p]
     }
 
-    /// Per projector, (cos θ, sin θ) of the spatial phase θ = 2π·n·(pos + ½)/size of every
-    /// lit pixel for group `group`'s direction and fringe count (DESIGN.md §6).
-    fn spatial_phases(&self, group: usize, k: usize) -> Vec<Vec<[f32; 2]>> {
-        let frame = self
-            .sequence
-            .frame(k)
-            .expect("frame index within the sequence");
-        debug_assert_eq!(frame.group, group);
-        self.truth
-            .iter()
-            .zip(self.sequence.projectors())
-            .map(|(t, code)| {
-                let (pos, size) = match frame.direction {
-                    Direction::Columns => (&t.u, code.width),
-                    Direction::Rows => (&t.v, code.height),
-                };
-                let a = 2.0 * std::f64::consts::PI * f64::from(frame.count) / f64::from(size);
-                pos.par_iter()
-                    .zip(&t.lit)
-                    .map(|(&x, &lit)| {
-                        if lit {
-                            let (s, c) = (a * (f64::from(x) + 0.5)).sin_cos();
-                            [c as f32, s as f32]
-                        } else {
-                            [0.0, 0.0]
-                        }
-                    })
-                    .collect()
-            })
-            .collect()
-    }
-
     /// The noise-free irradiance of frame k (DN, before the sensor).
     fn irradiance(&self, k: usize) -> Vec<f32> {
         let frame = self
             .sequence
             .frame(k)
             .expect("frame index within the sequence");
-        let mut cache = self.group.lock().unwrap_or_else(|e| e.into_inner());
-        if cache.as_ref().is_none_or(|(g, _)| *g != frame.group) {
-            *cache = Some((frame.group, self.spatial_phases(frame.group, k)));
-        }
-        let Some((_, phases)) = cache.as_ref() else {
-            unreachable!("filled above")
-        };
-        // cos(θ − δ_p) = cos θ·cos δ_p + sin θ·sin δ_p, δ_p = 2π·f_p·s/N.
-        let shifts: Vec<[f32; 2]> = self
+        let n = self.sequence.steps();
+        // Per projector: the position it encodes in this frame, and the phase
+        // θ = a·pos + b = 2π·n·(pos + ½)/size − 2π·f_p·s/N (DESIGN.md §6).
+        let phases: Vec<(bool, f32, f32)> = self
             .sequence
             .projectors()
             .iter()
             .map(|code| {
-                let n = self.sequence.steps();
-                let d = 2.0 * std::f64::consts::PI * f64::from(code.frequency * frame.step % n)
+                let (rows, size) = match frame.direction {
+                    Direction::Columns => (false, code.width),
+                    Direction::Rows => (true, code.height),
+                };
+                let a = 2.0 * std::f64::consts::PI * f64::from(frame.count) / f64::from(size);
+                let shift = 2.0 * std::f64::consts::PI * f64::from(code.frequency * frame.step % n)
                     / f64::from(n);
-                [d.cos() as f32, d.sin() as f32]
+                (rows, a as f32, (0.5 * a - shift) as f32)
             })
             .collect();
         let w = self.size.width as usize;
@@ -199,9 +163,9 @@ impl StackRenderer {
                 let mut e = self.ambient_dn;
                 for (p, t) in self.truth.iter().enumerate() {
                     if t.lit[i] {
-                        let [c, s] = phases[p][i];
-                        let [cd, sd] = shifts[p];
-                        let level = 127.5 * (1.0 + c * cd + s * sd);
+                        let (rows, a, b) = phases[p];
+                        let pos = if rows { t.v[i] } else { t.u[i] };
+                        let level = 127.5 * (1.0 + (a * pos + b).cos());
                         e += self.gains[p] * self.light[p][(level + 0.5) as usize];
                     }
                 }
