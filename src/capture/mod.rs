@@ -696,3 +696,6 @@ pub fn capture_dataset(
     session.finish().map_err(|e| e.to_string())?;
     Ok(summary)
 }
+
+#[cfg(test)]
+mod tests;

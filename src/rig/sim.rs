@@ -185,8 +185,9 @@ impl SimWorld {
         (cams, projs)
     }
 
-    /// The renderer of camera `c` at board pose `pose` under `sequence`.
-    fn renderer(
+    /// The stack renderer of camera `c` at board pose `pose` under `sequence` (what a
+    /// triggered camera renders from).
+    pub fn stack_renderer(
         &self,
         c: usize,
         pose: usize,
@@ -320,7 +321,7 @@ impl Camera for SimCamera {
             self.renderer = None;
             let r = self
                 .world
-                .renderer(self.index, state.pose, sequence)
+                .stack_renderer(self.index, state.pose, sequence)
                 .map_err(|e| self.failed(e))?;
             self.renderer = Some((state.pose, r));
         }

@@ -1,0 +1,394 @@
+//! The capture engine on a small simulated rig: frames in order and identical to the
+//! simulator's own rendering, faults (a camera that stops, dropped frames, a sink that
+//! refuses), datasets written atomically, resumed, and read back with errors naming the
+//! camera and frame.
+
+use super::dataset::{
+    CameraEntry, Dataset, DatasetError, DatasetInfo, ProjectorEntry, StackReader,
+};
+use super::*;
+use crate::rig::file::RigFile;
+use crate::rig::sim::{Faults, SimWorld};
+use std::path::Path;
+use std::sync::Arc;
+
+/// Two small cameras facing each other across the board, two projectors, three poses.
+const RIG: &str = r#"
+name = "tiny"
+[timing]
+frame_period_ms = 20.0
+[poses]
+count = 3
+yaw_deg = 20.0
+tilt_deg = 10.0
+shift_mm = 20.0
+seed = 3
+[[camera]]
+name = "front"
+driver = "sim"
+width = 320
+height = 240
+exposure_ms = 10.0
+sim.intrinsics = { fx = 1500.0, fy = 1500.0, cx = 159.5, cy = 119.5 }
+sim.pose = { eye = [0.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
+[[camera]]
+name = "back"
+driver = "sim"
+width = 320
+height = 240
+exposure_ms = 10.0
+sim.intrinsics = { fx = 1500.0, fy = 1500.0, cx = 159.5, cy = 119.5 }
+sim.pose = { eye = [100.0, 0.0, -1500.0], target = [0.0, 0.0, 0.0] }
+[[projector]]
+name = "p0"
+driver = "sim"
+width = 320
+height = 200
+sim.intrinsics = { fx = 400.0, fy = 400.0, cx = 160.0, cy = 180.0 }
+sim.pose = { eye = [300.0, 50.0, 1300.0], target = [0.0, 0.0, 0.0] }
+[[projector]]
+name = "p1"
+driver = "sim"
+width = 320
+height = 200
+sim.intrinsics = { fx = 400.0, fy = 400.0, cx = 160.0, cy = 180.0 }
+sim.pose = { eye = [-300.0, 50.0, -1300.0], target = [0.0, 0.0, 0.0] }
+"#;
+
+fn rig() -> RigFile {
+    RigFile::parse(RIG, "tiny.toml").unwrap()
+}
+
+/// A session on the tiny rig with `faults` on camera 1 and fast timeouts.
+fn session(faults: Faults) -> (Session, Arc<SimWorld>, Sequence) {
+    let rig = rig();
+    let opened = open::open(&rig, Path::new(".")).unwrap();
+    let world = opened.world.clone().unwrap();
+    let (mut cams, projs) = world.devices();
+    cams[1].set_faults(faults);
+    let cameras: Vec<Box<dyn Camera>> = cams.into_iter().map(|c| Box::new(c) as _).collect();
+    let projectors: Vec<Box<dyn Projector>> = projs.into_iter().map(|p| Box::new(p) as _).collect();
+    let timing = CaptureTiming {
+        frame_timeout: Duration::from_millis(200),
+        settle: Duration::ZERO,
+        ..opened.timing
+    };
+    let s = Session::start(
+        cameras,
+        &opened.configs,
+        projectors,
+        None,
+        &opened.sequence,
+        timing,
+    )
+    .unwrap();
+    (s, world, opened.sequence)
+}
+
+fn pixels8(f: &CameraFrame) -> &[u8] {
+    match &f.pixels {
+        Pixels::Gray8(p) => p,
+        Pixels::Gray16(_) => panic!("8-bit expected"),
+    }
+}
+
+#[test]
+fn frames_arrive_in_order_and_match_the_simulator() {
+    let (mut s, world, seq) = session(Faults::default());
+    world.place(1);
+    let mut got: Vec<(usize, usize, CameraFrame)> = Vec::new();
+    let timeline = s
+        .capture_pose(1, &mut |f| {
+            got.push((f.camera, f.index, f.frame));
+            Ok(())
+        })
+        .unwrap();
+    s.finish().unwrap();
+    let n = seq.frame_count();
+    assert_eq!(got.len(), 2 * n);
+    assert_eq!(timeline.frames.len(), n);
+    assert_eq!(timeline.dropped, 0);
+    // Frame k of every camera, in order; counters consecutive per camera.
+    for (i, (c, k, f)) in got.iter().enumerate() {
+        assert_eq!((*c, *k), (i % 2, i / 2));
+        assert_eq!(f.counter, *k as u64);
+        assert_eq!((f.width, f.height, f.bits), (320, 240, 8));
+        assert_eq!(f.exposure_us, 10_000.0);
+    }
+    // Pixel for pixel what the stack renderer gives for that camera, pose and frame.
+    for c in 0..2 {
+        let r = world_renderer(&world, c, 1, &seq);
+        for k in [0, 7, n - 1] {
+            let expect: Vec<u8> = r.frame(k).data.iter().map(|&v| v as u8).collect();
+            assert_eq!(
+                pixels8(&got[2 * k + c].2),
+                &expect[..],
+                "camera {c} frame {k}"
+            );
+        }
+    }
+    // The front camera sees projector light: frames differ.
+    assert_ne!(pixels8(&got[0].2), pixels8(&got[2].2));
+}
+
+fn world_renderer(
+    world: &SimWorld,
+    c: usize,
+    pose: usize,
+    seq: &Sequence,
+) -> crate::sim::stack::StackRenderer {
+    world.stack_renderer(c, pose, seq).unwrap()
+}
+
+#[test]
+fn a_camera_that_stops_names_itself_the_pose_and_the_frame() {
+    let (mut s, world, _) = session(Faults {
+        stop_after: Some(5),
+        drop_every: None,
+    });
+    world.place(0);
+    let mut delivered = 0;
+    let err = s
+        .capture_pose(0, &mut |_| {
+            delivered += 1;
+            Ok(())
+        })
+        .unwrap_err();
+    let text = err.to_string();
+    assert!(
+        matches!(
+            err,
+            CaptureError::Frame {
+                pose: 0,
+                frame: 5,
+                ..
+            }
+        ),
+        "{text}"
+    );
+    assert!(text.contains("back") && text.contains("no frame"), "{text}");
+    // Everything before the failing frame was delivered.
+    assert_eq!(delivered, 2 * 5);
+}
+
+#[test]
+fn dropped_frames_are_taken_again() {
+    let (mut s, world, seq) = session(Faults {
+        stop_after: None,
+        drop_every: Some(4),
+    });
+    world.place(0);
+    let mut counters = Vec::new();
+    let timeline = s
+        .capture_pose(0, &mut |f| {
+            if f.camera == 1 {
+                counters.push(f.frame.counter);
+            }
+            Ok(())
+        })
+        .unwrap();
+    let n = seq.frame_count();
+    assert_eq!(counters.len(), n);
+    // Every 4th exposure was lost and retaken: counters skip those.
+    let lost = counters.last().unwrap() + 1 - n as u64;
+    assert_eq!(timeline.dropped, lost);
+    assert!(lost >= (n as u64) / 4, "{lost}");
+    let retries: u32 = timeline.frames.iter().map(|t| t.retries).sum();
+    assert_eq!(u64::from(retries), lost);
+}
+
+#[test]
+fn a_refusing_sink_names_the_camera_and_frame() {
+    let (mut s, world, _) = session(Faults::default());
+    world.place(0);
+    let err = s
+        .capture_pose(0, &mut |f| {
+            if f.index == 3 {
+                Err("No space left on device".into())
+            } else {
+                Ok(())
+            }
+        })
+        .unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "pose 0, frame 3, camera front: No space left on device"
+    );
+}
+
+fn scratch(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("hexcal-capture-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+fn info(seq: &Sequence) -> DatasetInfo {
+    DatasetInfo {
+        format: dataset::FORMAT.into(),
+        version: dataset::VERSION,
+        rig: "tiny".into(),
+        board: "hex600".into(),
+        sequence: seq.clone(),
+        cameras: ["front", "back"]
+            .map(|name| CameraEntry {
+                name: name.into(),
+                width: 320,
+                height: 240,
+                bits: 8,
+            })
+            .to_vec(),
+        projectors: ["p0", "p1"]
+            .map(|name| ProjectorEntry {
+                name: name.into(),
+                width: 320,
+                height: 200,
+            })
+            .to_vec(),
+    }
+}
+
+#[test]
+fn datasets_keep_complete_poses_and_read_back_exactly() {
+    let dir = scratch("resume");
+    let (mut s, world, seq) = session(Faults::default());
+    let data = Dataset::create_or_resume(&dir, info(&seq)).unwrap();
+    // Pose 0 completes; pose 1 is interrupted after 4 frames (a full disk).
+    let mut first = Vec::new();
+    for (pose, stop) in [(0, None), (1, Some(4))] {
+        world.place(pose);
+        let mut w = data.pose_writer(pose).unwrap();
+        let r = s.capture_pose(pose, &mut |f| {
+            if Some(f.index) == stop {
+                return Err("disk full".into());
+            }
+            if pose == 0 && f.camera == 0 {
+                first.push(pixels8(&f.frame).to_vec());
+            }
+            w.write(&f).map_err(|e| e.to_string())
+        });
+        if let Ok(t) = r {
+            let info = w.finish(&t).unwrap();
+            data.complete(&info).unwrap();
+        }
+    }
+    s.finish().unwrap();
+    // Resuming finds pose 0 complete, pose 1 not; no temporary file is left behind.
+    let again = Dataset::create_or_resume(&dir, info(&seq)).unwrap();
+    assert_eq!(again.completed().unwrap(), vec![0]);
+    for pose in [0, 1] {
+        for cam in ["front", "back"] {
+            for e in std::fs::read_dir(again.stack_dir(pose, cam)).unwrap() {
+                let name = e.unwrap().file_name().to_string_lossy().into_owned();
+                assert!(!name.starts_with('.'), "temporary file {name} left");
+            }
+        }
+    }
+    // Frames read back bit for bit.
+    let stack = StackReader::open(&again.stack_dir(0, "front")).unwrap();
+    for (k, expect) in first.iter().enumerate() {
+        let got: Vec<u8> = stack.frame(k).unwrap().iter().map(|&v| v as u8).collect();
+        assert_eq!(&got, expect, "frame {k}");
+    }
+    // A different capture in the same folder is refused.
+    let mut other = info(&seq);
+    other.cameras.pop();
+    let err = Dataset::create_or_resume(&dir, other).unwrap_err();
+    assert!(err.to_string().contains("dataset.json"), "{err}");
+
+    // Broken stacks: a missing frame file, a frame of another size, a short frame list.
+    let stack_dir = again.stack_dir(0, "back");
+    std::fs::remove_file(stack_dir.join("frame-006.png")).unwrap();
+    let err = StackReader::open(&stack_dir).unwrap().frame(6).unwrap_err();
+    assert!(
+        matches!(&err, DatasetError::Frame { camera, frame: 6, .. } if camera == "back"),
+        "{err}"
+    );
+    image::GrayImage::new(10, 10)
+        .save(stack_dir.join("frame-007.png"))
+        .unwrap();
+    let err = StackReader::open(&stack_dir).unwrap().frame(7).unwrap_err();
+    assert!(
+        err.to_string().contains("10×10 in a 320×240 stack"),
+        "{err}"
+    );
+    std::fs::write(stack_dir.join("frame-008.png"), b"\x89PNG truncated").unwrap();
+    let err = StackReader::open(&stack_dir).unwrap().frame(8).unwrap_err();
+    assert!(err.to_string().starts_with("camera back, frame 8"), "{err}");
+    let path = stack_dir.join("stack.json");
+    let mut text: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    text["frames"].as_array_mut().unwrap().truncate(20);
+    std::fs::write(&path, text.to_string()).unwrap();
+    let err = StackReader::open(&stack_dir).unwrap_err();
+    assert!(
+        matches!(&err, DatasetError::Frame { frame: 20, .. }),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn decoded_stack_folders_match_the_projector_truth() {
+    // Capture one pose of the front camera to disk, decode the folder, compare the maps
+    // with the simulator's projector coordinates.
+    let dir = scratch("decode");
+    let (mut s, world, seq) = session(Faults::default());
+    let data = Dataset::create_or_resume(&dir, info(&seq)).unwrap();
+    world.place(0);
+    let mut w = data.pose_writer(0).unwrap();
+    let t = s
+        .capture_pose(0, &mut |f| w.write(&f).map_err(|e| e.to_string()))
+        .unwrap();
+    data.complete(&w.finish(&t).unwrap()).unwrap();
+    s.finish().unwrap();
+    let out = dir.join("decoded");
+    let (files, summary) =
+        crate::phase::files::decode_to_files(&data.stack_dir(0, "front"), &out).unwrap();
+    assert_eq!(files.len(), 1 + 2 * 5 + 1);
+    let truth = world_renderer(&world, 0, 0, &seq);
+    let p = &summary.projectors[0];
+    assert!(p.valid_fraction > 0.01, "{p:?}");
+    // The u map read back from its TIFF against the truth on valid pixels.
+    let u = read_tiff(&out.join("projector0-u.tiff"));
+    let valid = image::open(out.join("projector0-valid.png"))
+        .unwrap()
+        .to_luma8();
+    // Interior pixels: uniform albedo within ±3 px (≈ 4 PSF σ; nearer an edge the PSF
+    // mixes the phases of differently bright neighbours, which is optics, not decoding).
+    let albedo = truth.albedo();
+    let w = 320usize;
+    let uniform = |i: usize| {
+        let (x, y) = (i % w, i / w);
+        x >= 3
+            && y >= 3
+            && x + 3 < w
+            && y + 3 < 240
+            && (y - 3..=y + 3)
+                .all(|yy| (x - 3..=x + 3).all(|xx| (albedo[yy * w + xx] - albedo[i]).abs() < 1e-4))
+    };
+    let (mut sq, mut n) = (0.0, 0usize);
+    for (i, (&u, &ok)) in u.iter().zip(valid.as_raw()).enumerate() {
+        if ok == 255 && truth.truth(0).lit[i] && uniform(i) {
+            let e = f64::from(u - truth.truth(0).u[i]);
+            assert!(e.abs() < (6.0 * p.noise.sigma_u).max(1.0), "pixel {i}: {e}");
+            sq += e * e;
+            n += 1;
+        }
+    }
+    let rms = (sq / n as f64).sqrt();
+    eprintln!(
+        "{n} interior pixels: u RMS {rms:.3} px, predicted σ_u {:.3}",
+        p.noise.sigma_u
+    );
+    // DESIGN.md §6 acceptance: RMS ≤ 1.2 × the predicted σ_u.
+    assert!(n > 200 && rms <= 1.2 * p.noise.sigma_u, "{n} px, rms {rms}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn read_tiff(path: &Path) -> Vec<f32> {
+    let mut d = tiff::decoder::Decoder::new(std::fs::File::open(path).unwrap()).unwrap();
+    match d.read_image().unwrap() {
+        tiff::decoder::DecodingResult::F32(v) => v,
+        _ => panic!("float TIFF expected"),
+    }
+}
