@@ -436,8 +436,8 @@ fn keep_freed_blocks() {
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 30);
         libc::mallopt(libc::M_TRIM_THRESHOLD, 64 << 20);
-        // Two arenas for two cores: per-thread arenas would each keep their own freed frames.
-        libc::mallopt(libc::M_ARENA_MAX, 2);
+        // One arena: per-thread arenas would each keep their own freed frames.
+        libc::mallopt(libc::M_ARENA_MAX, 1);
     }
 }
 

@@ -42,13 +42,17 @@ pub struct ProjectorTruth {
 pub struct StackRenderer {
     size: ImageSize,
     albedo: Vec<f32>,
-    ambient_dn: f32,
     gains: Vec<f32>,
     truth: Vec<ProjectorTruth>,
     sensor: Sensor,
     sequence: Sequence,
     light: Vec<[f32; 256]>,
     seed: u64,
+    /// The signal with every projector dark (ambient light through the optics), once.
+    ambient_signal: Vec<f32>,
+    /// Pixel rectangle (x0, y0, x1, y1), exclusive ends, holding every lit pixel plus the
+    /// PSF's reach twice over: outside it projector light adds nothing.
+    lit_box: Option<[usize; 4]>,
 }
 
 impl StackRenderer {
@@ -68,7 +72,7 @@ impl StackRenderer {
             )));
         }
         let geo = geometry(scene)?;
-        let truth = projectors
+        let truth: Vec<ProjectorTruth> = projectors
             .iter()
             .map(|p| {
                 let n = geo.point.len();
@@ -100,13 +104,36 @@ impl StackRenderer {
                 ProjectorTruth { u, v, lit }
             })
             .collect();
+        let sensor = sensor(&scene.imaging);
+        let (w, h) = (geo.size.width as usize, geo.size.height as usize);
+        let ambient: Vec<f32> = geo.albedo.iter().map(|a| a * ambient_dn as f32).collect();
+        let ambient_signal = sensor.optics(geo.size, &ambient);
+        let reach = 2 * (4.0 * sensor.psf_sigma).ceil() as usize;
+        let mut lit_box: Option<[usize; 4]> = None;
+        for y in 0..h {
+            for x in 0..w {
+                if truth.iter().any(|t| t.lit[y * w + x]) {
+                    let b = lit_box.get_or_insert([x, y, x + 1, y + 1]);
+                    *b = [b[0].min(x), b[1].min(y), b[2].max(x + 1), b[3].max(y + 1)];
+                }
+            }
+        }
+        let lit_box = lit_box.map(|[x0, y0, x1, y1]| {
+            [
+                x0.saturating_sub(reach),
+                y0.saturating_sub(reach),
+                (x1 + reach).min(w),
+                (y1 + reach).min(h),
+            ]
+        });
         Ok(StackRenderer {
+            ambient_signal,
+            lit_box,
             size: geo.size,
             albedo: geo.albedo,
-            ambient_dn: ambient_dn as f32,
             gains: projectors.iter().map(|p| p.gain_dn as f32).collect(),
             truth,
-            sensor: sensor(&scene.imaging),
+            sensor,
             light: (0..sequence.projectors().len())
                 .map(|p| sequence.light_table(p).map(|l| l as f32))
                 .collect(),
@@ -130,8 +157,9 @@ impl StackRenderer {
         &self.truth[p]
     }
 
-    /// The noise-free irradiance of frame k (DN, before the sensor).
-    fn irradiance(&self, k: usize) -> Vec<f32> {
+    /// The projectors' noise-free irradiance of frame k inside `lit_box` (DN, before the
+    /// sensor; box-sized, row-major).
+    fn projector_irradiance(&self, k: usize, [x0, y0, x1, y1]: [usize; 4]) -> Vec<f32> {
         let frame = self
             .sequence
             .frame(k)
@@ -155,12 +183,13 @@ impl StackRenderer {
             })
             .collect();
         let w = self.size.width as usize;
-        let mut irr = vec![0.0f32; self.albedo.len()];
-        irr.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            let base = y * w;
-            for (x, out) in row.iter_mut().enumerate() {
-                let i = base + x;
-                let mut e = self.ambient_dn;
+        let bw = x1 - x0;
+        let mut irr = vec![0.0f32; bw * (y1 - y0)];
+        irr.par_chunks_mut(bw).enumerate().for_each(|(by, row)| {
+            let base = (y0 + by) * w + x0;
+            for (bx, out) in row.iter_mut().enumerate() {
+                let i = base + bx;
+                let mut e = 0.0;
                 for (p, t) in self.truth.iter().enumerate() {
                     if t.lit[i] {
                         let (rows, a, b) = phases[p];
@@ -177,7 +206,35 @@ impl StackRenderer {
 
     /// Frame k of the stack.
     pub fn frame(&self, k: usize) -> Frame {
-        let signal = self.sensor.optics(self.size, &self.irradiance(k));
+        // The optics are linear: the ambient signal (once) plus the projectors' light through
+        // the optics inside the lit box, exact there because the box reaches twice as far as
+        // the PSF beyond the last lit pixel.
+        let mut signal = self.ambient_signal.clone();
+        if let Some(b @ [x0, y0, x1, y1]) = self.lit_box {
+            let (bw, bh) = (x1 - x0, y1 - y0);
+            let mut irr = self.projector_irradiance(k, b);
+            let (w, h) = (self.size.width as usize, self.size.height as usize);
+            if self.sensor.vignetting != 0.0 {
+                let (cx, cy) = (0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0));
+                let corner2 = (cx * cx + cy * cy).max(1e-12);
+                for (by, row) in irr.chunks_mut(bw).enumerate() {
+                    let dy2 = ((y0 + by) as f64 - cy).powi(2);
+                    for (bx, v) in row.iter_mut().enumerate() {
+                        let rho2 = ((x0 + bx) as f64 - cx).powi(2) + dy2;
+                        *v *= (1.0 - self.sensor.vignetting * rho2 / corner2) as f32;
+                    }
+                }
+            }
+            if self.sensor.psf_sigma > 0.0 {
+                irr = hexcal_simulator::sensor::gaussian_blur(&irr, bw, bh, self.sensor.psf_sigma);
+            }
+            for (by, row) in irr.chunks(bw).enumerate() {
+                let start = (y0 + by) * w + x0;
+                for (s, v) in signal[start..start + bw].iter_mut().zip(row) {
+                    *s += v;
+                }
+            }
+        }
         self.sensor
             .expose(self.size, &signal, self.seed.wrapping_add(1 + k as u64))
     }
