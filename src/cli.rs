@@ -224,6 +224,10 @@ pub fn summarise(outcome: &hexcal::pipeline::Outcome, progress: Progress) {
             hexcal::report::format_verification(&outcome.verification)
         );
     }
+    if !outcome.truth.is_empty() {
+        println!("against the simulated rig's ground truth:");
+        print!("{}", hexcal::pipeline::format_truth(&outcome.truth));
+    }
     for w in &outcome.warnings {
         println!("warning: {w}");
     }

@@ -43,11 +43,15 @@ enum Command {
         #[arg(long)]
         seed: Option<u64>,
     },
-    /// Calibrate every device from a correspondences file (labelled views with projector
-    /// pixels, JSON) and write the calibration, OpenCV and Kalibr files and the residual table.
+    /// Calibrate every device from a dataset folder (of `hexcal capture` or `hexcal run`) or
+    /// a correspondences file (labelled views with projector pixels, JSON) and write the
+    /// calibration, OpenCV and Kalibr files and the residual table.
     Calibrate {
-        /// The correspondences file.
+        /// The dataset folder or the correspondences file.
         input: PathBuf,
+        /// Dataset poses held out for verification (the last ones).
+        #[arg(long, default_value_t = 1)]
+        held_out: usize,
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
@@ -294,8 +298,35 @@ fn calibrate(
     reference: Option<&str>,
     fix_k3: bool,
     refine_flatness: bool,
+    held_out: usize,
 ) -> anyhow::Result<()> {
     use hexcal::calib::pipeline::{calibrate, CalibrateOptions, Correspondences};
+    if input.is_dir() {
+        let mut options = CalibrateOptions::default();
+        options.bundle.fix_k3 = fix_k3;
+        options.bundle.refine_flatness = refine_flatness;
+        if let Some(name) = reference {
+            let data = hexcal::capture::dataset::Dataset::open(input)?;
+            options.bundle.reference = data
+                .info
+                .cameras
+                .iter()
+                .map(|c| &c.name)
+                .chain(data.info.projectors.iter().map(|p| &p.name))
+                .position(|d| d == name)
+                .with_context(|| format!("{}: no device named {name:?}", input.display()))?;
+        }
+        let outcome = hexcal::pipeline::calibrate_dataset(
+            input,
+            out,
+            held_out,
+            &options,
+            &mut cli::printer(cli::Progress::Human),
+        )
+        .map_err(anyhow::Error::msg)?;
+        cli::summarise(&outcome, cli::Progress::Human);
+        return Ok(());
+    }
     let text = std::fs::read_to_string(input)
         .with_context(|| format!("cannot read {}", input.display()))?;
     let c: Correspondences = serde_json::from_str(&text)
@@ -504,7 +535,15 @@ fn main() -> anyhow::Result<()> {
             reference,
             fix_k3,
             refine_flatness,
-        } => calibrate(&input, &out, reference.as_deref(), fix_k3, refine_flatness)?,
+            held_out,
+        } => calibrate(
+            &input,
+            &out,
+            reference.as_deref(),
+            fix_k3,
+            refine_flatness,
+            held_out,
+        )?,
         Command::Verify { calibration, input } => verify(&calibration, &input)?,
         Command::Simulate { scene, out, seed } => {
             let mut scene = load_scene(scene.as_ref())?;

@@ -340,6 +340,79 @@ pub struct RunOptions {
     pub keep_stacks: bool,
 }
 
+/// A calibrated device against a simulated rig's ground truth.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TruthCheck {
+    /// Device name.
+    pub name: String,
+    /// Relative focal length error max(|Δfx/fx|, |Δfy/fy|).
+    pub focal_error: f64,
+    /// Principal point error (px).
+    pub principal_error: f64,
+    /// Rotation error of the pose relative to the reference device (deg).
+    pub rotation_error_deg: f64,
+    /// Position error relative to the reference device (mm).
+    pub position_error_mm: f64,
+}
+
+/// Every calibrated device of `cal` against the simulated `world`'s truth (devices named
+/// as in the world; poses relative to the calibration's reference device).
+pub fn check_truth(cal: &Calibration, world: &crate::rig::sim::SimWorld) -> Vec<TruthCheck> {
+    let truth = |name: &str| {
+        world
+            .cameras
+            .iter()
+            .chain(&world.projectors)
+            .find(|d| d.name == name)
+    };
+    // T_ref_rig of the reference: the device whose calibrated pose is the identity.
+    let Some(reference) = cal
+        .devices
+        .iter()
+        .find(|d| d.pose.translation.vector.norm() == 0.0 && d.pose.rotation.angle() == 0.0)
+        .and_then(|d| truth(&d.name))
+    else {
+        return Vec::new();
+    };
+    cal.devices
+        .iter()
+        .filter_map(|d| {
+            let t = truth(&d.name)?;
+            let (e, k) = (&d.model.intrinsics, &t.model.intrinsics);
+            let true_pose = t.pose * reference.pose.inverse();
+            let delta = d.pose * true_pose.inverse();
+            Some(TruthCheck {
+                name: d.name.clone(),
+                focal_error: ((e.fx / k.fx - 1.0).abs()).max((e.fy / k.fy - 1.0).abs()),
+                principal_error: (e.cx - k.cx).hypot(e.cy - k.cy),
+                rotation_error_deg: delta.rotation.angle().to_degrees(),
+                position_error_mm: (d.pose.inverse().translation.vector
+                    - true_pose.inverse().translation.vector)
+                    .norm(),
+            })
+        })
+        .collect()
+}
+
+/// The truth checks as a table.
+pub fn format_truth(checks: &[TruthCheck]) -> String {
+    let mut s = format!(
+        "{:<10} {:>12} {:>12} {:>12} {:>12}\n",
+        "device", "focal err %", "pp err px", "rot err deg", "pos err mm"
+    );
+    for c in checks {
+        s += &format!(
+            "{:<10} {:>12.4} {:>12.3} {:>12.4} {:>12.3}\n",
+            c.name,
+            100.0 * c.focal_error,
+            c.principal_error,
+            c.rotation_error_deg,
+            c.position_error_mm
+        );
+    }
+    s
+}
+
 /// The result of a run or of calibrating a dataset.
 #[derive(Debug)]
 pub struct Outcome {
@@ -355,6 +428,8 @@ pub struct Outcome {
     pub timelines: Vec<(usize, Timeline)>,
     /// Warnings for the report (skipped poses, failed stacks).
     pub warnings: Vec<String>,
+    /// Against the ground truth, when the rig is simulated.
+    pub truth: Vec<TruthCheck>,
 }
 
 fn devices_of(info: &DatasetInfo) -> Vec<DeviceInfo> {
@@ -634,20 +709,36 @@ pub fn run(
         handle(p, &mut all, &mut warnings, events)?;
     }
     session.finish().map_err(|e| e.to_string())?;
-    let mut outcome = finish(&board, &devices, &all, held_from, out, events)?;
+    let mut outcome = finish(
+        &board,
+        &devices,
+        &all,
+        held_from,
+        &out.join("calibration"),
+        &CalibrateOptions::default(),
+        events,
+    )?;
     outcome.timelines = timelines;
     outcome.warnings.splice(0..0, warnings);
+    if let Some(w) = &world {
+        outcome.truth = check_truth(&outcome.calibration, w);
+        let path = out.join("calibration").join("truth.txt");
+        crate::atomic::write(&path, format_truth(&outcome.truth).as_bytes())
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        outcome.files.push(path);
+    }
     Ok(outcome)
 }
 
 /// Calibrate from the views of `all` poses (those from `held_from` on are held out and
-/// verified), write the outputs to `out/calibration`.
+/// verified), write the outputs to `dir`.
 fn finish(
     board: &Board,
     devices: &[DeviceInfo],
     all: &[Option<PoseViews>],
     held_from: usize,
-    out: &Path,
+    dir: &Path,
+    options: &CalibrateOptions,
     events: &mut dyn FnMut(&Event),
 ) -> Result<Outcome, String> {
     let views_of = |range: std::ops::Range<usize>| -> Vec<CameraView> {
@@ -660,18 +751,11 @@ fn finish(
     let used = views_of(0..held_from.min(all.len()));
     let held = views_of(held_from.min(all.len())..all.len());
     events(&Event::Calibrating { views: used.len() });
-    let cal = calibrate(
-        board,
-        devices,
-        held_from.min(all.len()),
-        &used,
-        &CalibrateOptions::default(),
-    )
-    .map_err(|e| format!("calibration: {e}"))?;
+    let cal = calibrate(board, devices, held_from.min(all.len()), &used, options)
+        .map_err(|e| format!("calibration: {e}"))?;
     let verification = verify_held_out(board, &cal, &held, held_from);
-    let dir = out.join("calibration");
-    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    let mut files = crate::report::write_outputs(&cal, &dir).map_err(|e| e.to_string())?;
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let mut files = crate::report::write_outputs(&cal, dir).map_err(|e| e.to_string())?;
     let text = crate::report::format_verification(&verification);
     let path = dir.join("verification.txt");
     crate::atomic::write(&path, text.as_bytes()).map_err(|e| format!("{}: {e}", path.display()))?;
@@ -689,6 +773,7 @@ fn finish(
         files,
         timelines: Vec::new(),
         warnings: Vec::new(),
+        truth: Vec::new(),
     })
 }
 
@@ -724,11 +809,13 @@ fn verify_held_out(
 }
 
 /// `hexcal calibrate DATASET`: every complete pose's views (from `views.json`, or decoded
-/// from its stacks), calibrated with the last `held_out` poses verified; outputs in
-/// `DATASET/calibration`.
+/// from its stacks), calibrated with `options` and the last `held_out` poses verified;
+/// outputs in `out`.
 pub fn calibrate_dataset(
     root: &Path,
+    out: &Path,
     held_out: usize,
+    options: &CalibrateOptions,
     events: &mut dyn FnMut(&Event),
 ) -> Result<Outcome, String> {
     let data = Dataset::open(root).map_err(|e| e.to_string())?;
@@ -788,7 +875,7 @@ pub fn calibrate_dataset(
         all.push(Some(views));
     }
     let held_from = all.len().saturating_sub(held_out);
-    let mut outcome = finish(&board, &devices, &all, held_from, root, events)?;
+    let mut outcome = finish(&board, &devices, &all, held_from, out, options, events)?;
     outcome.warnings = warnings;
     Ok(outcome)
 }

@@ -186,7 +186,7 @@ fn default_repeats() -> u32 {
 
 /// Board poses of a simulated rig: `count` poses turned about the vertical by up to ±`yaw`
 /// degrees, tilted and rolled by up to ±`tilt` degrees, moved by up to ±`shift` mm, seeded.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PosesSpec {
     /// Number of poses.
@@ -200,6 +200,10 @@ pub struct PosesSpec {
     /// Seed.
     #[serde(default)]
     pub seed: u64,
+    /// Poses where the board is not in front of the rig (the operator forgot it): for
+    /// testing how a run reports a pose nobody saw.
+    #[serde(default)]
+    pub absent: Vec<usize>,
 }
 
 /// A rig file.

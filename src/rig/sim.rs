@@ -87,7 +87,11 @@ pub fn board_poses(spec: &PosesSpec) -> Vec<Isometry3<f64>> {
                 (spec.tilt_deg * r()).to_radians(),
                 (spec.tilt_deg * r()).to_radians(),
             );
-            let shift = Vector3::new(r(), r(), r()) * spec.shift_mm;
+            let mut shift = Vector3::new(r(), r(), r()) * spec.shift_mm;
+            if spec.absent.contains(&k) {
+                // Far behind every device: nothing sees it.
+                shift.y += 1e5;
+            }
             let rot = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw)
                 * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), tilt)
                 * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), roll);
