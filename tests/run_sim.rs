@@ -1,0 +1,233 @@
+//! `hexcal run` end to end on a simulated rig (issue 7): capture with the real engine,
+//! streaming decode, detection, grids, projector fits, calibration and held-out
+//! verification, checked against the rig's ground truth; a pose where the board is absent is
+//! reported and skipped; capture and processing overlap; an interrupted run leaves a dataset
+//! that a resumed run completes.
+//!
+//! The rig is a reduced paper rig (three 960×600 cameras, two facing the front and one the
+//! back, two projectors) so the test runs in the debug build; the full paper rig is the
+//! README's main command (figures in the closing notes).
+
+#[path = "support/cli.rs"]
+mod cli;
+
+use cli::scratch;
+use hexcal::pipeline::{run, Event, RunOptions};
+use std::path::Path;
+
+const RIG: &str = r#"
+name = "sim-small"
+board = "hex600"
+[timing]
+frame_period_ms = 20.0
+[poses]
+count = 7
+yaw_deg = 30.0
+tilt_deg = 20.0
+shift_mm = 40.0
+seed = 5
+absent = [2]
+[[camera]]
+name = "cam0"
+driver = "sim"
+width = 960
+height = 600
+exposure_ms = 10.0
+sim.intrinsics = { fx = 1200.0, fy = 1200.0, cx = 478.0, cy = 301.0 }
+sim.distortion = { k1 = -0.12, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
+sim.pose = { eye = [0.0, -311.9, 1467.2], target = [0.0, 0.0, 0.0] }
+[[camera]]
+name = "cam1"
+driver = "sim"
+width = 960
+height = 600
+exposure_ms = 10.0
+sim.intrinsics = { fx = 1220.0, fy = 1220.0, cx = 481.0, cy = 299.0 }
+sim.distortion = { k1 = -0.1, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
+sim.pose = { eye = [-860.4, 0.0, 1228.7], target = [0.0, 0.0, 0.0] }
+[[camera]]
+name = "cam2"
+driver = "sim"
+width = 960
+height = 600
+exposure_ms = 10.0
+sim.intrinsics = { fx = 1240.0, fy = 1240.0, cx = 482.0, cy = 300.0 }
+sim.distortion = { k1 = -0.11, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
+sim.pose = { eye = [0.0, -311.9, -1467.2], target = [0.0, 0.0, 0.0] }
+[[projector]]
+name = "proj0"
+driver = "sim"
+width = 1280
+height = 800
+sim.intrinsics = { fx = 1500.0, fy = 1500.0, cx = 640.0, cy = 740.0 }
+sim.pose = { eye = [335.2, 113.3, 1250.9], target = [0.0, 0.0, 0.0] }
+[[projector]]
+name = "proj1"
+driver = "sim"
+width = 1280
+height = 800
+sim.intrinsics = { fx = 1520.0, fy = 1520.0, cx = 640.0, cy = 740.0 }
+sim.pose = { eye = [224.9, 113.3, -1275.4], target = [0.0, 0.0, 0.0] }
+"#;
+
+fn rig_file(dir: &Path) -> std::path::PathBuf {
+    let path = dir.join("sim-small.toml");
+    std::fs::write(&path, RIG).unwrap();
+    path
+}
+
+#[test]
+fn run_calibrates_a_simulated_rig_to_its_ground_truth() {
+    let dir = scratch("run-sim");
+    let rig = rig_file(&dir);
+    let out = dir.join("data");
+    let mut log: Vec<Event> = Vec::new();
+    let outcome = run(
+        &rig,
+        &out,
+        &RunOptions {
+            poses: None,
+            held_out: 1,
+            keep_stacks: false,
+        },
+        &mut |k, world| {
+            world.expect("a simulated rig").place(k);
+            Ok(true)
+        },
+        &mut |e| log.push(e.clone()),
+    )
+    .unwrap();
+
+    // The absent pose is reported and skipped, not fatal.
+    assert!(
+        log.iter()
+            .any(|e| matches!(e, Event::PoseSkipped { pose: 2, .. })),
+        "{log:?}"
+    );
+    // Capture and processing overlap: pose k is processed after pose k+1's capture began.
+    let at = |f: &dyn Fn(&Event) -> bool| log.iter().position(f).unwrap();
+    for k in 0..5 {
+        let processed = at(&|e| matches!(e, Event::PoseProcessed { pose, .. } if *pose == k));
+        let next = at(&|e| matches!(e, Event::PoseStarted { pose, .. } if *pose == k + 1));
+        assert!(
+            next < processed,
+            "pose {k} processed before pose {} started",
+            k + 1
+        );
+    }
+    // Every device calibrated; accuracy of issue 5 against the ground truth.
+    let cal = &outcome.calibration;
+    assert!(cal.excluded.is_empty(), "{:?}", cal.excluded);
+    assert_eq!(cal.devices.len(), 5);
+    for row in hexcal::report::residual_table(cal) {
+        let limit = if row.kind == hexcal::calib::bundle::DeviceKind::Camera {
+            0.1
+        } else {
+            0.15
+        };
+        assert!(row.rms <= limit, "{}: RMS {} px", row.name, row.rms);
+    }
+    assert_eq!(outcome.truth.len(), 5);
+    for t in &outcome.truth {
+        eprintln!(
+            "{}: focal {:.4} %, principal point {:.3} px, rotation {:.4}°, position {:.3} mm",
+            t.name,
+            100.0 * t.focal_error,
+            t.principal_error,
+            t.rotation_error_deg,
+            t.position_error_mm
+        );
+        assert!(
+            t.focal_error <= 1e-3,
+            "{}: focal error {}",
+            t.name,
+            t.focal_error
+        );
+    }
+    let length = hexcal::report::verification_rms(&outcome.verification).unwrap();
+    eprintln!("held-out length error RMS {length:.4} mm");
+    assert!(length <= 0.1, "held-out length RMS {length} mm");
+    for name in [
+        "calibration.json",
+        "camchain.yaml",
+        "truth.txt",
+        "verification.txt",
+    ] {
+        assert!(out.join("calibration").join(name).exists(), "{name}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn an_interrupted_run_resumes_and_its_dataset_calibrates() {
+    let dir = scratch("run-resume");
+    let rig = rig_file(&dir);
+    let out = dir.join("data");
+    // Interrupt after two poses (as Ctrl-C would: the process ends between poses' files).
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_hexcal"))
+        .args(["run", "--auto", "--quiet", "--rig"])
+        .arg(&rig)
+        .arg("--out")
+        .arg(&out)
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(600);
+    while !out.join("pose-001/pose.json").exists() {
+        assert!(std::time::Instant::now() < deadline, "no pose completed");
+        assert!(child.try_wait().unwrap().is_none(), "run ended early");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let status = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    assert!(!child.wait().unwrap().success());
+    // Complete poses survive; a resumed run reuses them and finishes.
+    let resumed = std::process::Command::new(env!("CARGO_BIN_EXE_hexcal"))
+        .args(["run", "--auto", "--json", "--rig"])
+        .arg(&rig)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&resumed.stdout);
+    assert!(
+        resumed.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&resumed.stderr)
+    );
+    let events: Vec<serde_json::Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let reused = events
+        .iter()
+        .find(|e| e["event"] == "resumed")
+        .expect("a resumed event");
+    let reused: Vec<u64> = reused["poses"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p.as_u64().unwrap())
+        .collect();
+    assert!(reused.starts_with(&[0, 1]), "{reused:?}");
+    assert!(!events
+        .iter()
+        .any(|e| e["event"] == "pose_started" && e["pose"] == 0));
+    assert!(events.iter().any(|e| e["event"] == "finished"));
+    // The dataset alone calibrates again (`hexcal calibrate DATASET`).
+    let again = cli::hexcal(&[
+        "calibrate",
+        out.to_str().unwrap(),
+        "--out",
+        dir.join("again").to_str().unwrap(),
+    ]);
+    assert!(
+        again.status.success(),
+        "{}",
+        String::from_utf8_lossy(&again.stderr)
+    );
+    assert!(dir.join("again/calibration.json").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
