@@ -224,6 +224,12 @@ pub fn summarise(outcome: &hexcal::pipeline::Outcome, progress: Progress) {
             hexcal::report::format_verification(&outcome.verification)
         );
     }
+    for a in &outcome.agreement {
+        println!(
+            "{}: cameras agree on its pixels to {:.4} px RMS per camera ({} camera pairs × circles)",
+            outcome.devices[a.projector].name, a.rms, a.pairs
+        );
+    }
     if !outcome.truth.is_empty() {
         println!("against the simulated rig's ground truth:");
         print!("{}", hexcal::pipeline::format_truth(&outcome.truth));

@@ -430,6 +430,8 @@ pub struct Outcome {
     pub warnings: Vec<String>,
     /// Against the ground truth, when the rig is simulated.
     pub truth: Vec<TruthCheck>,
+    /// How well the cameras agree on each projector's pixels.
+    pub agreement: Vec<crate::correspond::Agreement>,
 }
 
 fn devices_of(info: &DatasetInfo) -> Vec<DeviceInfo> {
@@ -774,6 +776,7 @@ fn finish(
         timelines: Vec::new(),
         warnings: Vec::new(),
         truth: Vec::new(),
+        agreement: crate::correspond::agreement(&used),
     })
 }
 

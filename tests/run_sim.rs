@@ -144,6 +144,17 @@ fn run_calibrates_a_simulated_rig_to_its_ground_truth() {
             t.focal_error
         );
     }
+    // The cameras agree on every projector's pixels to the decoding accuracy of issue 9
+    // (≤ 0.06 projector px for circles of radius 5–8 px, ≤ 0.03 above).
+    // (proj1 lights the back, which one camera sees: no pair to compare.)
+    assert_eq!(outcome.agreement.len(), 1);
+    for a in &outcome.agreement {
+        eprintln!(
+            "projector {}: cameras agree to {:.4} px ({} pairs)",
+            a.projector, a.rms, a.pairs
+        );
+        assert!(a.pairs > 100 && a.rms <= 0.06, "{a:?}");
+    }
     let length = hexcal::report::verification_rms(&outcome.verification).unwrap();
     eprintln!("held-out length error RMS {length:.4} mm");
     assert!(length <= 0.1, "held-out length RMS {length} mm");

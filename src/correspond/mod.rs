@@ -238,3 +238,55 @@ pub fn camera_view(
 
 #[cfg(test)]
 mod tests;
+
+/// How well the cameras agree on one projector's pixels (DESIGN.md §7): the same board
+/// circle of the same pose, lit by the projector and seen by two cameras, should decode to
+/// the same projector pixel.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Agreement {
+    /// Device index of the projector.
+    pub projector: usize,
+    /// Camera pairs × shared circles compared.
+    pub pairs: usize,
+    /// RMS over those pairs of the difference per axis, divided by √2: one camera's
+    /// observation noise if both are alike (projector px).
+    pub rms: f64,
+}
+
+/// The agreement between cameras for every projector in `views` (anchored views only:
+/// their labels name the same circle in every camera).
+pub fn agreement(views: &[CameraView]) -> Vec<Agreement> {
+    use std::collections::BTreeMap;
+    // (projector, pose, side, hex) → the pixels the cameras decoded there.
+    let mut seen: BTreeMap<(usize, usize, Side, Hex), Vec<Point2<f64>>> = BTreeMap::new();
+    for v in views {
+        let Frame::Anchored(side) = v.frame else {
+            continue;
+        };
+        for p in &v.points {
+            for q in &p.projectors {
+                seen.entry((q.projector, v.pose, side, p.hex))
+                    .or_default()
+                    .push(q.pixel);
+            }
+        }
+    }
+    let mut per: BTreeMap<usize, (usize, f64)> = BTreeMap::new();
+    for ((projector, ..), pixels) in &seen {
+        for (i, a) in pixels.iter().enumerate() {
+            for b in &pixels[i + 1..] {
+                let e = per.entry(*projector).or_default();
+                e.0 += 1;
+                e.1 += (a - b).norm_squared();
+            }
+        }
+    }
+    per.into_iter()
+        .map(|(projector, (pairs, sq))| Agreement {
+            projector,
+            pairs,
+            // Two axes and two cameras' noise in each difference.
+            rms: (sq / (4.0 * pairs.max(1) as f64)).sqrt(),
+        })
+        .collect()
+}
