@@ -1,10 +1,13 @@
 //! hexcal: joint geometric calibration of structured-light rigs with many cameras and many
 //! projectors, from a double-sided hexagonal circle board.
 //!
-//! The stages, in the order data flows through them:
-//! [`board`] and [`camera`] (the models every stage shares) → [`detect`] (circles) →
-//! [`grid`] (labelled lattice points), both run on image files by [`detection`]; [`sim`]
-//! renders board views with ground truth.
+//! The stages, in the order data flows through them: [`board`] and [`camera`] (the models
+//! every stage shares) → [`rig`] (rig files, device traits, drivers, the simulated rig) →
+//! [`capture`] (lockstep capture, datasets) → [`phase`] (decoding) → [`detect`] (circles) →
+//! [`grid`] (labelled lattice points), both run on image files by [`detection`] →
+//! [`correspond`] (camera and projector observations) → [`calib`] → [`report`];
+//! [`pipeline`] streams them all in one process (`hexcal run`). [`sim`] renders board views
+//! and capture stacks with ground truth.
 #![warn(missing_docs)]
 
 pub mod atomic;
