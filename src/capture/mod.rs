@@ -268,7 +268,8 @@ impl Session {
         let frames = self.sequence.frame_count();
         let repeats = self.timing.repeats;
         if let Some(t) = self.trigger.as_mut() {
-            t.arm(frames as u32 * repeats)
+            // Room for every retry: a retried frame fires again.
+            t.arm(frames as u32 * repeats * (1 + self.timing.retries))
                 .map_err(|source| CaptureError::Frame {
                     pose,
                     frame: 0,

@@ -9,12 +9,16 @@ use super::CaptureTiming;
 use crate::board::Board;
 use crate::phase::{ProjectorCode, ProjectorResponse, ProjectorSetup, Sequence};
 use crate::rig::file::{CameraDriver, ProjectorDriver, RigFile};
-use crate::rig::sim::SimWorld;
+use crate::rig::sim::{SimWorld, WiredTrigger};
 use crate::rig::trigger::{TriggerController, TriggerTiming};
 use crate::rig::{Camera, CameraConfig, Projector, Trigger, TriggerSource};
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
+
+/// The `[trigger] port` of a simulated controller: the simulator's firmware model on an
+/// in-process pty pair, wired to the simulated cameras.
+pub const SIMULATED_PORT: &str = "sim";
 
 /// A rig's devices, ready for [`super::Session::start`].
 pub struct OpenedRig {
@@ -145,8 +149,6 @@ pub fn open(rig: &RigFile, base: &Path) -> Result<OpenedRig, String> {
     }
     let trigger: Option<Box<dyn Trigger>> = match &rig.trigger {
         Some(t) => {
-            let mut c = TriggerController::open(&t.port, 115_200, TriggerTiming::default())
-                .map_err(|e| e.to_string())?;
             let lines: Vec<_> = rig
                 .cameras
                 .iter()
@@ -157,8 +159,23 @@ pub fn open(rig: &RigFile, base: &Path) -> Result<OpenedRig, String> {
                     pulse_us: t.pulse_us,
                 })
                 .collect();
-            c.configure(&lines).map_err(|e| e.to_string())?;
-            Some(Box::new(c))
+            if t.port == SIMULATED_PORT {
+                // The simulator's firmware model on a pty, its lines wired to the
+                // simulated cameras.
+                let world = world
+                    .clone()
+                    .ok_or("trigger: port \"sim\" needs simulated cameras")?;
+                let mut w = WiredTrigger::simulated(world, Duration::from_secs(2))?;
+                w.controller()
+                    .configure(&lines)
+                    .map_err(|e| e.to_string())?;
+                Some(Box::new(w))
+            } else {
+                let mut c = TriggerController::open(&t.port, 115_200, TriggerTiming::default())
+                    .map_err(|e| e.to_string())?;
+                c.configure(&lines).map_err(|e| e.to_string())?;
+                Some(Box::new(c))
+            }
         }
         None => None,
     };

@@ -392,3 +392,58 @@ fn read_tiff(path: &Path) -> Vec<f32> {
         _ => panic!("float TIFF expected"),
     }
 }
+
+#[test]
+fn the_simulated_controller_on_a_pty_triggers_the_same_frames() {
+    // The tiny rig with the trigger controller: the host driver on one end of a pty, the
+    // firmware model on the other, its lines wired to the simulated cameras.
+    let text = RIG
+        .replace(
+            "[poses]",
+            "[trigger]\nport = \"sim\"\npulse_us = 100\n[poses]",
+        )
+        .replace("name = \"front\"\n", "name = \"front\"\ntrigger_line = 0\n")
+        .replace("name = \"back\"\n", "name = \"back\"\ntrigger_line = 1\n");
+    let rig = RigFile::parse(&text, "tiny-hw.toml").unwrap();
+    let opened = open::open(&rig, Path::new(".")).unwrap();
+    assert!(opened.trigger.is_some());
+    let world = opened.world.clone().unwrap();
+    let mut hw = Session::start(
+        opened.cameras,
+        &opened.configs,
+        opened.projectors,
+        opened.trigger,
+        &opened.sequence,
+        opened.timing,
+    )
+    .unwrap();
+    world.place(2);
+    let mut frames = Vec::new();
+    let timeline = hw
+        .capture_pose(2, &mut |f| {
+            frames.push(f);
+            Ok(())
+        })
+        .unwrap();
+    hw.finish().unwrap();
+    let n = opened.sequence.frame_count();
+    assert_eq!(frames.len(), 2 * n);
+    assert_eq!(timeline.frames.iter().map(|t| t.retries).sum::<u32>(), 0);
+    // The same pixels as software triggering gives.
+    let (mut sw, world2, _) = session(Faults::default());
+    world2.place(2);
+    let mut k = 0;
+    sw.capture_pose(2, &mut |f| {
+        assert_eq!(
+            pixels8(&f.frame),
+            pixels8(&frames[k].frame),
+            "camera {} frame {}",
+            f.camera,
+            f.index
+        );
+        k += 1;
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(k, 2 * n);
+}

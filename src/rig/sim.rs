@@ -57,6 +57,8 @@ pub struct SimWorld {
     pub board_poses: Vec<Isometry3<f64>>,
     imaging: Imaging,
     state: Mutex<State>,
+    /// Trigger pulses on the cameras' lines so far (see [`WiredTrigger`]).
+    pulses: std::sync::atomic::AtomicU64,
 }
 
 /// T_device_rig of a device at `eye` looking at `target` (rig y up, image y down).
@@ -152,6 +154,7 @@ impl SimWorld {
             cameras,
             projectors,
             imaging: Imaging::default(),
+            pulses: std::sync::atomic::AtomicU64::new(0),
         })
     }
 
@@ -177,6 +180,8 @@ impl SimWorld {
                 counter: 0,
                 exposure_us: 0.0,
                 started: false,
+                line: false,
+                pulses_seen: 0,
                 faults: Faults::default(),
             })
             .collect();
@@ -246,6 +251,10 @@ pub struct SimCamera {
     counter: u64,
     exposure_us: f64,
     started: bool,
+    /// Exposures start on line pulses rather than software triggers.
+    line: bool,
+    /// Line pulses already exposed.
+    pulses_seen: u64,
     faults: Faults,
 }
 
@@ -291,16 +300,68 @@ impl Camera for SimCamera {
             });
         }
         self.exposure_us = config.exposure_us;
+        self.line = config.trigger == super::device::TriggerSource::Line;
         Ok(())
     }
 
     fn start(&mut self) -> Result<(), DeviceError> {
         self.started = true;
         self.pending.clear();
+        self.pulses_seen = self.world.pulses.load(std::sync::atomic::Ordering::SeqCst);
         Ok(())
     }
 
     fn trigger(&mut self) -> Result<(), DeviceError> {
+        if self.line {
+            return Err(DeviceError::Unsupported {
+                device: self.name().to_string(),
+                setting: "trigger".into(),
+                reason: "software trigger on a line-triggered camera".into(),
+            });
+        }
+        self.expose()
+    }
+
+    fn next_frame(&mut self, timeout: Duration) -> Result<CameraFrame, DeviceError> {
+        if self.line {
+            // Expose once per pulse that arrived on the line, waiting for one if none has.
+            let deadline = std::time::Instant::now() + timeout;
+            loop {
+                let pulses = self.world.pulses.load(std::sync::atomic::Ordering::SeqCst);
+                while self.pulses_seen < pulses {
+                    self.pulses_seen += 1;
+                    self.expose()?;
+                }
+                if !self.pending.is_empty() || std::time::Instant::now() >= deadline {
+                    break;
+                }
+                std::thread::sleep(Duration::from_micros(200));
+            }
+        }
+        match self.pending.pop_front() {
+            Some(f) => Ok(f),
+            None => {
+                if !self.line {
+                    std::thread::sleep(timeout);
+                }
+                Err(DeviceError::Timeout {
+                    device: self.name().to_string(),
+                    timeout,
+                })
+            }
+        }
+    }
+
+    fn stop(&mut self) -> Result<(), DeviceError> {
+        self.started = false;
+        self.renderer = None;
+        Ok(())
+    }
+}
+
+impl SimCamera {
+    /// Expose one frame of what the projectors show now.
+    fn expose(&mut self) -> Result<(), DeviceError> {
         if !self.started {
             return Err(self.failed("triggered before start"));
         }
@@ -354,24 +415,116 @@ impl Camera for SimCamera {
         });
         Ok(())
     }
+}
 
-    fn next_frame(&mut self, timeout: Duration) -> Result<CameraFrame, DeviceError> {
-        match self.pending.pop_front() {
-            Some(f) => Ok(f),
-            None => {
-                std::thread::sleep(timeout);
-                Err(DeviceError::Timeout {
-                    device: self.name().to_string(),
-                    timeout,
-                })
-            }
+/// The trigger controller (the real host driver, talking to real or simulated firmware)
+/// wired to a simulated rig's camera lines: a frame's pulse reaches the cameras when the
+/// controller reports it done (its `FrameDone` event, with the controller's timestamp).
+pub struct WiredTrigger {
+    controller: super::trigger::TriggerController,
+    world: Arc<SimWorld>,
+    next: u32,
+    timeout: Duration,
+    /// The simulated firmware serving the controller's port, when it is simulated too.
+    firmware: Option<hexcal_simulator::firmware::SimulatedController>,
+}
+
+impl WiredTrigger {
+    /// Wire `controller`'s lines to `world`'s cameras; `timeout` bounds the wait for each
+    /// frame's `FrameDone`.
+    pub fn new(
+        controller: super::trigger::TriggerController,
+        world: Arc<SimWorld>,
+        timeout: Duration,
+    ) -> WiredTrigger {
+        WiredTrigger {
+            controller,
+            world,
+            next: 0,
+            timeout,
+            firmware: None,
         }
     }
 
-    fn stop(&mut self) -> Result<(), DeviceError> {
-        self.started = false;
-        self.renderer = None;
-        Ok(())
+    /// A controller whose firmware is the simulator's model on an in-process pty pair.
+    pub fn simulated(world: Arc<SimWorld>, timeout: Duration) -> Result<WiredTrigger, String> {
+        use hexcal_simulator::firmware::{ModelConfig, SimulatedController};
+        use serialport::SerialPort;
+        let (mut master, slave) =
+            serialport::TTYPort::pair().map_err(|e| format!("trigger: no pty pair: {e}"))?;
+        // The firmware's read timeout is its timer resolution.
+        master
+            .set_timeout(Duration::from_millis(1))
+            .map_err(|e| format!("trigger: pty: {e}"))?;
+        let firmware = SimulatedController::spawn(master, ModelConfig::default());
+        let controller = super::trigger::TriggerController::from_port(
+            Box::new(slave),
+            super::trigger::TriggerTiming::default(),
+        )
+        .map_err(|e| e.to_string())?;
+        Ok(WiredTrigger {
+            firmware: Some(firmware),
+            ..WiredTrigger::new(controller, world, timeout)
+        })
+    }
+
+    /// The controller, to configure its lines.
+    pub fn controller(&mut self) -> &mut super::trigger::TriggerController {
+        &mut self.controller
+    }
+
+    /// Frames the simulated firmware fired, if it is simulated.
+    pub fn firmware_frames(&self) -> Option<u64> {
+        self.firmware.as_ref().map(|f| f.stats().frames_fired)
+    }
+
+    /// The host driver's counters (requests, retries, CRC errors, lost events).
+    pub fn stats(&self) -> super::trigger::TriggerStats {
+        self.controller.stats()
+    }
+
+    fn error(&self, e: super::trigger::TriggerError) -> DeviceError {
+        DeviceError::Failed {
+            device: self.controller.port_name().to_string(),
+            reason: e.to_string(),
+        }
+    }
+}
+
+impl super::device::Trigger for WiredTrigger {
+    fn name(&self) -> &str {
+        self.controller.port_name()
+    }
+
+    fn arm(&mut self, frames: u32) -> Result<(), DeviceError> {
+        self.next = 0;
+        super::device::Trigger::arm(&mut self.controller, frames)
+    }
+
+    fn fire(&mut self) -> Result<u32, DeviceError> {
+        let frame = super::device::Trigger::fire(&mut self.controller)?;
+        let done = self
+            .controller
+            .wait_frame_done(self.timeout)
+            .map_err(|e| self.error(e))?;
+        if done.frame != frame || frame != self.next {
+            return Err(DeviceError::Failed {
+                device: self.controller.port_name().to_string(),
+                reason: format!(
+                    "frame {} reported done after firing frame {frame} (expected {})",
+                    done.frame, self.next
+                ),
+            });
+        }
+        self.next += 1;
+        self.world
+            .pulses
+            .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        Ok(frame)
+    }
+
+    fn disarm(&mut self) -> Result<(), DeviceError> {
+        super::device::Trigger::disarm(&mut self.controller)
     }
 }
 
