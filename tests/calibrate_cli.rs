@@ -13,13 +13,17 @@ use std::process::Command;
 mod cli;
 use cli::{hexcal, scratch};
 
+/// Debian's interpreter, which `apt-get install python3-opencv python3-yaml` (scripts/test.sh)
+/// equips; a `python3` earlier on PATH (pyenv, a venv) may lack both.
+const PYTHON: &str = "/usr/bin/python3";
+
 fn python(script: &str, args: &[&Path]) -> String {
-    let out = Command::new("python3")
+    let out = Command::new(PYTHON)
         .arg("-c")
         .arg(script)
         .args(args)
         .output()
-        .expect("python3 runs (scripts/test.sh installs it)");
+        .expect("/usr/bin/python3 runs (scripts/test.sh installs it)");
     assert!(
         out.status.success(),
         "python: {}",
