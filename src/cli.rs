@@ -239,3 +239,33 @@ pub fn summarise(outcome: &hexcal::pipeline::Outcome, progress: Progress) {
     }
     println!("wrote {} files", outcome.files.len());
 }
+
+/// `hexcal devices`: what this machine has, as rig-file addresses.
+pub fn devices() -> anyhow::Result<()> {
+    use hexcal::rig::devices::{serial_ports, video_nodes, Found};
+    let mut all: Vec<Found> = Vec::new();
+    let mut notes = Vec::new();
+    match serial_ports() {
+        Ok(p) => all.extend(p),
+        Err(e) => notes.push(e),
+    }
+    all.extend(video_nodes());
+    extra_devices(&mut all, &mut notes);
+    if all.is_empty() {
+        println!("no cameras, monitors or serial ports found");
+    }
+    for f in &all {
+        println!("{:<8} {:<28} {}", f.kind, f.address, f.description);
+    }
+    for n in notes {
+        eprintln!("note: {n}");
+    }
+    Ok(())
+}
+
+/// Devices of the drivers built in (cargo features).
+fn extra_devices(_all: &mut Vec<hexcal::rig::devices::Found>, notes: &mut Vec<String>) {
+    notes.push(
+        "GenICam cameras and monitors are listed by builds with --features aravis,window".into(),
+    );
+}

@@ -136,6 +136,8 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// List the cameras, monitors and serial ports this machine has (rig-file addresses).
+    Devices,
     /// Decode one camera's stack folder (a dataset's pose-KKK/CAMERA): per projector the
     /// (u, v) maps (32-bit float TIFF), validity, lit and projector-view images, the ambient
     /// image and summary.json.
@@ -484,6 +486,7 @@ fn main() -> anyhow::Result<()> {
             auto,
         } => cli::capture(&rig, &out, poses, auto)?,
         Command::Decode { stack, out } => cli::decode(&stack, &out)?,
+        Command::Devices => cli::devices()?,
         Command::Run {
             rig,
             out,

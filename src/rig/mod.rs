@@ -3,6 +3,7 @@
 //! trigger lines and reports each frame's controller timestamp, and the simulated rig.
 
 pub mod device;
+pub mod devices;
 pub mod file;
 pub mod sim;
 pub mod trigger;
