@@ -45,10 +45,13 @@ const OUTLIER_COLOUR: &str = "#d62728";
 
 const STYLE: &str = "
 body{font:14px/1.45 system-ui,-apple-system,'Segoe UI',Roboto,'DejaVu Sans',sans-serif;
- color:#222;background:#fff;margin:0 auto;padding:16px 28px 40px;max-width:1340px}
+ color:#222;background:#fff;margin:0 auto;padding:14px 20px 40px;max-width:1360px}
 h1{font-size:24px;margin:8px 0 4px}h2{font-size:19px;margin:28px 0 8px;
  border-bottom:2px solid #ddd;padding-bottom:3px}h3{font-size:15px;margin:0 0 6px}
-p.meta{color:#555;margin:2px 0 12px}
+.stats{display:flex;flex-wrap:wrap;gap:8px;margin:8px 0 4px}
+.stat{border:1px solid #dde3ea;border-radius:5px;padding:4px 10px;background:#f7f9fb}
+.stat span{display:block;font-size:11px;color:#666}.stat b{font-size:15px}
+.row{display:flex;flex-wrap:wrap;gap:24px;align-items:flex-start}
 table{border-collapse:collapse;margin:6px 0 10px;font-variant-numeric:tabular-nums}
 th,td{padding:3px 9px;border-bottom:1px solid #e4e4e4;text-align:right;white-space:nowrap}
 th{background:#f3f5f8;font-weight:600}td.l,th.l{text-align:left}
@@ -58,7 +61,7 @@ ul.warn{margin:4px 0;padding:8px 12px 8px 30px;background:#fff6e0;border:1px sol
  border-radius:4px}ul.warn li{margin:2px 0}p.ok{color:#2a7a2a}
 .device{border:1px solid #ddd;border-radius:6px;padding:10px 12px;margin:12px 0}
 .figs{display:flex;flex-wrap:wrap;gap:18px;align-items:flex-start}
-figure{margin:0}figcaption{font-size:12px;color:#555;max-width:430px;margin-top:2px}
+figure{margin:0}figcaption{font-size:12px;color:#555;max-width:410px;margin-top:2px}
 svg text{font-family:system-ui,'DejaVu Sans',sans-serif}
 .note{font-size:12px;color:#555}
 ";
@@ -90,12 +93,15 @@ pub fn html_report(input: &ReportInput) -> String {
         }
         h.push_str("</ul>\n");
     }
+    h.push_str("<div class=\"row\">\n<div>\n");
     residual_section(&mut h, cal, &rows);
+    h.push_str("</div>\n<div>\n");
     rig_section(&mut h, cal);
+    h.push_str("</div>\n</div>\n");
     device_sections(&mut h, cal, &rows);
     uncertainty_section(&mut h, cal);
     if !input.verification.is_empty() {
-        verification_section(&mut h, input.verification);
+        verification_section(&mut h, cal, input.verification);
     }
     let _ = write!(
         h,
@@ -162,7 +168,7 @@ fn expected_rms(cal: &Calibration) -> f64 {
     std::f64::consts::SQRT_2 * cal.solution.sigma * keep.sqrt()
 }
 
-/// The paragraph under the title: board, reference, counts, σ̂.
+/// The key figures under the title: board, reference, counts, σ̂.
 fn summary(h: &mut String, cal: &Calibration) {
     let sol = &cal.solution;
     let reference = cal
@@ -170,33 +176,42 @@ fn summary(h: &mut String, cal: &Calibration) {
         .iter()
         .find(|d| d.pose == nalgebra::Isometry3::identity())
         .map_or("—", |d| d.name.as_str());
+    let count = |k: DeviceKind| cal.devices.iter().filter(|d| d.kind == k).count();
     let outliers = sol.residuals.iter().filter(|r| r.outlier).count();
-    let _ = writeln!(
-        h,
-        "<p class=\"meta\">Board <b>{}</b> · reference frame: <b>{}</b> · {} devices \
-         ({} cameras, {} projectors) · {} board poses · {} observations ({} outliers) · \
-         posterior σ̂ = {:.4} px per coordinate (n = {}, p = {}) · expected RMS of residual \
-         norms √2·σ̂·√(1 − p/n) = {:.4} px · {} LM iterations</p>",
-        esc(&cal.board.name),
-        esc(reference),
-        cal.devices.len(),
-        cal.devices
-            .iter()
-            .filter(|d| d.kind == DeviceKind::Camera)
-            .count(),
-        cal.devices
-            .iter()
-            .filter(|d| d.kind == DeviceKind::Projector)
-            .count(),
-        sol.boards.len(),
-        cal.observations.len(),
-        outliers,
-        sol.sigma,
-        sol.dof.0,
-        sol.dof.1,
-        expected_rms(cal),
-        sol.iterations
-    );
+    let stats = [
+        ("board", cal.board.name.clone()),
+        ("reference frame", reference.to_string()),
+        (
+            "devices",
+            format!(
+                "{} cameras, {} projectors",
+                count(DeviceKind::Camera),
+                count(DeviceKind::Projector)
+            ),
+        ),
+        ("board poses", sol.boards.len().to_string()),
+        (
+            "observations",
+            format!("{} ({outliers} outliers)", cal.observations.len()),
+        ),
+        ("σ̂ per coordinate", format!("{:.4} px", sol.sigma)),
+        (
+            "expected RMS √2·σ̂·√(1−p/n)",
+            format!("{:.4} px", expected_rms(cal)),
+        ),
+        ("n, p", format!("{}, {}", sol.dof.0, sol.dof.1)),
+        ("LM iterations", sol.iterations.to_string()),
+    ];
+    h.push_str("<div class=\"stats\">");
+    for (label, value) in stats {
+        let _ = write!(
+            h,
+            "<div class=\"stat\"><span>{}</span><b>{}</b></div>",
+            esc(label),
+            esc(&value)
+        );
+    }
+    h.push_str("</div>\n");
 }
 
 /// The report's own warnings: few poses, high RMS, many outliers, excluded devices,
@@ -479,7 +494,11 @@ fn device_data(cal: &Calibration, d: usize) -> DeviceData {
 }
 
 /// Width of the per-device image figures (px).
-const IMAGE_FIG_WIDTH: f64 = 420.0;
+const IMAGE_FIG_WIDTH: f64 = 400.0;
+/// Most inlier residual vectors drawn per device.
+const MAX_VECTORS: usize = 2500;
+/// Inliers a grid cell needs for its mean residual arrow.
+const MIN_CELL_POINTS: usize = 8;
 /// Grid of the coverage heatmap and of the mean residual arrows: cells across the width.
 const GRID_COLUMNS: usize = 24;
 
@@ -566,8 +585,17 @@ fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
         1.0
     };
     let mean_scale = 4.0 * scale;
+    // Every stride-th inlier (all outliers): the figure stays light and readable.
+    let stride = norms.len().div_ceil(MAX_VECTORS).max(1);
     let (mut inl, mut out) = (String::new(), String::new());
+    let mut inlier = 0;
     for ((p, e), o) in data.pixels.iter().zip(&data.errors).zip(&data.outlier) {
+        if !*o {
+            inlier += 1;
+            if (inlier - 1) % stride != 0 {
+                continue;
+            }
+        }
         let a = f.at(*p);
         let d = e * scale * f.k;
         let _ = write!(
@@ -590,7 +618,7 @@ fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
     for (p, _) in data.pixels.iter().zip(&data.outlier).filter(|(_, o)| **o) {
         svg.circle(f.at(*p), 1.8, &format!("fill=\"{OUTLIER_COLOUR}\""));
     }
-    // Mean residual per cell (inliers, ≥ 3 per cell).
+    // Mean residual per cell (inliers; cells with few are left out: their means are noise).
     let (cols, rows, ch) = f.grid();
     let cw = f.w / cols as f64;
     let mut sum = vec![(Vector2::zeros(), 0usize); cols * rows];
@@ -601,7 +629,7 @@ fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
         }
     }
     for (c, (s, n)) in sum.iter().enumerate() {
-        if *n >= 3 {
+        if *n >= MIN_CELL_POINTS {
             let centre = Point2::new(
                 (c % cols) as f64 * cw + cw / 2.0,
                 (c / cols) as f64 * ch + ch / 2.0,
@@ -657,9 +685,14 @@ fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
         &format!("{} × {} px", dev.model.width, dev.model.height),
     );
     let caption = format!(
-        "Residual vectors (observed − predicted) at each observation, magnified ×{}; blue: \
-         the mean of each {}×{} grid cell, ×{}; red: outliers. Systematic patterns in the blue \
-         arrows point to an unmodelled error.",
+        "Residual vectors (observed − predicted){}, magnified ×{}; blue: the mean of each \
+         {}×{} grid cell with {MIN_CELL_POINTS} or more, ×{}; red: outliers. Systematic patterns in the blue arrows point to \
+         an unmodelled error.",
+        if stride > 1 {
+            format!(" of one in {stride} of the {} inliers", norms.len())
+        } else {
+            " at each observation".into()
+        },
         short(scale),
         cols,
         rows,
@@ -942,7 +975,7 @@ fn rig_section(h: &mut String, cal: &Calibration) {
         (lo.0 - margin, lo.1 - margin),
         (hi.0 + margin, hi.1 + margin),
     );
-    let size = 720.0;
+    let size = 560.0;
     let k = size / (hi.0 - lo.0).max(hi.1 - lo.1);
     let (fw, fh) = (k * (hi.0 - lo.0), k * (hi.1 - lo.1));
     let map = |p: (f64, f64)| (k * (p.0 - lo.0), k * (p.1 - lo.1));
@@ -1020,21 +1053,14 @@ fn rig_section(h: &mut String, cal: &Calibration) {
         "fill=\"#333\"",
         &format!("{} mm", short(bar)),
     );
-    svg.text(
-        fw - 4.0,
-        y + 4.0,
-        11.0,
-        "end",
-        "fill=\"#333\"",
-        "up: against the devices' mean image y axis",
-    );
     let _ = write!(
         h,
         "<h2 id=\"rig\">The rig from above</h2>\n<figure>{}<figcaption>In the reference \
          frame, seen from above: each device's position, its horizontal field of view (wedge) \
          and viewing direction (arrow), <span class=\"cam\">cameras</span> and \
          <span class=\"proj\">projectors</span>; grey: the {} board poses' outlines \
-         ({} × {} mm), numbered.</figcaption></figure>\n",
+         ({} × {} mm), numbered. \"Up\" is against the mean of the devices' image y \
+         axes.</figcaption></figure>\n",
         svg.finish(),
         cal.solution.boards.len(),
         cal.board.size[0],
@@ -1149,41 +1175,62 @@ fn uncertainty_section(h: &mut String, cal: &Calibration) {
     }
 }
 
-/// Held-out verification: per pair and pose, length and flatness errors.
-fn verification_section(h: &mut String, checks: &[PairCheck]) {
-    let n = checks.len() as f64;
-    let rms =
-        |f: fn(&PairCheck) -> f64| (checks.iter().map(|c| f(c).powi(2)).sum::<f64>() / n).sqrt();
-    let worst = checks.iter().map(|c| c.length_max).fold(0.0, f64::max);
+/// Held-out verification per device pair over its poses: length and flatness errors.
+fn verification_section(h: &mut String, cal: &Calibration, checks: &[PairCheck]) {
+    let rms = |x: &mut dyn Iterator<Item = f64>| {
+        let (s, n) = x.fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
+        (s / n.max(1) as f64).sqrt()
+    };
+    // Camera–camera pairs first, then camera–projector, each in name order.
+    let mut pairs: Vec<(&str, &str)> = checks
+        .iter()
+        .map(|c| (c.first.as_str(), c.second.as_str()))
+        .collect::<BTreeSet<_>>()
+        .into_iter()
+        .collect();
+    let projector = |name: &str| {
+        cal.devices
+            .iter()
+            .any(|d| d.name == name && d.kind == DeviceKind::Projector)
+    };
+    pairs.sort_by_key(|&(a, b)| (projector(b), a, b));
+    let poses: BTreeSet<usize> = checks.iter().map(|c| c.pose).collect();
     let _ = write!(
         h,
-        "<h2 id=\"verification\">Verification on held-out poses</h2>\n<p>Over {} device pairs \
-         × poses: length error RMS {:.4} mm (largest single error {:.4} mm), flatness RMS \
-         {:.4} mm.</p>\n<table>\n<tr><th class=\"l\">first</th><th class=\"l\">second</th>\
-         <th>pose</th><th>points</th><th>length error RMS (mm)</th><th>largest (mm)</th>\
-         <th>flatness RMS (mm)</th></tr>\n",
-        checks.len(),
-        rms(|c| c.length_rms),
-        worst,
-        rms(|c| c.flatness_rms)
+        "<h2 id=\"verification\">Verification on held-out poses</h2>\n<p>{} device pairs \
+         on {} held-out pose{}: length error RMS <b>{:.4} mm</b> (largest single error {:.4} \
+         mm), flatness RMS <b>{:.4} mm</b>.</p>\n<table>\n<tr><th class=\"l\">first</th>\
+         <th class=\"l\">second</th><th>poses</th><th>points</th><th>length error RMS (mm)\
+         </th><th>largest (mm)</th><th>flatness RMS (mm)</th></tr>\n",
+        pairs.len(),
+        poses.len(),
+        if poses.len() == 1 { "" } else { "s" },
+        rms(&mut checks.iter().map(|c| c.length_rms)),
+        checks.iter().map(|c| c.length_max).fold(0.0, f64::max),
+        rms(&mut checks.iter().map(|c| c.flatness_rms))
     );
-    for c in checks {
+    for (a, b) in pairs {
+        let of: Vec<&PairCheck> = checks
+            .iter()
+            .filter(|c| c.first == a && c.second == b)
+            .collect();
         let _ = writeln!(
             h,
             "<tr><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td>\
              <td>{:.4}</td><td>{:.4}</td><td>{:.4}</td></tr>",
-            esc(&c.first),
-            esc(&c.second),
-            c.pose,
-            c.points,
-            c.length_rms,
-            c.length_max,
-            c.flatness_rms
+            esc(a),
+            esc(b),
+            of.len(),
+            of.iter().map(|c| c.points).sum::<usize>(),
+            rms(&mut of.iter().map(|c| c.length_rms)),
+            of.iter().map(|c| c.length_max).fold(0.0, f64::max),
+            rms(&mut of.iter().map(|c| c.flatness_rms))
         );
     }
     h.push_str(
-        "</table>\n<p class=\"note\">Triangulated circles of each pair against the board's \
-         nominal point-to-point distances (VDI/VDE 2634 style) and their best-fit plane.</p>\n",
+        "</table>\n<p class=\"note\">Circles triangulated by each pair, against the board's \
+         nominal point-to-point distances (VDI/VDE 2634 style) and their best-fit plane; RMS \
+         over the pair's poses.</p>\n",
     );
 }
 
