@@ -503,7 +503,7 @@ const MIN_CELL_POINTS: usize = 8;
 const GRID_COLUMNS: usize = 24;
 
 /// The image frame's geometry on a figure: offset and scale from image to figure pixels.
-struct Frame {
+struct ImageFrame {
     x0: f64,
     y0: f64,
     k: f64,
@@ -511,13 +511,13 @@ struct Frame {
     h: f64,
 }
 
-impl Frame {
-    fn new(dev: &Device) -> Frame {
+impl ImageFrame {
+    fn new(dev: &Device) -> ImageFrame {
         let (w, h) = (
             f64::from(dev.model.width.max(1)),
             f64::from(dev.model.height.max(1)),
         );
-        Frame {
+        ImageFrame {
             x0: 6.0,
             y0: 6.0,
             k: IMAGE_FIG_WIDTH / w,
@@ -562,7 +562,7 @@ impl Frame {
 /// Residual vectors over the image: every residual (inliers grey, outliers red) and the
 /// mean per grid cell as blue arrows, at stated magnifications.
 fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
-    let f = Frame::new(dev);
+    let f = ImageFrame::new(dev);
     let (w, h) = f.size();
     let mut svg = f.svg(44.0);
     svg.rect(f.x0, f.y0, w, h, "fill=\"#fafafa\" stroke=\"#888\"");
@@ -703,7 +703,7 @@ fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
 
 /// Coverage heatmap: observations per grid cell over the image; empty cells light grey.
 fn coverage_figure(dev: &Device, data: &DeviceData) -> (String, String) {
-    let f = Frame::new(dev);
+    let f = ImageFrame::new(dev);
     let (w, h) = f.size();
     let (cols, rows, _) = f.grid();
     let mut count = vec![0usize; cols * rows];
