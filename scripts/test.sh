@@ -6,8 +6,8 @@ cd "$(dirname "$0")/.."
 
 if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     # Debian packages of DESIGN.md §11 used by the tests: python3 with OpenCV and YAML read
-    # the calibration outputs.
-    apt_packages=(python3 python3-opencv python3-yaml)
+    # the calibration outputs; chromium renders the HTML report (tests/report_html.rs).
+    apt_packages=(python3 python3-opencv python3-yaml chromium)
     apt-get update -qq
     DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${apt_packages[@]}" >/dev/null
 fi

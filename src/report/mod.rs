@@ -6,6 +6,8 @@
 //! pixels; poses are `T_device_ref` (a point in the reference device's frame mapped into
 //! the device's frame), rotations as Rodrigues vectors (rad).
 
+pub mod html;
+
 use crate::calib::bundle::DeviceKind;
 use crate::calib::pipeline::Calibration;
 use crate::camera::{CameraModel, Distortion, Intrinsics};
