@@ -345,7 +345,18 @@ fn calibrate(
             .with_context(|| format!("{}: no device named {name:?}", input.display()))?;
     }
     let cal = calibrate(&board, &c.devices, c.poses, &c.views, &options)?;
-    let written = hexcal::report::write_outputs(&cal, out)?;
+    let mut written = hexcal::report::write_outputs(&cal, out)?;
+    let html = out.join("report.html");
+    hexcal::report::html::write_html(
+        &hexcal::report::html::ReportInput {
+            calibration: &cal,
+            verification: &[],
+            title: &format!("hexcal calibration of {}", input.display()),
+            warnings: Vec::new(),
+        },
+        &html,
+    )?;
+    written.push(html);
     print!(
         "{}",
         hexcal::report::format_table(&hexcal::report::residual_table(&cal))

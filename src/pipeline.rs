@@ -712,16 +712,19 @@ pub fn run(
     }
     session.finish().map_err(|e| e.to_string())?;
     let mut outcome = finish(
-        &board,
-        &devices,
-        &all,
-        held_from,
+        Collected {
+            board: &board,
+            devices: &devices,
+            all: &all,
+            held_from,
+        },
         &out.join("calibration"),
         &CalibrateOptions::default(),
+        &warnings,
         events,
     )?;
     outcome.timelines = timelines;
-    outcome.warnings.splice(0..0, warnings);
+    outcome.warnings = warnings;
     if let Some(w) = &world {
         outcome.truth = check_truth(&outcome.calibration, w);
         let path = out.join("calibration").join("truth.txt");
@@ -734,15 +737,29 @@ pub fn run(
 
 /// Calibrate from the views of `all` poses (those from `held_from` on are held out and
 /// verified), write the outputs to `dir`.
-fn finish(
-    board: &Board,
-    devices: &[DeviceInfo],
-    all: &[Option<PoseViews>],
+/// Every pose's views, with what they refer to.
+struct Collected<'a> {
+    board: &'a Board,
+    devices: &'a [DeviceInfo],
+    /// Per pose (renumbered from 0), its views if it has any.
+    all: &'a [Option<PoseViews>],
+    /// First held-out pose.
     held_from: usize,
+}
+
+fn finish(
+    c: Collected,
     dir: &Path,
     options: &CalibrateOptions,
+    warnings: &[String],
     events: &mut dyn FnMut(&Event),
 ) -> Result<Outcome, String> {
+    let Collected {
+        board,
+        devices,
+        all,
+        held_from,
+    } = c;
     let views_of = |range: std::ops::Range<usize>| -> Vec<CameraView> {
         all[range]
             .iter()
@@ -761,6 +778,18 @@ fn finish(
     let text = crate::report::format_verification(&verification);
     let path = dir.join("verification.txt");
     crate::atomic::write(&path, text.as_bytes()).map_err(|e| format!("{}: {e}", path.display()))?;
+    files.push(path);
+    let path = dir.join("report.html");
+    crate::report::html::write_html(
+        &crate::report::html::ReportInput {
+            calibration: &cal,
+            verification: &verification,
+            title: &format!("hexcal calibration: {}", dir.display()),
+            warnings: warnings.to_vec(),
+        },
+        &path,
+    )
+    .map_err(|e| e.to_string())?;
     files.push(path);
     let length_rms = crate::report::verification_rms(&verification);
     events(&Event::Finished {
@@ -878,7 +907,18 @@ pub fn calibrate_dataset(
         all.push(Some(views));
     }
     let held_from = all.len().saturating_sub(held_out);
-    let mut outcome = finish(&board, &devices, &all, held_from, out, options, events)?;
+    let mut outcome = finish(
+        Collected {
+            board: &board,
+            devices: &devices,
+            all: &all,
+            held_from,
+        },
+        out,
+        options,
+        &warnings,
+        events,
+    )?;
     outcome.warnings = warnings;
     Ok(outcome)
 }
