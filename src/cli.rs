@@ -153,8 +153,13 @@ pub fn printer(mode: Progress) -> impl FnMut(&hexcal::pipeline::Event) {
         Progress::Quiet => {}
         Progress::Human => match e {
             Event::Frames { .. } if !tty => {}
-            Event::Frames { .. } => {
-                eprint!("\r{e}   ");
+            Event::Frames { pose, done, of } => {
+                let filled = 30 * done / (*of).max(1);
+                eprint!(
+                    "\rpose {pose} [{}{}] {done}/{of} frames   ",
+                    "#".repeat(filled),
+                    " ".repeat(30 - filled)
+                );
                 let _ = std::io::stderr().flush();
             }
             _ if tty => eprintln!("\r{e}   "),
