@@ -212,7 +212,7 @@ fn lost_packets_give_incomplete_frames_never_wrong_ones() {
     let (fake, mut camera) = loopback("cam-lossy", served.clone(), &config(w, h, 8));
     let good = shot(&mut camera).expect("loss-free frame");
     let first = good.counter;
-    fake.set_packet_loss(0.03);
+    fake.set_packet_loss(0.02);
     let (mut ok, mut incomplete) = (0, 0);
     for _ in 0..40 {
         match shot(&mut camera) {
@@ -242,8 +242,8 @@ fn lost_packets_give_incomplete_frames_never_wrong_ones() {
         }
     }
     let stats = camera.statistics();
-    eprintln!("3 % GVSP loss: {ok} complete, {incomplete} incomplete of 40; {stats:?}");
-    assert!(incomplete > 0, "3 % packet loss never showed");
+    eprintln!("2 % GVSP loss: {ok} complete, {incomplete} incomplete of 40; {stats:?}");
+    assert!(incomplete > 0, "2 % packet loss never showed");
     assert!(stats.missing_packets > 0 || stats.failures > 0, "{stats:?}");
     // Loss gone: frames are whole again (after any late buffer of the lossy run).
     fake.set_packet_loss(0.0);
@@ -267,18 +267,34 @@ fn camera_gone_mid_sequence_is_an_error_naming_it() {
     for _ in 0..3 {
         shot(&mut camera).expect("frame before the fault");
     }
+    camera.trigger().expect("trigger before the fault");
+    // The camera goes away before it served the triggered frame (it polls for triggers).
     drop(fake);
     let timeout = Duration::from_millis(500);
     let t0 = Instant::now();
+    let waited = camera.next_frame(timeout);
+    let took = t0.elapsed();
+    // Dropping the fake raced with its serving the frame: then one more frame is fine.
+    let e = match waited {
+        Ok(_) => camera.next_frame(timeout).expect_err("no second frame"),
+        Err(e) => e,
+    };
+    assert!(matches!(e, DeviceError::Timeout { .. }), "{e}");
+    assert_eq!(e.device(), "cam-unplugged");
+    assert!(took < timeout + Duration::from_millis(300), "{took:?}");
+    // Retrying the frame: the trigger finds nobody (Aravis' GVCP budget: 5 × 500 ms).
+    let t0 = Instant::now();
     let e = camera
         .trigger()
-        .and_then(|()| camera.next_frame(timeout))
-        .expect_err("no frame from a camera that is gone");
+        .expect_err("trigger to a camera that is gone");
     let took = t0.elapsed();
     eprintln!("after the camera went away: {e} ({took:?})");
-    assert_eq!(e.device(), "cam-unplugged");
-    assert!(e.to_string().starts_with("cam-unplugged: "), "{e}");
-    assert!(took < Duration::from_secs(5), "{took:?}");
+    assert!(matches!(e, DeviceError::Gone { .. }), "{e}");
+    assert!(
+        e.to_string().starts_with("cam-unplugged: device lost: "),
+        "{e}"
+    );
+    assert!(took < Duration::from_secs(4), "{took:?}");
     drop(camera);
 }
 

@@ -639,7 +639,8 @@ impl Camera for AravisCamera {
             .camera
             .stop_acquisition()
             .map_err(|e| self.error("AcquisitionStop", e));
-        stream.stop_thread(true);
+        // Dropping the last reference stops the stream's thread and frees its buffers.
+        drop(stream);
         stopped
     }
 }
@@ -649,7 +650,7 @@ impl Drop for AravisCamera {
         if let Some(stream) = self.stream.take() {
             // Best effort: the camera may be gone already.
             let _ = self.camera.stop_acquisition();
-            stream.stop_thread(true);
+            drop(stream);
         }
     }
 }
