@@ -299,6 +299,21 @@ fn camera_gone_mid_sequence_is_an_error_naming_it() {
 }
 
 #[test]
+fn no_camera_at_the_address_is_an_error_naming_it() {
+    let _one = exclusive();
+    let t0 = Instant::now();
+    let e = AravisCamera::open("cam-absent", LOOPBACK_ADDRESS)
+        .err()
+        .expect("nothing listens there");
+    eprintln!("{e} ({:?})", t0.elapsed());
+    assert!(
+        e.to_string()
+            .starts_with("cam-absent: cannot open GenICam camera 127.0.0.1"),
+        "{e}"
+    );
+}
+
+#[test]
 fn lists_cameras_and_opens_one_by_device_id() {
     let _one = exclusive();
     // Aravis' in-process "Fake" interface (no network).

@@ -203,7 +203,7 @@ pub fn synthetic_frame(width: u32, height: u32, bits: u8, k: usize) -> Pixels {
         Pixels::Gray8(p)
     } else {
         let max = (1usize << bits.min(16)) - 1;
-        let mut p: Vec<u16> = (0..w * h).map(|i| (ramp(i) * 13 & max) as u16).collect();
+        let mut p: Vec<u16> = (0..w * h).map(|i| ((ramp(i) * 13) & max) as u16).collect();
         if let Some(first) = p.first_mut() {
             *first = (k & max) as u16;
         }
