@@ -6,8 +6,9 @@ cd "$(dirname "$0")/.."
 
 if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     # Debian packages of DESIGN.md §11 used by the tests: python3 with OpenCV and YAML read
-    # the calibration outputs; chromium renders the HTML report (tests/report_html.rs).
-    apt_packages=(python3 python3-opencv python3-yaml chromium)
+    # the calibration outputs; chromium renders the HTML report (tests/report_html.rs);
+    # libaravis-dev (+ libusb-1.0-0-dev, which its .pc needs) for the `aravis` feature.
+    apt_packages=(python3 python3-opencv python3-yaml chromium libaravis-dev libusb-1.0-0-dev)
     apt-get update -qq
     DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${apt_packages[@]}" >/dev/null
 fi
@@ -16,6 +17,10 @@ rustup component add rustfmt clippy >/dev/null 2>&1 || true
 cargo fmt --all --check
 cargo clippy --workspace --all-targets -- -D warnings
 cargo test --workspace
+# The Aravis driver (feature `aravis`): lints, then only its loopback tests (no second
+# full-workspace test run).
+cargo clippy --features aravis --all-targets -- -D warnings
+cargo test --features aravis --test aravis_loopback
 # The firmware protocol must stay no_std: build it for the controller's target (RP2040).
 if rustup target add thumbv6m-none-eabi >/dev/null 2>&1; then
     cargo build -p hexcal-firmware-protocol --target thumbv6m-none-eabi

@@ -2,6 +2,8 @@
 //! the drivers — the serial trigger controller ([`trigger`]), which pulses the cameras'
 //! trigger lines and reports each frame's controller timestamp, and the simulated rig.
 
+#[cfg(feature = "aravis")]
+pub mod aravis;
 pub mod device;
 pub mod devices;
 pub mod file;

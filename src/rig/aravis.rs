@@ -1,0 +1,656 @@
+//! GenICam cameras through Aravis (DESIGN.md §11), behind the cargo feature `aravis`.
+//!
+//! Takes a camera's rig-file name and its address (IP address, serial number or Aravis
+//! device id) and gives a [`Camera`]: Mono8 / Mono10 / Mono12 / Mono16 frames, exposure
+//! (SFNC `ExposureTime` or `ExposureTimeAbs`), gain (`Gain` in dB, or `GainRaw` at its
+//! minimum for 0 dB), trigger mode on with a software or line trigger source, a small
+//! buffer pool with GigE Vision packet resend, and incomplete buffers reported as
+//! [`DeviceError::Incomplete`] naming Aravis' buffer status. [`list_cameras`] lists the
+//! GenICam cameras this machine sees; [`loopback`] runs a real GigE Vision camera on
+//! 127.0.0.1 inside the process, for tests and `hexcal bench`.
+
+pub mod loopback;
+
+pub use loopback::{bench_loopback, LoopbackBench, LoopbackCamera, LOOPBACK_ADDRESS};
+
+use super::device::{Camera, CameraConfig, CameraFrame, DeviceError, Pixels, TriggerSource};
+use aravis::glib::{self, object::Cast};
+use aravis::prelude::*;
+use aravis::{
+    Buffer, BufferPayloadType, BufferStatus, GvStream, GvStreamPacketResend, PixelFormat,
+};
+use std::ffi::CStr;
+use std::os::raw::c_char;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// Buffers queued on the stream: enough to absorb a burst while the capture loop copies.
+const STREAM_BUFFERS: usize = 4;
+
+/// Aravis' global device list is not thread-safe: opening and listing take this lock.
+static DEVICE_LIST: Mutex<()> = Mutex::new(());
+
+/// One GenICam camera this machine sees (for `hexcal devices`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CameraListing {
+    /// Aravis device id (opens the camera, like the address).
+    pub id: String,
+    /// Vendor name.
+    pub vendor: String,
+    /// Model name.
+    pub model: String,
+    /// Serial number.
+    pub serial: String,
+    /// Network address (GigE Vision) or bus address (USB3 Vision).
+    pub address: String,
+    /// Transport: "GigEVision", "USB3Vision" or "Fake".
+    pub protocol: String,
+}
+
+/// The GenICam cameras on every enabled Aravis interface (GigE Vision discovery broadcasts
+/// on every network interface; USB3 Vision enumerates the bus).
+pub fn list_cameras() -> Vec<CameraListing> {
+    let _guard = DEVICE_LIST.lock().unwrap_or_else(|e| e.into_inner());
+    // SAFETY: the device list is only touched under DEVICE_LIST; every index is below the
+    // count just updated, and the strings are copied before the lock is released.
+    unsafe {
+        aravis_sys::arv_update_device_list();
+        (0..aravis_sys::arv_get_n_devices())
+            .map(|i| CameraListing {
+                id: owned(aravis_sys::arv_get_device_id(i)),
+                vendor: owned(aravis_sys::arv_get_device_vendor(i)),
+                model: owned(aravis_sys::arv_get_device_model(i)),
+                serial: owned(aravis_sys::arv_get_device_serial_nbr(i)),
+                address: owned(aravis_sys::arv_get_device_address(i)),
+                protocol: owned(aravis_sys::arv_get_device_protocol(i)),
+            })
+            .collect()
+    }
+}
+
+/// A C string from Aravis' device list, copied ("" when absent).
+///
+/// # Safety
+/// `s` is null or a valid NUL-terminated string.
+unsafe fn owned(s: *const c_char) -> String {
+    if s.is_null() {
+        String::new()
+    } else {
+        CStr::from_ptr(s).to_string_lossy().into_owned()
+    }
+}
+
+/// Packet statistics of a running GigE Vision stream.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StreamStatistics {
+    /// Buffers completed (successful or not).
+    pub completed: u64,
+    /// Buffers that failed (lost packets, timeout, size mismatch).
+    pub failures: u64,
+    /// Frames lost because no buffer was free.
+    pub underruns: u64,
+    /// GVSP packets the camera sent again on request.
+    pub resent_packets: u64,
+    /// GVSP packets never received.
+    pub missing_packets: u64,
+}
+
+/// What `configure` settled on.
+#[derive(Clone, Copy, Debug)]
+struct Applied {
+    width: u32,
+    height: u32,
+    format: PixelFormat,
+    bits: u8,
+    bytes_per_sample: usize,
+    exposure_us: f64,
+    trigger: TriggerSource,
+}
+
+/// The camera's 16-bit (or 64-bit) frame ids unwrapped into a counter that only grows.
+#[derive(Clone, Copy, Debug, Default)]
+struct FrameIds {
+    last: Option<(u64, u64)>,
+}
+
+impl FrameIds {
+    /// GigE Vision's 16-bit block ids run 1..=65535 and skip 0 on wrapping.
+    const WRAP: u64 = 0xFFFF;
+
+    /// Counter for raw frame id `id` (one more per frame exposed; a gap is a drop).
+    fn counter(&mut self, id: u64) -> u64 {
+        let counter = match self.last {
+            None => id,
+            Some((last_id, last)) if id > last_id => last + (id - last_id),
+            Some((last_id, last)) if last_id <= Self::WRAP => last + (id + Self::WRAP - last_id),
+            // A 64-bit id going back: the camera restarted its count; keep growing.
+            Some((_, last)) => last + 1,
+        };
+        self.last = Some((id, counter));
+        counter
+    }
+}
+
+/// A GenICam camera opened through Aravis.
+pub struct AravisCamera {
+    name: String,
+    address: String,
+    camera: aravis::Camera,
+    stream: Option<aravis::Stream>,
+    applied: Option<Applied>,
+    ids: FrameIds,
+    control_lost: Arc<AtomicBool>,
+}
+
+impl AravisCamera {
+    /// Open the camera at `address` (IP address, serial number or Aravis device id) under
+    /// the rig file's `name`.
+    pub fn open(name: &str, address: &str) -> Result<Self, DeviceError> {
+        let camera = {
+            let _guard = DEVICE_LIST.lock().unwrap_or_else(|e| e.into_inner());
+            aravis::Camera::new(Some(address)).map_err(|e| DeviceError::Failed {
+                device: name.to_string(),
+                reason: format!("cannot open GenICam camera {address}: {e}"),
+            })?
+        };
+        let control_lost = Arc::new(AtomicBool::new(false));
+        if let Some(device) = camera.device() {
+            let flag = Arc::clone(&control_lost);
+            device.connect_control_lost(move |_| flag.store(true, Ordering::SeqCst));
+        }
+        Ok(AravisCamera {
+            name: name.to_string(),
+            address: address.to_string(),
+            camera,
+            stream: None,
+            applied: None,
+            ids: FrameIds::default(),
+            control_lost,
+        })
+    }
+
+    /// Vendor, model and serial number as the camera reports them.
+    pub fn identity(&self) -> Result<(String, String, String), DeviceError> {
+        let vendor = self
+            .camera
+            .vendor_name()
+            .map_err(|e| self.error("vendor", e))?;
+        let model = self
+            .camera
+            .model_name()
+            .map_err(|e| self.error("model", e))?;
+        let serial = self
+            .camera
+            .device_serial_number()
+            .map_err(|e| self.error("serial number", e))?;
+        Ok((vendor.into(), model.into(), serial.into()))
+    }
+
+    /// Packet statistics of the running stream (zeros when not started).
+    pub fn statistics(&self) -> StreamStatistics {
+        let Some(stream) = &self.stream else {
+            return StreamStatistics::default();
+        };
+        let (completed, failures, underruns) = stream.statistics();
+        let (resent_packets, missing_packets) = stream
+            .downcast_ref::<GvStream>()
+            .map(|gv| gv.statistics())
+            .unwrap_or((0, 0));
+        StreamStatistics {
+            completed,
+            failures,
+            underruns,
+            resent_packets,
+            missing_packets,
+        }
+    }
+
+    /// A driver failure of `what`: `Gone` when the camera stopped answering.
+    fn error(&self, what: &str, e: glib::Error) -> DeviceError {
+        use aravis::DeviceError as Arv;
+        let silent = e.matches(Arv::Timeout)
+            || e.matches(Arv::NotConnected)
+            || e.matches(Arv::TransferError);
+        if silent || self.control_lost.load(Ordering::SeqCst) {
+            DeviceError::Gone {
+                device: self.name.clone(),
+                reason: format!("{} does not answer ({what}: {e})", self.address),
+            }
+        } else {
+            DeviceError::Failed {
+                device: self.name.clone(),
+                reason: format!("{what}: {e}"),
+            }
+        }
+    }
+
+    fn unsupported(&self, setting: &str, reason: String) -> DeviceError {
+        DeviceError::Unsupported {
+            device: self.name.clone(),
+            setting: setting.to_string(),
+            reason,
+        }
+    }
+
+    fn failed(&self, reason: String) -> DeviceError {
+        DeviceError::Failed {
+            device: self.name.clone(),
+            reason,
+        }
+    }
+
+    fn has(&self, feature: &str) -> bool {
+        self.camera.is_feature_available(feature).unwrap_or(false)
+    }
+
+    /// The first of `names` the camera offers.
+    fn first_of<'a>(&self, names: &[&'a str]) -> Option<&'a str> {
+        names.iter().copied().find(|f| self.has(f))
+    }
+
+    fn entries(&self, feature: &str) -> Result<Vec<String>, DeviceError> {
+        let entries = self
+            .camera
+            .dup_available_enumerations_as_strings(feature)
+            .map_err(|e| self.error(feature, e))?;
+        Ok(entries.iter().map(|s| s.to_string()).collect())
+    }
+
+    fn set_enum(&self, feature: &str, value: &str) -> Result<(), DeviceError> {
+        self.camera
+            .set_string(feature, value)
+            .map_err(|e| self.error(&format!("{feature} = {value}"), e))
+    }
+
+    /// Set `feature` to its entry `value` when the camera has both.
+    fn set_enum_if_offered(&self, feature: &str, value: &str) -> Result<(), DeviceError> {
+        if self.has(feature) && self.entries(feature)?.iter().any(|v| v == value) {
+            self.set_enum(feature, value)?;
+        }
+        Ok(())
+    }
+
+    /// Set an integer feature after checking its bounds and increment; refused naming
+    /// `setting` when the camera cannot.
+    fn set_integer(&self, setting: &str, feature: &str, value: u32) -> Result<(), DeviceError> {
+        let cam = &self.camera;
+        let (min, max) = cam
+            .integer_bounds(feature)
+            .map_err(|e| self.error(feature, e))?;
+        let inc = cam.integer_increment(feature).unwrap_or(1).max(1);
+        let v = i64::from(value);
+        if v < min || v > max || (v - min) % inc != 0 {
+            return Err(self.unsupported(
+                setting,
+                format!("{value} not possible ({feature} {min}..={max} in steps of {inc})"),
+            ));
+        }
+        cam.set_integer(feature, v)
+            .map_err(|e| self.error(&format!("{feature} = {value}"), e))?;
+        let got = cam.integer(feature).map_err(|e| self.error(feature, e))?;
+        if got != v {
+            return Err(self.unsupported(setting, format!("{feature} = {value} reads back {got}")));
+        }
+        Ok(())
+    }
+
+    /// Set a float feature within its bounds; gives the value the camera settled on.
+    fn set_float(&self, setting: &str, feature: &str, value: f64) -> Result<f64, DeviceError> {
+        let cam = &self.camera;
+        let (min, max) = cam
+            .float_bounds(feature)
+            .map_err(|e| self.error(feature, e))?;
+        if !(min..=max).contains(&value) {
+            return Err(self.unsupported(
+                setting,
+                format!("{value} not possible ({feature} {min}..={max})"),
+            ));
+        }
+        cam.set_float(feature, value)
+            .map_err(|e| self.error(&format!("{feature} = {value}"), e))?;
+        cam.float(feature).map_err(|e| self.error(feature, e))
+    }
+
+    /// Mono8 for 8 bits; Mono10 / Mono12 (else Mono16) for 10 / 12 bits; Mono16 for 16.
+    fn set_pixel_format(&self, bits: u8) -> Result<(PixelFormat, u8, usize), DeviceError> {
+        const MONO: [(&str, PixelFormat, u8, usize); 4] = [
+            ("Mono8", PixelFormat::MONO_8, 8, 1),
+            ("Mono10", PixelFormat::MONO_10, 10, 2),
+            ("Mono12", PixelFormat::MONO_12, 12, 2),
+            ("Mono16", PixelFormat::MONO_16, 16, 2),
+        ];
+        let wanted: &[&str] = match bits {
+            8 => &["Mono8"],
+            10 => &["Mono10", "Mono16"],
+            12 => &["Mono12", "Mono16"],
+            16 => &["Mono16"],
+            _ => return Err(self.unsupported("bits", format!("{bits} bits: use 8, 10, 12 or 16"))),
+        };
+        let offered = self
+            .camera
+            .dup_available_pixel_formats_as_strings()
+            .map_err(|e| self.error("PixelFormat", e))?;
+        let name = wanted
+            .iter()
+            .find(|w| offered.iter().any(|o| o.as_str() == **w))
+            .ok_or_else(|| {
+                let offered: Vec<&str> = offered.iter().map(|o| o.as_str()).collect();
+                self.unsupported(
+                    "bits",
+                    format!(
+                        "{bits} bits needs PixelFormat {}; the camera offers {}",
+                        wanted.join(" or "),
+                        offered.join(", ")
+                    ),
+                )
+            })?;
+        self.camera
+            .set_pixel_format_from_string(name)
+            .map_err(|e| self.error(&format!("PixelFormat = {name}"), e))?;
+        let (_, format, bits, bytes) = MONO
+            .into_iter()
+            .find(|m| m.0 == *name)
+            .ok_or_else(|| self.failed(format!("unknown pixel format {name}")))?;
+        Ok((format, bits, bytes))
+    }
+
+    /// Exposure through SFNC `ExposureTime` or the older `ExposureTimeAbs` (µs both).
+    fn set_exposure(&self, exposure_us: f64) -> Result<f64, DeviceError> {
+        self.set_enum_if_offered("ExposureAuto", "Off")?;
+        self.set_enum_if_offered("ExposureMode", "Timed")?;
+        let feature = self
+            .first_of(&["ExposureTime", "ExposureTimeAbs"])
+            .ok_or_else(|| {
+                self.unsupported(
+                    "exposure",
+                    "neither ExposureTime nor ExposureTimeAbs offered".into(),
+                )
+            })?;
+        self.set_float("exposure", feature, exposure_us)
+    }
+
+    /// Gain in dB through `Gain`; a camera with only `GainRaw` (vendor units) takes 0 dB as
+    /// its lowest raw gain and refuses anything else.
+    fn set_gain(&self, gain_db: f64) -> Result<(), DeviceError> {
+        self.set_enum_if_offered("GainAuto", "Off")?;
+        if self.has("Gain") {
+            self.set_float("gain_db", "Gain", gain_db)?;
+        } else if self.has("GainRaw") {
+            if gain_db != 0.0 {
+                return Err(self.unsupported(
+                    "gain_db",
+                    format!("{gain_db} dB: the camera has only GainRaw (vendor units)"),
+                ));
+            }
+            let (min, _) = self
+                .camera
+                .integer_bounds("GainRaw")
+                .map_err(|e| self.error("GainRaw", e))?;
+            self.camera
+                .set_integer("GainRaw", min)
+                .map_err(|e| self.error("GainRaw", e))?;
+        } else if gain_db != 0.0 {
+            return Err(self.unsupported(
+                "gain_db",
+                format!("{gain_db} dB: the camera has no gain control"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Frame-start trigger on, from software or the camera's line input (`Line1`, or the
+    /// only `Line*` input a camera has).
+    fn set_trigger(&self, trigger: TriggerSource) -> Result<(), DeviceError> {
+        for feature in ["TriggerMode", "TriggerSource"] {
+            if !self.has(feature) {
+                return Err(self.unsupported("trigger", format!("no {feature} feature")));
+            }
+        }
+        self.set_enum_if_offered("AcquisitionMode", "Continuous")?;
+        self.set_enum_if_offered("TriggerSelector", "FrameStart")?;
+        let sources = self.entries("TriggerSource")?;
+        let source = match trigger {
+            TriggerSource::Software => sources.iter().find(|s| *s == "Software"),
+            TriggerSource::Line => {
+                let lines: Vec<&String> =
+                    sources.iter().filter(|s| s.starts_with("Line")).collect();
+                match lines.as_slice() {
+                    [only] => Some(*only),
+                    _ => lines.into_iter().find(|s| *s == "Line1"),
+                }
+            }
+        }
+        .ok_or_else(|| {
+            self.unsupported(
+                "trigger",
+                format!(
+                    "no {} trigger source (TriggerSource offers {})",
+                    match trigger {
+                        TriggerSource::Software => "Software",
+                        TriggerSource::Line => "Line1",
+                    },
+                    sources.join(", ")
+                ),
+            )
+        })?;
+        self.set_enum("TriggerMode", "On")?;
+        self.set_enum("TriggerSource", source)?;
+        self.set_enum_if_offered("TriggerActivation", "RisingEdge")
+    }
+
+    /// The frame in a successfully popped buffer, checked against the configuration.
+    fn frame(&mut self, buffer: &Buffer, applied: &Applied) -> Result<CameraFrame, DeviceError> {
+        let status = buffer.status();
+        if status != BufferStatus::Success {
+            return Err(DeviceError::Incomplete {
+                device: self.name.clone(),
+                reason: format!(
+                    "buffer status {} (frame id {})",
+                    status_name(status),
+                    buffer.frame_id()
+                ),
+            });
+        }
+        if buffer.payload_type() != BufferPayloadType::Image {
+            return Err(self.failed(format!(
+                "frame id {}: payload {:?} is not an image",
+                buffer.frame_id(),
+                buffer.payload_type()
+            )));
+        }
+        let (width, height) = (buffer.image_width(), buffer.image_height());
+        let format = buffer.image_pixel_format();
+        if (width, height) != (applied.width as i32, applied.height as i32)
+            || format != applied.format
+        {
+            return Err(self.failed(format!(
+                "frame id {}: {width}×{height} format {:#x}, configured {}×{} format {:#x}",
+                buffer.frame_id(),
+                format.raw(),
+                applied.width,
+                applied.height,
+                applied.format.raw()
+            )));
+        }
+        let data = buffer.image_data();
+        let samples = applied.width as usize * applied.height as usize;
+        if data.len() != samples * applied.bytes_per_sample {
+            return Err(DeviceError::Incomplete {
+                device: self.name.clone(),
+                reason: format!(
+                    "SIZE_MISMATCH: frame id {} has {} bytes, {} expected",
+                    buffer.frame_id(),
+                    data.len(),
+                    samples * applied.bytes_per_sample
+                ),
+            });
+        }
+        let pixels = if applied.bytes_per_sample == 1 {
+            Pixels::Gray8(data)
+        } else {
+            Pixels::Gray16(
+                data.chunks_exact(2)
+                    .map(|b| u16::from_le_bytes([b[0], b[1]]))
+                    .collect(),
+            )
+        };
+        Ok(CameraFrame {
+            width: applied.width,
+            height: applied.height,
+            bits: applied.bits,
+            pixels,
+            counter: self.ids.counter(buffer.frame_id()),
+            timestamp_ns: buffer.timestamp(),
+            exposure_us: applied.exposure_us,
+        })
+    }
+}
+
+/// Aravis' name of a buffer status.
+fn status_name(status: BufferStatus) -> String {
+    match status {
+        BufferStatus::Unknown => "UNKNOWN".into(),
+        BufferStatus::Success => "SUCCESS".into(),
+        BufferStatus::Cleared => "CLEARED".into(),
+        BufferStatus::Timeout => "TIMEOUT".into(),
+        BufferStatus::MissingPackets => "MISSING_PACKETS".into(),
+        BufferStatus::WrongPacketId => "WRONG_PACKET_ID".into(),
+        BufferStatus::SizeMismatch => "SIZE_MISMATCH".into(),
+        BufferStatus::Filling => "FILLING".into(),
+        BufferStatus::Aborted => "ABORTED".into(),
+        BufferStatus::PayloadNotSupported => "PAYLOAD_NOT_SUPPORTED".into(),
+        other => format!("{other:?}"),
+    }
+}
+
+impl Camera for AravisCamera {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn configure(&mut self, config: &CameraConfig) -> Result<(), DeviceError> {
+        if self.stream.is_some() {
+            return Err(self.failed("configure while acquiring: stop first".into()));
+        }
+        self.applied = None;
+        let (format, bits, bytes_per_sample) = self.set_pixel_format(config.bits)?;
+        for offset in ["OffsetX", "OffsetY"] {
+            if self.has(offset) {
+                self.camera
+                    .set_integer(offset, 0)
+                    .map_err(|e| self.error(offset, e))?;
+            }
+        }
+        self.set_integer("width", "Width", config.width)?;
+        self.set_integer("height", "Height", config.height)?;
+        let exposure_us = self.set_exposure(config.exposure_us)?;
+        self.set_gain(config.gain_db)?;
+        self.set_trigger(config.trigger)?;
+        self.applied = Some(Applied {
+            width: config.width,
+            height: config.height,
+            format,
+            bits,
+            bytes_per_sample,
+            exposure_us,
+            trigger: config.trigger,
+        });
+        Ok(())
+    }
+
+    fn start(&mut self) -> Result<(), DeviceError> {
+        if self.applied.is_none() {
+            return Err(self.failed("start before configure".into()));
+        }
+        if self.stream.is_some() {
+            return Ok(());
+        }
+        let payload = self
+            .camera
+            .payload()
+            .map_err(|e| self.error("payload", e))?;
+        let stream = self
+            .camera
+            .create_stream()
+            .map_err(|e| self.error("create stream", e))?;
+        if let Some(gv) = stream.downcast_ref::<GvStream>() {
+            gv.set_packet_resend(GvStreamPacketResend::Always);
+        }
+        for _ in 0..STREAM_BUFFERS {
+            stream.push_buffer(Buffer::new_allocate(payload as usize));
+        }
+        self.camera
+            .start_acquisition()
+            .map_err(|e| self.error("AcquisitionStart", e))?;
+        self.stream = Some(stream);
+        Ok(())
+    }
+
+    fn trigger(&mut self) -> Result<(), DeviceError> {
+        match self.applied {
+            Some(Applied {
+                trigger: TriggerSource::Software,
+                ..
+            }) => {}
+            Some(_) => {
+                return Err(self.unsupported(
+                    "trigger",
+                    "software trigger on a camera configured for its line input".into(),
+                ))
+            }
+            None => return Err(self.failed("trigger before configure".into())),
+        }
+        if self.stream.is_none() {
+            return Err(self.failed("trigger before start".into()));
+        }
+        self.camera
+            .software_trigger()
+            .map_err(|e| self.error("TriggerSoftware", e))
+    }
+
+    fn next_frame(&mut self, timeout: Duration) -> Result<CameraFrame, DeviceError> {
+        let (Some(stream), Some(applied)) = (self.stream.clone(), self.applied) else {
+            return Err(self.failed("next_frame before start".into()));
+        };
+        let micros = u64::try_from(timeout.as_micros()).unwrap_or(u64::MAX);
+        let Some(buffer) = stream.timeout_pop_buffer(micros) else {
+            if self.control_lost.load(Ordering::SeqCst) {
+                return Err(DeviceError::Gone {
+                    device: self.name.clone(),
+                    reason: format!("lost control of {}", self.address),
+                });
+            }
+            return Err(DeviceError::Timeout {
+                device: self.name.clone(),
+                timeout,
+            });
+        };
+        let frame = self.frame(&buffer, &applied);
+        stream.push_buffer(buffer);
+        frame
+    }
+
+    fn stop(&mut self) -> Result<(), DeviceError> {
+        let Some(stream) = self.stream.take() else {
+            return Ok(());
+        };
+        let stopped = self
+            .camera
+            .stop_acquisition()
+            .map_err(|e| self.error("AcquisitionStop", e));
+        // Dropping the last reference stops the stream's thread and frees its buffers.
+        drop(stream);
+        stopped
+    }
+}
+
+impl Drop for AravisCamera {
+    fn drop(&mut self) {
+        if let Some(stream) = self.stream.take() {
+            // Best effort: the camera may be gone already.
+            let _ = self.camera.stop_acquisition();
+            drop(stream);
+        }
+    }
+}
