@@ -269,8 +269,35 @@ pub fn devices() -> anyhow::Result<()> {
 }
 
 /// Devices of the drivers built in (cargo features).
-fn extra_devices(_all: &mut Vec<hexcal::rig::devices::Found>, notes: &mut Vec<String>) {
-    notes.push(
-        "GenICam cameras and monitors are listed by builds with --features aravis,window".into(),
-    );
+fn extra_devices(all: &mut Vec<hexcal::rig::devices::Found>, notes: &mut Vec<String>) {
+    #[cfg(feature = "aravis")]
+    all.extend(hexcal::rig::aravis::list_cameras().into_iter().map(|c| {
+        hexcal::rig::devices::Found {
+            kind: "aravis",
+            address: if c.address.is_empty() {
+                c.id
+            } else {
+                c.address
+            },
+            description: format!("{} {} #{} ({})", c.vendor, c.model, c.serial, c.protocol),
+        }
+    }));
+    #[cfg(not(feature = "aravis"))]
+    notes.push("GenICam cameras are listed by builds with --features aravis".into());
+    let _ = (&all, &notes);
+}
+
+/// `hexcal bench aravis`: the loopback GigE Vision camera's frame rate.
+pub fn bench_aravis(width: u32, height: u32, bits: u8, frames: usize) -> anyhow::Result<()> {
+    #[cfg(feature = "aravis")]
+    {
+        let b = hexcal::rig::aravis::loopback::bench_loopback(width, height, bits, frames)?;
+        println!("{b}");
+        Ok(())
+    }
+    #[cfg(not(feature = "aravis"))]
+    {
+        let _ = (width, height, bits, frames);
+        anyhow::bail!("built without the aravis feature: cargo run --release --features aravis -- bench aravis")
+    }
 }

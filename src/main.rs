@@ -180,6 +180,22 @@ enum Bench {
         #[arg(long, default_value = "rigs/sim-paper.toml")]
         rig: PathBuf,
     },
+    /// Frames per second through a GigE Vision camera on loopback (the in-process Aravis
+    /// fake camera serving known frames, each checked); needs `--features aravis`.
+    Aravis {
+        /// Frame width.
+        #[arg(long, default_value_t = 1920)]
+        width: u32,
+        /// Frame height.
+        #[arg(long, default_value_t = 1200)]
+        height: u32,
+        /// Bits per sample (8 or 16).
+        #[arg(long, default_value_t = 8)]
+        bits: u8,
+        /// Frames.
+        #[arg(long, default_value_t = 100)]
+        frames: usize,
+    },
     /// Render the built-in 1920×1200 scene (or --scene): ray grid, geometry, one frame.
     Render {
         /// Scene file (TOML); the built-in scene when absent.
@@ -527,6 +543,15 @@ fn main() -> anyhow::Result<()> {
         Command::Bench {
             what: Bench::Capture { rig },
         } => cli::bench_capture(&rig)?,
+        Command::Bench {
+            what:
+                Bench::Aravis {
+                    width,
+                    height,
+                    bits,
+                    frames,
+                },
+        } => cli::bench_aravis(width, height, bits, frames)?,
         Command::Info => {
             let b = hexcal::board::Board::hex600();
             println!("{}: {} circles per side", b.name, b.lattice().len());

@@ -207,8 +207,16 @@ pub fn open(rig: &RigFile, base: &Path) -> Result<OpenedRig, String> {
 fn open_camera(
     driver: CameraDriver,
     name: &str,
-    _address: Option<&str>,
+    address: Option<&str>,
 ) -> Result<Box<dyn Camera>, String> {
+    #[cfg(feature = "aravis")]
+    if driver == CameraDriver::Aravis {
+        let address = address.ok_or_else(|| format!("camera {name}: address is required"))?;
+        return crate::rig::aravis::AravisCamera::open(name, address)
+            .map(|c| Box::new(c) as Box<dyn Camera>)
+            .map_err(|e| e.to_string());
+    }
+    let _ = address;
     let feature = match driver {
         CameraDriver::Aravis => "aravis",
         CameraDriver::V4l2 => "v4l2",
