@@ -15,6 +15,7 @@ use crate::phase::{Direction, Sequence};
 use hexcal_simulator::{Frame, ImageSize, Sensor};
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
+use std::sync::Mutex;
 
 /// A projector lighting the scene.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -53,6 +54,59 @@ pub struct StackRenderer {
     /// Pixel rectangle (x0, y0, x1, y1), exclusive ends, holding every lit pixel plus the
     /// PSF's reach twice over: outside it projector light adds nothing.
     lit_box: Option<[usize; 4]>,
+    /// The spatial phases of the group being rendered.
+    phases: Mutex<GroupPhases>,
+}
+
+/// Per projector and lit-box pixel, (cos θ₀, sin θ₀) of one fringe group, where
+/// θ₀ = 2π·n·(pos + ½)/size is the phase at step 0: the group's N frames differ only by a
+/// shift, so the cosine of each frame is two products away (frames come group by group).
+#[derive(Default)]
+struct GroupPhases {
+    /// The group these phases belong to.
+    group: Option<usize>,
+    /// Per projector, box-sized, row-major.
+    phases: Vec<Vec<[f32; 2]>>,
+}
+
+impl GroupPhases {
+    /// Compute the phases of `group` inside the lit box.
+    fn fill(&mut self, r: &StackRenderer, group: usize, [x0, y0, x1, y1]: [usize; 4]) {
+        let steps = r.sequence.steps() as usize;
+        let frame = r
+            .sequence
+            .frame(group * steps)
+            .expect("group within the sequence");
+        let (w, bw) = (r.size.width as usize, x1 - x0);
+        self.phases.resize(r.truth.len(), Vec::new());
+        for ((code, t), out) in r
+            .sequence
+            .projectors()
+            .iter()
+            .zip(&r.truth)
+            .zip(&mut self.phases)
+        {
+            let (rows, size) = match frame.direction {
+                Direction::Columns => (false, code.width),
+                Direction::Rows => (true, code.height),
+            };
+            let a = 2.0 * std::f64::consts::PI * f64::from(frame.count) / f64::from(size);
+            out.clear();
+            out.resize(bw * (y1 - y0), [0.0; 2]);
+            out.par_chunks_mut(bw).enumerate().for_each(|(by, row)| {
+                let base = (y0 + by) * w + x0;
+                for (bx, o) in row.iter_mut().enumerate() {
+                    let i = base + bx;
+                    if t.lit[i] {
+                        let pos = f64::from(if rows { t.v[i] } else { t.u[i] });
+                        let (s, c) = (a * (pos + 0.5)).sin_cos();
+                        *o = [c as f32, s as f32];
+                    }
+                }
+            });
+        }
+        self.group = Some(group);
+    }
 }
 
 impl StackRenderer {
@@ -127,6 +181,7 @@ impl StackRenderer {
             ]
         });
         Ok(StackRenderer {
+            phases: Mutex::new(GroupPhases::default()),
             ambient_signal,
             lit_box,
             size: geo.size,
@@ -165,26 +220,26 @@ impl StackRenderer {
             .frame(k)
             .expect("frame index within the sequence");
         let n = self.sequence.steps();
-        // Per projector: the position it encodes in this frame, and the phase
-        // θ = a·pos + b = 2π·n·(pos + ½)/size − 2π·f_p·s/N (DESIGN.md §6).
-        let phases: Vec<(bool, f32, f32)> = self
+        let mut cache = self.phases.lock().unwrap_or_else(|e| e.into_inner());
+        if cache.group != Some(frame.group) {
+            cache.fill(self, frame.group, [x0, y0, x1, y1]);
+        }
+        // Per projector the phase shift of this step: θ = θ₀ − 2π·f_p·s/N (DESIGN.md §6),
+        // so cos θ = cos θ₀·cos(shift) + sin θ₀·sin(shift).
+        let shifts: Vec<(f32, f32)> = self
             .sequence
             .projectors()
             .iter()
             .map(|code| {
-                let (rows, size) = match frame.direction {
-                    Direction::Columns => (false, code.width),
-                    Direction::Rows => (true, code.height),
-                };
-                let a = 2.0 * std::f64::consts::PI * f64::from(frame.count) / f64::from(size);
                 let shift = 2.0 * std::f64::consts::PI * f64::from(code.frequency * frame.step % n)
                     / f64::from(n);
-                (rows, a as f32, (0.5 * a - shift) as f32)
+                (shift.cos() as f32, shift.sin() as f32)
             })
             .collect();
         let w = self.size.width as usize;
         let bw = x1 - x0;
         let mut irr = vec![0.0f32; bw * (y1 - y0)];
+        let cache = &*cache;
         irr.par_chunks_mut(bw).enumerate().for_each(|(by, row)| {
             let base = (y0 + by) * w + x0;
             for (bx, out) in row.iter_mut().enumerate() {
@@ -192,9 +247,9 @@ impl StackRenderer {
                 let mut e = 0.0;
                 for (p, t) in self.truth.iter().enumerate() {
                     if t.lit[i] {
-                        let (rows, a, b) = phases[p];
-                        let pos = if rows { t.v[i] } else { t.u[i] };
-                        let level = 127.5 * (1.0 + (a * pos + b).cos());
+                        let [c0, s0] = cache.phases[p][by * bw + bx];
+                        let (cs, ss) = shifts[p];
+                        let level = 127.5 * (1.0 + c0 * cs + s0 * ss);
                         e += self.gains[p] * self.light[p][(level + 0.5) as usize];
                     }
                 }
