@@ -21,8 +21,8 @@
 //!   whose exposure starts at or after this call": buffers exposed earlier are dequeued and
 //!   dropped. The start of exposure is the buffer timestamp when the driver stamps the start
 //!   of exposure (`TSTAMP_SRC_SOE`, as `uvcvideo` does), else the end-of-frame stamp less the
-//!   exposure and one frame interval (measured from the stream), which errs on the side of
-//!   waiting one frame more. [`TriggerSource::Line`] needs a boolean (or 0–1 integer) device
+//!   exposure and one frame interval (measured between buffers; none before the second),
+//!   which errs on the side of waiting one frame more. [`TriggerSource::Line`] needs a boolean (or 0–1 integer) device
 //!   control whose name contains "trigger" (vendor drivers' "Trigger Mode"), set to 1; it is
 //!   refused otherwise (V4L2 has no standard trigger control).
 //! - **Frame counter.** Line-triggered: the buffer sequence number, unwrapped. Software:
@@ -278,6 +278,28 @@ fn candidates(bits: u8) -> &'static [(FourCc, Layout, u8)] {
     }
 }
 
+/// Pixels of one frame of a format the driver reads — `GREY`, `YUYV` (its luma), `Y10`,
+/// `Y12`, `Y16` (16-bit little-endian) — from `data` with `stride` bytes per row; `None` for
+/// another format or a buffer too short.
+pub fn frame_pixels(
+    fourcc: FourCc,
+    data: &[u8],
+    width: usize,
+    height: usize,
+    stride: usize,
+) -> Option<Pixels> {
+    let layout = [8, 10, 12, 16]
+        .into_iter()
+        .flat_map(candidates)
+        .find(|c| c.0 == fourcc)?
+        .1;
+    let row = width * layout.bytes_per_pixel();
+    if stride < row || data.len() < height.saturating_sub(1) * stride + row {
+        return None;
+    }
+    Some(convert(layout, data, width, height, stride))
+}
+
 /// Pixels of one frame in `data` (`stride` bytes per row).
 fn convert(layout: Layout, data: &[u8], width: usize, height: usize, stride: usize) -> Pixels {
     let rows = (0..height).map(|y| &data[y * stride..]);
@@ -292,7 +314,7 @@ fn convert(layout: Layout, data: &[u8], width: usize, height: usize, stride: usi
         Layout::YuyvLuma => {
             let mut out = Vec::with_capacity(width * height);
             for row in rows {
-                out.extend(row[..2 * width].iter().step_by(2));
+                out.extend(row[..2 * width].chunks_exact(2).map(|p| p[0]));
             }
             Pixels::Gray8(out)
         }
@@ -324,7 +346,7 @@ impl Applied {
     /// Bytes a complete frame occupies.
     fn frame_bytes(&self) -> usize {
         let f = &self.format;
-        (f.height as usize - 1) * f.stride as usize
+        (f.height as usize).saturating_sub(1) * f.stride as usize
             + f.width as usize * self.layout.bytes_per_pixel()
     }
 }
@@ -395,13 +417,7 @@ impl<D: V4l2Device> V4l2Camera<D> {
         Ok(cam)
     }
 
-    /// The device underneath.
-    pub fn device(&self) -> &D {
-        &self.device
-    }
-
-    /// A kernel error while doing `what`: `Gone` when the node vanished, `Timeout` for a
-    /// timeout, else `Failed`.
+    /// A kernel error while doing `what`: `Gone` when the node vanished, else `Failed`.
     fn io_error(&self, what: &str, e: io::Error) -> DeviceError {
         match e.raw_os_error() {
             Some(libc::ENODEV | libc::ENXIO) => DeviceError::Gone {
@@ -631,9 +647,11 @@ impl<D: V4l2Device> V4l2Camera<D> {
         let control = controls.iter().find(|c| {
             c.name.to_ascii_lowercase().contains("trigger")
                 && !c.read_only
-                && matches!(c.kind, ControlKind::Boolean | ControlKind::Integer)
-                && c.allows(0)
-                && c.allows(1)
+                && match c.kind {
+                    ControlKind::Boolean => true,
+                    ControlKind::Integer => (c.min, c.max) == (0, 1),
+                    _ => false,
+                }
         });
         match (trigger, control) {
             (TriggerSource::Software, Some(c)) => {

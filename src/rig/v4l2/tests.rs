@@ -555,7 +555,16 @@ fn a_line_trigger_needs_a_trigger_control_and_counts_by_sequence() {
         trigger: TriggerSource::Line,
         ..config(32, 16, 8)
     };
-    let node = SimNode::new(&[FourCc::GREY], uvc_controls());
+    // A trigger delay is not a trigger mode.
+    let mut controls = uvc_controls();
+    controls.push(control(
+        0x0099_1002,
+        "Trigger Delay",
+        ControlKind::Integer,
+        0,
+        1000,
+    ));
+    let node = SimNode::new(&[FourCc::GREY], controls);
     let e = camera(&node).configure(&line).unwrap_err();
     assert!(matches!(&e, DeviceError::Unsupported { setting, .. } if setting == "trigger"));
     assert!(e.to_string().contains(NODE), "{e}");
@@ -676,6 +685,23 @@ fn no_frame_in_time_is_a_timeout_and_the_trigger_still_holds() {
         "{e}"
     );
     assert_eq!(sequence_of(&cam.next_frame(WAIT).unwrap().pixels), 0);
+}
+
+#[test]
+fn frame_pixels_reads_supported_formats_and_refuses_the_rest() {
+    // 2×2 YUYV, stride 6: luma 1 2 / 5 6, chroma and padding must not show.
+    let yuyv = [1, 90, 2, 91, 0, 0, 5, 92, 6, 93];
+    assert_eq!(
+        frame_pixels(FourCc::YUYV, &yuyv, 2, 2, 6),
+        Some(Pixels::Gray8(vec![1, 2, 5, 6]))
+    );
+    let y16 = [0x34, 0x12, 0xff, 0x0f];
+    assert_eq!(
+        frame_pixels(FourCc::Y12, &y16, 2, 1, 4),
+        Some(Pixels::Gray16(vec![0x1234, 0x0fff]))
+    );
+    assert_eq!(frame_pixels(FourCc::YUYV, &yuyv[..9], 2, 2, 6), None);
+    assert_eq!(frame_pixels(FourCc(*b"MJPG"), &yuyv, 2, 2, 6), None);
 }
 
 #[test]
