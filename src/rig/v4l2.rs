@@ -22,9 +22,13 @@
 //!   dropped. The start of exposure is the buffer timestamp when the driver stamps the start
 //!   of exposure (`TSTAMP_SRC_SOE`, as `uvcvideo` does), else the end-of-frame stamp less the
 //!   exposure and one frame interval (measured between buffers; none before the second),
-//!   which errs on the side of waiting one frame more. [`TriggerSource::Line`] needs a boolean (or 0–1 integer) device
-//!   control whose name contains "trigger" (vendor drivers' "Trigger Mode"), set to 1; it is
-//!   refused otherwise (V4L2 has no standard trigger control).
+//!   which errs on the side of waiting one frame more. A timestamp on another clock than
+//!   `CLOCK_MONOTONIC` (rare) is replaced by the time of dequeuing, which cannot tell a
+//!   buffer done before the trigger from one done after: the capture engine drains every
+//!   ready buffer before it triggers, which covers it. [`TriggerSource::Line`] needs a
+//!   boolean (or 0–1 integer) device control whose name contains "trigger" (vendor
+//!   drivers' "Trigger Mode"), set to 1; it is refused otherwise (V4L2 has no standard
+//!   trigger control).
 //! - **Frame counter.** Line-triggered: the buffer sequence number, unwrapped. Software:
 //!   one more per triggered frame delivered, plus the frames the kernel lost (sequence gaps)
 //!   whose exposure started after the trigger, so a gap is a frame the engine missed, and the
@@ -35,7 +39,8 @@
 //!   queue the kernel put in its error state) is [`DeviceError::Gone`] naming the camera and
 //!   node; no buffer in time is [`DeviceError::Timeout`].
 //!
-//! [`describe`] gives a node's card, driver and formats for `hexcal devices`.
+//! [`describe`] gives a node's card, driver and formats for `hexcal devices`;
+//! [`frame_pixels`] converts one buffer.
 
 pub mod node;
 #[cfg(test)]
