@@ -216,6 +216,13 @@ fn open_camera(
             .map(|c| Box::new(c) as Box<dyn Camera>)
             .map_err(|e| e.to_string());
     }
+    #[cfg(feature = "v4l2")]
+    if driver == CameraDriver::V4l2 {
+        let address = address.ok_or_else(|| format!("camera {name}: address is required"))?;
+        return crate::rig::v4l2::V4l2Camera::open(name, address)
+            .map(|c| Box::new(c) as Box<dyn Camera>)
+            .map_err(|e| e.to_string());
+    }
     let _ = address;
     let feature = match driver {
         CameraDriver::Aravis => "aravis",

@@ -38,7 +38,8 @@ pub fn serial_ports() -> Result<Vec<Found>, String> {
         .collect())
 }
 
-/// Video4Linux nodes (`/dev/video*`) with the name the kernel gives them.
+/// Video4Linux nodes (`/dev/video*`) with the name the kernel gives them; with the `v4l2`
+/// feature, the card, driver and capture formats of each node that opens.
 pub fn video_nodes() -> Vec<Found> {
     let mut found: Vec<Found> = std::fs::read_dir("/sys/class/video4linux")
         .into_iter()
@@ -46,10 +47,15 @@ pub fn video_nodes() -> Vec<Found> {
         .flatten()
         .map(|e| {
             let node = e.file_name().to_string_lossy().into_owned();
+            let address = format!("/dev/{node}");
             let name = std::fs::read_to_string(e.path().join("name")).unwrap_or_default();
+            #[cfg(feature = "v4l2")]
+            let name = crate::rig::v4l2::Node::open(&address)
+                .and_then(|n| crate::rig::v4l2::describe(&n))
+                .unwrap_or(name);
             Found {
                 kind: "v4l2",
-                address: format!("/dev/{node}"),
+                address,
                 description: name.trim().to_string(),
             }
         })
