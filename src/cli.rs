@@ -205,9 +205,23 @@ pub fn run(
         .map_err(anyhow::Error::msg)?;
     summarise(&outcome, progress);
     if progress != Progress::Json {
-        println!("run took {:.1} s", t.elapsed().as_secs_f64());
+        match peak_memory_mib() {
+            Some(mib) => println!(
+                "run took {:.1} s, peak memory {mib:.0} MiB",
+                t.elapsed().as_secs_f64()
+            ),
+            None => println!("run took {:.1} s", t.elapsed().as_secs_f64()),
+        }
     }
     Ok(())
+}
+
+/// Peak resident memory of this process (VmHWM of /proc/self/status), where Linux tells it.
+fn peak_memory_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
 }
 
 /// The residual table, verification and warnings of a finished run.
