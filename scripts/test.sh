@@ -7,8 +7,12 @@ cd "$(dirname "$0")/.."
 if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     # Debian packages of DESIGN.md §11 used by the tests: python3 with OpenCV and YAML read
     # the calibration outputs; chromium renders the HTML report (tests/report_html.rs);
-    # libaravis-dev (+ libusb-1.0-0-dev, which its .pc needs) for the `aravis` feature.
-    apt_packages=(python3 python3-opencv python3-yaml chromium libaravis-dev libusb-1.0-0-dev)
+    # libaravis-dev (+ libusb-1.0-0-dev, which its .pc needs) for the `aravis` feature;
+    # for the `window` feature the X client libraries winit and softbuffer load at run time,
+    # and Xvfb, xwd (x11-apps), xwininfo (x11-utils) and xdotool for its tests.
+    apt_packages=(python3 python3-opencv python3-yaml chromium libaravis-dev libusb-1.0-0-dev
+        libx11-6 libx11-xcb1 libxcb1 libxcursor1 libxi6 libxkbcommon-x11-0
+        xvfb x11-apps x11-utils xdotool)
     apt-get update -qq
     DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${apt_packages[@]}" >/dev/null
 fi
@@ -21,6 +25,9 @@ cargo test --workspace
 # full-workspace test run).
 cargo clippy --features aravis --all-targets -- -D warnings
 cargo test --features aravis --test aravis_loopback
+# The window projector (feature `window`): lints, then its tests, each on its own Xvfb.
+cargo clippy --features window --all-targets -- -D warnings
+cargo test --features window --test window_projector
 # The firmware protocol must stay no_std: build it for the controller's target (RP2040).
 if rustup target add thumbv6m-none-eabi >/dev/null 2>&1; then
     cargo build -p hexcal-firmware-protocol --target thumbv6m-none-eabi

@@ -9,6 +9,8 @@ pub mod devices;
 pub mod file;
 pub mod sim;
 pub mod trigger;
+#[cfg(feature = "window")]
+pub mod window;
 
 pub use device::{
     Camera, CameraConfig, CameraFrame, DeviceError, Pixels, Projector, Slide, Trigger,
