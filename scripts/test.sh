@@ -28,6 +28,10 @@ cargo test --features aravis --test aravis_loopback
 # The window projector (feature `window`): lints, then its tests, each on its own Xvfb.
 cargo clippy --features window --all-targets -- -D warnings
 cargo test --features window --test window_projector
+# The hardware loop: GigE Vision loopback camera, trigger controller on a pty and the window
+# projector on a private Xvfb, through the capture engine to decoded stacks.
+cargo clippy --features aravis,window --all-targets -- -D warnings
+cargo test --features aravis,window --test hardware_loop
 # The firmware protocol must stay no_std: build it for the controller's target (RP2040).
 if rustup target add thumbv6m-none-eabi >/dev/null 2>&1; then
     cargo build -p hexcal-firmware-protocol --target thumbv6m-none-eabi
