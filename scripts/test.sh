@@ -8,9 +8,12 @@ if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     # Debian packages of DESIGN.md §11 used by the tests: python3 with OpenCV and YAML read
     # the calibration outputs; chromium renders the HTML report (tests/report_html.rs);
     # libaravis-dev (+ libusb-1.0-0-dev, which its .pc needs) for the `aravis` feature;
-    # libclang-dev for the `v4l2` feature (bindgen generates the V4L2 bindings).
+    # libclang-dev for the `v4l2` feature (bindgen generates the V4L2 bindings); for the
+    # `window` feature the X client libraries winit and softbuffer load at run time, and
+    # Xvfb, xwd (x11-apps), xwininfo (x11-utils) and xdotool for its tests.
     apt_packages=(python3 python3-opencv python3-yaml chromium libaravis-dev libusb-1.0-0-dev
-        libclang-dev)
+        libclang-dev libx11-6 libx11-xcb1 libxcb1 libxcursor1 libxi6 libxkbcommon-x11-0
+        xvfb x11-apps x11-utils xdotool)
     apt-get update -qq
     DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${apt_packages[@]}" >/dev/null
 fi
@@ -19,14 +22,16 @@ rustup component add rustfmt clippy >/dev/null 2>&1 || true
 cargo fmt --all --check
 cargo clippy --workspace --all-targets -- -D warnings
 cargo test --workspace
-# The Aravis driver (feature `aravis`): lints, then only its loopback tests (no second
-# full-workspace test run).
-cargo clippy --features aravis --all-targets -- -D warnings
-cargo test --features aravis --test aravis_loopback
-# The V4L2 driver (feature `v4l2`): no /dev/video in CI, so lints and only its unit tests
-# (a simulated node behind the driver's device trait).
-cargo clippy --features v4l2 --all-targets -- -D warnings
-cargo test --features v4l2 --lib rig::v4l2
+# The hardware drivers (features `aravis`, `v4l2`, `window`), built once together: lints,
+# then only their tests (no second full-workspace test run): the Aravis driver through the
+# GigE Vision loopback camera; the V4L2 driver on a simulated node behind its device trait
+# (no /dev/video in CI); the window projector, each test on its own Xvfb; and the hardware
+# loop — loopback camera, trigger controller on a pty and window projector through the
+# capture engine to decoded stacks.
+hw=aravis,v4l2,window
+cargo clippy --features $hw --all-targets -- -D warnings
+cargo test --features $hw --test aravis_loopback --test window_projector --test hardware_loop
+cargo test --features $hw --lib rig::v4l2
 # The firmware protocol must stay no_std: build it for the controller's target (RP2040).
 if rustup target add thumbv6m-none-eabi >/dev/null 2>&1; then
     cargo build -p hexcal-firmware-protocol --target thumbv6m-none-eabi

@@ -298,6 +298,17 @@ fn extra_devices(all: &mut Vec<hexcal::rig::devices::Found>, notes: &mut Vec<Str
     }));
     #[cfg(not(feature = "aravis"))]
     notes.push("GenICam cameras are listed by builds with --features aravis".into());
+    #[cfg(feature = "window")]
+    match hexcal::rig::window::monitors() {
+        Ok(m) => all.extend(m.into_iter().map(|m| hexcal::rig::devices::Found {
+            kind: "monitor",
+            description: format!("{}×{} at {},{}", m.width, m.height, m.x, m.y),
+            address: m.name,
+        })),
+        Err(e) => notes.push(format!("monitors: {e}")),
+    }
+    #[cfg(not(feature = "window"))]
+    notes.push("monitors are listed by builds with --features window".into());
     let _ = (&all, &notes);
 }
 
@@ -313,5 +324,19 @@ pub fn bench_aravis(width: u32, height: u32, bits: u8, frames: usize) -> anyhow:
     {
         let _ = (width, height, bits, frames);
         anyhow::bail!("built without the aravis feature: cargo run --release --features aravis -- bench aravis")
+    }
+}
+
+/// `hexcal bench window`: time from `show` to the slide drawn, on a monitor of `$DISPLAY`.
+pub fn bench_window(monitor: Option<&str>, slides: usize) -> anyhow::Result<()> {
+    #[cfg(feature = "window")]
+    {
+        println!("{}", hexcal::rig::window::bench_show(monitor, slides)?);
+        Ok(())
+    }
+    #[cfg(not(feature = "window"))]
+    {
+        let _ = (monitor, slides);
+        anyhow::bail!("built without the window feature: cargo run --release --features window -- bench window")
     }
 }

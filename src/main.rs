@@ -196,6 +196,16 @@ enum Bench {
         #[arg(long, default_value_t = 100)]
         frames: usize,
     },
+    /// Time from a window projector's `show` to the slide drawn by the X server (pattern
+    /// slides at the monitor's size on `$DISPLAY`); needs `--features window`.
+    Window {
+        /// Monitor (the first one when absent; `hexcal devices` lists them).
+        #[arg(long)]
+        monitor: Option<String>,
+        /// Slides.
+        #[arg(long, default_value_t = 100)]
+        slides: usize,
+    },
     /// Render the built-in 1920×1200 scene (or --scene): ray grid, geometry, one frame.
     Render {
         /// Scene file (TOML); the built-in scene when absent.
@@ -552,6 +562,9 @@ fn main() -> anyhow::Result<()> {
                     frames,
                 },
         } => cli::bench_aravis(width, height, bits, frames)?,
+        Command::Bench {
+            what: Bench::Window { monitor, slides },
+        } => cli::bench_window(monitor.as_deref(), slides)?,
         Command::Info => {
             let b = hexcal::board::Board::hex600();
             println!("{}: {} circles per side", b.name, b.lattice().len());

@@ -326,10 +326,12 @@ fn silent_controller_times_out_naming_the_port() {
             port: p,
             request,
             attempts,
+            garbled,
             ..
         } => {
             assert_eq!(p, &port);
-            assert_eq!((*request, *attempts), ("Disarm", 3));
+            // Silence, not garbage.
+            assert_eq!((*request, *attempts, *garbled), ("Disarm", 3, 0));
         }
         other => panic!("expected NoReply, got {other:?}"),
     }

@@ -398,18 +398,23 @@ impl PoseWriter {
     }
 }
 
+/// Encode `f` as PNG in memory, then write the file: every write error reaches the caller
+/// (an encoder writing to a buffered file would finish it on drop, where a full disk's
+/// error is lost and a truncated file looks written).
 fn encode_png(path: &Path, f: &CameraFrame) -> image::ImageResult<()> {
     use image::codecs::png::{CompressionType, FilterType, PngEncoder};
     use image::{ExtendedColorType, ImageEncoder};
-    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
-    let enc = PngEncoder::new_with_quality(file, CompressionType::Fast, FilterType::Sub);
+    let mut bytes = Vec::new();
+    let enc = PngEncoder::new_with_quality(&mut bytes, CompressionType::Fast, FilterType::Sub);
     match &f.pixels {
-        Pixels::Gray8(p) => enc.write_image(p, f.width, f.height, ExtendedColorType::L8),
+        Pixels::Gray8(p) => enc.write_image(p, f.width, f.height, ExtendedColorType::L8)?,
         Pixels::Gray16(p) => {
-            let bytes: Vec<u8> = p.iter().flat_map(|v| v.to_be_bytes()).collect();
-            enc.write_image(&bytes, f.width, f.height, ExtendedColorType::L16)
+            let samples: Vec<u8> = p.iter().flat_map(|v| v.to_be_bytes()).collect();
+            enc.write_image(&samples, f.width, f.height, ExtendedColorType::L16)?
         }
     }
+    std::fs::write(path, &bytes)?;
+    Ok(())
 }
 
 /// A stack folder opened for reading (`stack.json` checked against its sequence).

@@ -234,6 +234,20 @@ fn open_camera(
     ))
 }
 
+#[cfg(feature = "window")]
+fn open_window(
+    name: &str,
+    monitor: Option<&str>,
+    width: u32,
+    height: u32,
+) -> Result<Box<dyn Projector>, String> {
+    let monitor = monitor.ok_or_else(|| format!("projector {name}: monitor is required"))?;
+    crate::rig::window::WindowProjector::open(name, monitor, width, height)
+        .map(|p| Box::new(p) as Box<dyn Projector>)
+        .map_err(|e| format!("projector {e}"))
+}
+
+#[cfg(not(feature = "window"))]
 fn open_window(
     name: &str,
     _monitor: Option<&str>,

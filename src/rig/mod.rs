@@ -11,6 +11,8 @@ pub mod sim;
 pub mod trigger;
 #[cfg(feature = "v4l2")]
 pub mod v4l2;
+#[cfg(feature = "window")]
+pub mod window;
 
 pub use device::{
     Camera, CameraConfig, CameraFrame, DeviceError, Pixels, Projector, Slide, Trigger,

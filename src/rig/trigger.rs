@@ -97,10 +97,11 @@ pub enum TriggerError {
         /// The controller's version.
         controller: u16,
     },
-    /// No reply to a request after every attempt.
+    /// No reply to a request after every attempt (the controller was silent, or sent only
+    /// frames that failed their CRC or did not decode: `garbled` of them).
     #[error(
         "trigger controller {port}: no reply to {request} after {attempts} attempts \
-         ({timeout:?} each)"
+         ({timeout:?} each; {garbled} garbled frames received meanwhile)"
     )]
     NoReply {
         /// The port's path.
@@ -111,6 +112,8 @@ pub enum TriggerError {
         attempts: u32,
         /// Wait per transmission.
         timeout: Duration,
+        /// Frames received while waiting that failed their CRC or did not decode.
+        garbled: u64,
     },
     /// No event arrived in time.
     #[error("trigger controller {port}: no {what} within {timeout:?}")]
@@ -417,6 +420,7 @@ impl TriggerController {
         self.stats.requests += 1;
         let frame = encode_frame(&Request { seq, command })
             .expect("every request fits a frame (the line list is bounded by its type)");
+        let garbled_before = self.stats.crc_errors + self.stats.bad_frames;
         for attempt in 0..self.timing.attempts {
             if attempt > 0 {
                 self.stats.retries += 1;
@@ -454,6 +458,7 @@ impl TriggerController {
             request: name,
             attempts: self.timing.attempts,
             timeout: self.timing.reply_timeout,
+            garbled: self.stats.crc_errors + self.stats.bad_frames - garbled_before,
         })
     }
 

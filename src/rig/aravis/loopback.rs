@@ -83,6 +83,66 @@ impl LoopbackCamera {
         self.fake.set_gvsp_lost_ratio(ratio);
     }
 
+    /// A rising edge on the camera's trigger input line: with TriggerMode On and its line
+    /// source (`Line0`, what the driver selects for a line-triggered camera) the camera
+    /// exposes one frame. The fake camera has no line input of its own, so the edge is
+    /// delivered through its software-trigger register, switching the source to Software
+    /// until the camera took the trigger (within `timeout`). Refused, naming the registers,
+    /// when the camera is not waiting for a line trigger or does not take it.
+    pub fn pulse_line(&self, timeout: Duration) -> Result<(), DeviceError> {
+        use aravis_sys::{
+            ARV_FAKE_CAMERA_REGISTER_TRIGGER_MODE as MODE,
+            ARV_FAKE_CAMERA_REGISTER_TRIGGER_SOFTWARE as SOFTWARE,
+            ARV_FAKE_CAMERA_REGISTER_TRIGGER_SOURCE as SOURCE,
+        };
+        const LINE0: u32 = 0;
+        const SOFTWARE_SOURCE: u32 = 1;
+        let error = |reason: String| DeviceError::Failed {
+            device: "loopback camera line input".into(),
+            reason,
+        };
+        let camera = self
+            .fake
+            .fake_camera()
+            .ok_or_else(|| error("no fake camera inside".into()))?;
+        let raw = camera.to_glib_none().0;
+        // SAFETY: `raw` is a live fake camera (held by `camera`); its registers are plain
+        // memory words, read and written whole.
+        let read = |address: i32| unsafe {
+            let mut value = 0u32;
+            aravis_sys::arv_fake_camera_read_register(raw, address as u32, &mut value);
+            value
+        };
+        // SAFETY: as above.
+        let write = |address: i32, value: u32| unsafe {
+            aravis_sys::arv_fake_camera_write_register(raw, address as u32, value);
+        };
+        let (mode, source) = (read(MODE), read(SOURCE));
+        if mode != 1 || source != LINE0 {
+            return Err(error(format!(
+                "the camera is not waiting for a line trigger (TriggerMode {mode}, \
+                 TriggerSource {source}; Line0 is 0)"
+            )));
+        }
+        write(SOURCE, SOFTWARE_SOURCE);
+        write(SOFTWARE, 1);
+        let deadline = Instant::now() + timeout;
+        // The camera clears the register when it takes the trigger.
+        while read(SOFTWARE) != 0 && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_micros(100));
+        }
+        let taken = read(SOFTWARE) == 0;
+        write(SOFTWARE, 0);
+        write(SOURCE, LINE0);
+        if taken {
+            Ok(())
+        } else {
+            Err(error(format!(
+                "the camera did not take the pulse within {timeout:?} (acquisition stopped?)"
+            )))
+        }
+    }
+
     /// Frames served so far.
     pub fn served(&self) -> usize {
         self.source().next.load(Ordering::SeqCst)
