@@ -194,6 +194,10 @@ pub struct Solution {
     pub covariance: DMatrix<f64>,
     /// Where each device's lens block and pose block start in `covariance`.
     pub index: Vec<(usize, Option<usize>)>,
+    /// Where each board pose's increment (ω, τ) starts in `covariance`.
+    pub board_index: Vec<usize>,
+    /// Where the side transform's increment starts in `covariance`, when refined.
+    pub side_index: Option<usize>,
     /// LM iterations over all phases.
     pub iterations: usize,
 }
@@ -876,6 +880,8 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
             .zip(&l.pose)
             .map(|(&(at, _), &p)| (at, p))
             .collect(),
+        board_index: l.board.clone(),
+        side_index: l.side,
         covariance: cov,
         iterations: it1 + it2,
     })

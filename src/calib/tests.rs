@@ -126,16 +126,100 @@ fn zhang_start_is_close_with_distortion_and_noise() {
 }
 
 mod bundle_adjustment {
-    use super::super::bundle::{self, DeviceKind, Options};
+    use super::super::bundle::{self, Device, DeviceKind, Options};
     use super::super::synthetic::SyntheticRig;
     use crate::board::Side;
+    use crate::camera::LensParams;
+    use nalgebra::{DMatrix, DVector, Isometry3};
+
+    /// A named deviation of one adjusted parameter, at its index into the covariance.
+    struct Deviation {
+        name: String,
+        at: usize,
+        value: f64,
+    }
+
+    /// Left increment (ω, τ) taking `b` to `a`: a = (exp ω, τ)·b, the solver's own pose
+    /// parameterisation.
+    fn increment(a: &Isometry3<f64>, b: &Isometry3<f64>) -> [f64; 6] {
+        let delta = a * b.inverse();
+        let (w, t) = (delta.rotation.scaled_axis(), delta.translation.vector);
+        [w.x, w.y, w.z, t.x, t.y, t.z]
+    }
+
+    /// Every free parameter of `sol` minus its value in (`devices`, `boards`, `front_back`):
+    /// each device's lens parameters and pose, each board pose, the side transform.
+    fn deviations(
+        sol: &bundle::Solution,
+        devices: &[Device],
+        boards: &[Isometry3<f64>],
+        front_back: &Isometry3<f64>,
+    ) -> Vec<Deviation> {
+        const POSE: [&str; 6] = ["ωx", "ωy", "ωz", "tx", "ty", "tz"];
+        let mut out = Vec::new();
+        let mut pose = |name: &str, at: usize, inc: [f64; 6]| {
+            for (j, v) in inc.into_iter().enumerate() {
+                out.push(Deviation {
+                    name: format!("{name} {}", POSE[j]),
+                    at: at + j,
+                    value: v,
+                });
+            }
+        };
+        let mut lens = Vec::new();
+        for (d, (est, other)) in sol.devices.iter().zip(devices).enumerate() {
+            let (lens_at, pose_at) = sol.index[d];
+            let params = LensParams::for_model(&est.model);
+            let (a, b) = (est.model.lens_vector(), other.model.lens_vector());
+            for (j, q) in params.iter().enumerate() {
+                lens.push(Deviation {
+                    name: format!("{} {q}", est.name),
+                    at: lens_at + j,
+                    value: a[q.index()] - b[q.index()],
+                });
+            }
+            if let Some(at) = pose_at {
+                pose(&est.name, at, increment(&est.pose, &other.pose));
+            }
+        }
+        for (k, (est, other)) in sol.boards.iter().zip(boards).enumerate() {
+            pose(
+                &format!("board {k}"),
+                sol.board_index[k],
+                increment(est, other),
+            );
+        }
+        if let Some(at) = sol.side_index {
+            pose("front→back", at, increment(&sol.front_back, front_back));
+        }
+        out.extend(lens);
+        out
+    }
+
+    /// e over the covariance's sub-block of `devs`: (e, Cov).
+    fn block(sol: &bundle::Solution, devs: &[Deviation]) -> (DVector<f64>, DMatrix<f64>) {
+        let e = DVector::from_iterator(devs.len(), devs.iter().map(|d| d.value));
+        let cov = DMatrix::from_fn(devs.len(), devs.len(), |a, b| {
+            sol.covariance[(devs[a].at, devs[b].at)]
+        });
+        (e, cov)
+    }
+
+    /// Squared Mahalanobis length eᵀ·Cov⁻¹·e of the deviations.
+    fn mahalanobis2(sol: &bundle::Solution, devs: &[Deviation]) -> f64 {
+        let (e, cov) = block(sol, devs);
+        e.dot(
+            &cov.cholesky()
+                .expect("positive definite covariance")
+                .solve(&e),
+        )
+    }
 
     #[test]
     fn paper_rig_reaches_the_noise_floor_from_a_perturbed_start() {
         let sigma = 0.1;
         let rig = SyntheticRig::paper(10, sigma, 7);
-        let problem = rig.perturbed_start(8);
-        let sol = bundle::adjust(&problem, &Options::default()).unwrap();
+        let sol = bundle::adjust(&rig.perturbed_start(8), &Options::default()).unwrap();
         let (n, p) = sol.dof;
         // RMS per coordinate of the inliers → σ·√(1 − p/n) (DESIGN.md §8); a 4σ trim of 2D
         // Gaussian norms removes 3e-4 of them and lowers the RMS by < 0.5 %.
@@ -153,82 +237,110 @@ mod bundle_adjustment {
             (rms / expect - 1.0).abs() < 0.03,
             "rms {rms} vs {expect} (n {n}, p {p})"
         );
-        // Every device recovered: focal within 6σ of its standard deviation (and well under 0.1 %).
-        for (d, (est, truth)) in sol.devices.iter().zip(&rig.devices).enumerate() {
-            let e = est.model.intrinsics.fx - truth.model.intrinsics.fx;
-            let s = sol.intrinsic_std[d][0];
-            assert!(
-                e.abs() < 6.0 * s && e.abs() < 1e-3 * truth.model.intrinsics.fx,
-                "{} fx error {e} std {s}",
-                est.name
-            );
-        }
         assert!(sol.devices.iter().any(|d| d.kind == DeviceKind::Projector));
-    }
 
-    /// Errors of every device's first eight lens parameters and pose increment, with their
-    /// indices into the solution's covariance.
-    fn errors(sol: &bundle::Solution, rig: &SyntheticRig) -> Vec<(usize, f64)> {
-        let mut out = Vec::new();
-        for (d, (est, truth)) in sol.devices.iter().zip(&rig.devices).enumerate() {
-            let (a, b) = (est.model, truth.model);
-            let (lens_at, pose_at) = sol.index[d];
-            let errs = [
-                a.intrinsics.fx - b.intrinsics.fx,
-                a.intrinsics.fy - b.intrinsics.fy,
-                a.intrinsics.cx - b.intrinsics.cx,
-                a.intrinsics.cy - b.intrinsics.cy,
-                a.distortion.k1 - b.distortion.k1,
-                a.distortion.k2 - b.distortion.k2,
-                a.distortion.p1 - b.distortion.p1,
-                a.distortion.p2 - b.distortion.p2,
-            ];
-            out.extend(errs.iter().enumerate().map(|(j, e)| (lens_at + j, *e)));
-            if let Some(at) = pose_at {
-                // Left increment taking the truth to the estimate: T_est = (exp ω, τ)·T_true.
-                let delta = est.pose * truth.pose.inverse();
-                let (w, t) = (delta.rotation.scaled_axis(), delta.translation.vector);
-                out.extend(
-                    [w.x, w.y, w.z, t.x, t.y, t.z]
-                        .iter()
-                        .enumerate()
-                        .map(|(j, e)| (at + j, *e)),
-                );
+        // Ground truth recovered for every parameter: each device's intrinsics, distortion
+        // and pose, each board pose and the side transform, each within k of its own standard
+        // deviation. k = 4.6 by Bonferroni over m ≤ 200 parameters: P(|z| > 4.6) = 4.2·10⁻⁶,
+        // so a correct solver fails with probability < 200·4.2·10⁻⁶ < 10⁻³.
+        let truth_fb = rig.board.side_transform(Side::Back);
+        let devs = deviations(&sol, &rig.devices, &rig.boards, &truth_fb);
+        assert_eq!(devs.len(), p, "every free parameter compared");
+        assert!(devs.len() <= 200);
+        let k = 4.6;
+        let mut worst = (0.0f64, "");
+        for d in &devs {
+            let z = d.value / sol.covariance[(d.at, d.at)].sqrt();
+            if z.abs() > worst.0 {
+                worst = (z.abs(), &d.name);
             }
+            assert!(z.abs() <= k, "{}: error {} is {z:.2} σ", d.name, d.value);
         }
-        out
+        eprintln!(
+            "{} parameters, worst |error|/σ {:.2} ({})",
+            devs.len(),
+            worst.0,
+            worst.1
+        );
+        for (est, truth) in sol.devices.iter().zip(&rig.devices) {
+            let e = est.model.intrinsics.fx / truth.model.intrinsics.fx - 1.0;
+            assert!(e.abs() < 1e-3, "{} focal error {e}", est.name);
+        }
+
+        // The same minimum as from the true start. The solver stops when a step lowers the
+        // cost Σr² by < 0.1σ̂²; near the minimum the cost exceeds its minimum by σ²·d² (d the
+        // Mahalanobis distance from it), so each solution lies within √0.1 = 0.32 of the
+        // minimum and the two within 0.64 of each other.
+        let truth_start = bundle::Problem {
+            board: rig.board.clone(),
+            devices: rig.devices.clone(),
+            boards: rig.boards.clone(),
+            observations: rig.observations.clone(),
+        };
+        let from_truth = bundle::adjust(&truth_start, &Options::default()).unwrap();
+        let apart = deviations(
+            &sol,
+            &from_truth.devices,
+            &from_truth.boards,
+            &from_truth.front_back,
+        );
+        let d = mahalanobis2(&sol, &apart).sqrt();
+        eprintln!("perturbed vs true start: Mahalanobis distance {d:.4}");
+        assert!(d <= 2.0 * 0.1f64.sqrt(), "solutions {d} apart");
     }
 
     #[test]
     fn parameter_errors_agree_with_the_covariance() {
-        // If Cov(θ) = σ²(JᵀJ)⁻¹ describes the errors e of the p compared parameters, then
-        // eᵀ·Cov⁻¹·e / p ~ χ²_p / p (mean 1, sd √(2/p) = 0.13 for p = 120) and the mean
-        // squared normalised error (e_i/σ_i)² has mean 1 (its spread is larger: the
-        // parameters are correlated, so it is averaged over independent noise draws).
+        // If Cov(θ) = σ²(JᵀJ)⁻¹ describes the errors e of the m free parameters, then per
+        // noise draw the mean squared normalised error NMSE = Σ(e_i/σ_i)²/m has mean 1 and
+        // variance 2·tr(ρ²)/m² (ρ the correlation matrix; Var Σz_i² = 2·Σρ_ij² for Gaussian
+        // z), and NEES = eᵀCov⁻¹e/m ~ χ²_m/m has variance 2/m. The draws are as many as put
+        // the band 0.7–1.3 at ≥ 4.5 standard deviations of both means from 1 (a correct
+        // solver fails with probability < 10⁻⁵); a covariance 1.5× too small (means 1.5)
+        // then fails with ≥ 3 standard deviations to spare (one 1.5× too large, means 0.67,
+        // lies only 0.03 below the band: 3 sd of that needs ≈ 85 draws for NEES, ≈ 900 for
+        // NMSE). Each draw starts from the truth: the perturbed start reaches the same
+        // minimum (previous test).
         let sigma = 0.2;
-        let (mut maha, mut nmse) = (Vec::new(), Vec::new());
-        for seed in 0..3 {
+        let mut m = 0;
+        let (mut nees, mut nmse, mut var_nmse, mut var_nees) = (Vec::new(), Vec::new(), 0f64, 0f64);
+        // Draw until the spread (from the covariances alone, never the errors) is small enough.
+        let mut draws = 0;
+        while draws == 0 || 4.5 * var_nmse.max(var_nees).sqrt() > 0.3 * draws as f64 {
+            let seed = draws;
             let rig = SyntheticRig::paper(10, sigma, 100 + seed);
-            let sol =
-                bundle::adjust(&rig.perturbed_start(200 + seed), &Options::default()).unwrap();
-            let e = errors(&sol, &rig);
-            let idx: Vec<usize> = e.iter().map(|(i, _)| *i).collect();
-            let cov = nalgebra::DMatrix::from_fn(idx.len(), idx.len(), |a, b| {
-                sol.covariance[(idx[a], idx[b])]
-            });
-            let ev = nalgebra::DVector::from_iterator(e.len(), e.iter().map(|(_, v)| *v));
-            let m = ev.dot(&cov.clone().cholesky().unwrap().solve(&ev)) / e.len() as f64;
-            let z2 = e
-                .iter()
-                .map(|(i, v)| v * v / sol.covariance[(*i, *i)])
-                .sum::<f64>()
-                / e.len() as f64;
-            maha.push(m);
-            nmse.push(z2);
+            let start = bundle::Problem {
+                board: rig.board.clone(),
+                devices: rig.devices.clone(),
+                boards: rig.boards.clone(),
+                observations: rig.observations.clone(),
+            };
+            let sol = bundle::adjust(&start, &Options::default()).unwrap();
+            let truth_fb = rig.board.side_transform(Side::Back);
+            let devs = deviations(&sol, &rig.devices, &rig.boards, &truth_fb);
+            m = devs.len();
+            let m = m as f64;
+            let (e, cov) = block(&sol, &devs);
+            let sd = cov.diagonal().map(f64::sqrt);
+            let rho =
+                DMatrix::from_fn(devs.len(), devs.len(), |a, b| cov[(a, b)] / (sd[a] * sd[b]));
+            var_nmse += 2.0 * rho.norm_squared() / (m * m);
+            var_nees += 2.0 / m;
+            nees.push(mahalanobis2(&sol, &devs) / m);
+            nmse.push(e.component_div(&sd).norm_squared() / m);
+            draws += 1;
         }
+        let d = draws as f64;
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-        eprintln!("Mahalanobis/p per draw {maha:?}, NMSE per draw {nmse:?}");
-        assert!((0.7..=1.3).contains(&mean(&maha)), "Mahalanobis/p {maha:?}");
+        let (sd_nmse, sd_nees) = (var_nmse.sqrt() / d, var_nees.sqrt() / d);
+        eprintln!(
+            "{draws} draws of {m} parameters: NEES {:.3} ± {sd_nees:.3}, NMSE {:.3} ± {sd_nmse:.3} \
+             (one draw: NMSE sd {:.3}); per draw NEES {nees:.3?} NMSE {nmse:.3?}",
+            mean(&nees),
+            mean(&nmse),
+            sd_nmse * d.sqrt()
+        );
+        assert!((0.7..=1.3).contains(&mean(&nees)), "NEES {nees:?}");
         assert!((0.7..=1.3).contains(&mean(&nmse)), "NMSE {nmse:?}");
     }
 
@@ -255,36 +367,144 @@ mod bundle_adjustment {
 mod pipeline {
     use super::super::pipeline::{calibrate, CalibrateOptions};
     use super::super::synthetic::SyntheticRig;
-    use super::super::views::Frame;
+    use super::super::views::{register, CameraView, Frame, Registration};
     use crate::board::Hex;
-    use rand::{rngs::StdRng, Rng, SeedableRng};
+    use nalgebra::Vector2;
+    use rand::{rngs::StdRng, seq::SliceRandom, Rng, SeedableRng};
+    use std::collections::HashMap;
 
-    #[test]
-    fn calibrates_from_views_with_a_fifth_of_them_unanchored() {
-        // The paper rig from nothing but labelled views: Zhang, pose graph and adjustment
-        // must reach the truth, and views relabelled in an arbitrary lattice frame (as the
-        // grid builder leaves a view without its centre) must be registered.
-        let sigma = 0.1;
-        let rig = SyntheticRig::paper(10, sigma, 31);
-        let mut views = rig.views();
-        let mut rng = StdRng::seed_from_u64(32);
-        let mut scrambled = 0;
-        for v in views.iter_mut() {
-            // A camera view of the reference camera stays anchored in every pose it has, so
-            // that each pose keeps some anchored views under each projector.
-            if v.camera != 0 && rng.random_bool(0.2) {
-                let (k, t) = (
-                    rng.random_range(0..6),
-                    Hex::new(rng.random_range(-20..20), rng.random_range(-20..20)),
-                );
-                for p in &mut v.points {
-                    p.hex = p.hex.rotate(k) + t;
-                }
-                v.frame = Frame::Unanchored;
-                scrambled += 1;
+    /// True frame and labels of each partial view, by (camera, pose).
+    type Expected = HashMap<(usize, usize), (Frame, Vec<Hex>)>;
+
+    /// The rig's views with round(0.2·views) of them, of any camera, made partial: only the
+    /// circles of a half-plane of the board 30–100 mm from its centre (so neither the centre
+    /// cell nor its ring; ≥ 30 circles), relabelled in an arbitrary lattice frame (one of six
+    /// rotations, a lattice translation, side unknown) as the grid builder leaves a grid it
+    /// cannot anchor.
+    fn partial_views(rig: &SyntheticRig, seed: u64) -> (Vec<CameraView>, Expected) {
+        let truth = rig.views();
+        // One view per (camera, pose): a camera faces one side of each pose.
+        let keys: std::collections::HashSet<_> = truth.iter().map(|v| (v.camera, v.pose)).collect();
+        assert_eq!(keys.len(), truth.len());
+        let mut rng = StdRng::seed_from_u64(seed);
+        let mut order: Vec<usize> = (0..truth.len()).collect();
+        order.shuffle(&mut rng);
+        let partial_count = (0.2 * truth.len() as f64).round() as usize;
+        // Projector coordinates register a view only against an anchored view of the same
+        // board pose and side (DESIGN.md §7): the random choice skips a view that would leave
+        // its (pose, side) without one.
+        let mut anchored: HashMap<(usize, String), usize> = HashMap::new();
+        let key = |v: &CameraView| (v.pose, format!("{:?}", v.frame));
+        for v in &truth {
+            *anchored.entry(key(v)).or_default() += 1;
+        }
+        let mut chosen = Vec::new();
+        for &i in &order {
+            let n = anchored.get_mut(&key(&truth[i])).expect("counted");
+            if chosen.len() < partial_count && *n > 1 {
+                *n -= 1;
+                chosen.push(i);
             }
         }
-        assert!(scrambled > 5);
+        assert_eq!(chosen.len(), partial_count);
+        let mut views = truth;
+        let mut expected = Expected::new();
+        for &i in &chosen {
+            let v = &mut views[i];
+            let kept = loop {
+                let angle = rng.random_range(0.0..std::f64::consts::TAU);
+                let n = Vector2::new(angle.cos(), angle.sin());
+                let offset = rng.random_range(30.0..100.0);
+                let kept: Vec<_> = v
+                    .points
+                    .iter()
+                    .filter(|p| rig.board.position(p.hex).coords.dot(&n) >= offset)
+                    .cloned()
+                    .collect();
+                if kept.len() >= 30 {
+                    break kept;
+                }
+            };
+            assert!(kept.iter().all(|p| p.hex.distance(Hex::new(0, 0)) > 1));
+            let labels = kept.iter().map(|p| p.hex).collect();
+            expected.insert((v.camera, v.pose), (v.frame, labels));
+            let (k, t) = (
+                rng.random_range(0..6),
+                Hex::new(rng.random_range(-20..20), rng.random_range(-20..20)),
+            );
+            v.points = kept;
+            for p in &mut v.points {
+                p.hex = p.hex.rotate(k) + t;
+            }
+            v.frame = Frame::Unanchored;
+        }
+        (views, expected)
+    }
+
+    /// Registered views carry their true labels and side; unregistered ones are reported and
+    /// left out.
+    fn check_registration(
+        views: &[CameraView],
+        out: &[CameraView],
+        reg: &Registration,
+        expected: &Expected,
+    ) {
+        assert_eq!(reg.unanchored, expected.len());
+        assert_eq!(
+            reg.registered.len() + reg.unregistered.len(),
+            expected.len()
+        );
+        assert_eq!(out.len(), views.len() - reg.unregistered.len());
+        for r in &reg.registered {
+            let v = out
+                .iter()
+                .find(|v| (v.camera, v.pose) == (r.camera, r.pose))
+                .expect("registered view returned");
+            let (frame, labels) = &expected[&(r.camera, r.pose)];
+            assert_eq!(v.frame, *frame, "camera {} pose {}", r.camera, r.pose);
+            let got: Vec<Hex> = v.points.iter().map(|p| p.hex).collect();
+            assert_eq!(&got, labels, "camera {} pose {}", r.camera, r.pose);
+        }
+        for u in &reg.unregistered {
+            assert!(expected.contains_key(&(u.camera, u.pose)));
+            assert!(!out.iter().any(|v| (v.camera, v.pose) == (u.camera, u.pose)));
+        }
+    }
+
+    #[test]
+    fn registers_partial_views_without_the_centre() {
+        // Issue 5: with 20 % of views partial and without the centre, ≥ 95 % of them
+        // registered. Five paper rigs (60 views, 12 partial each) make the rate a measure
+        // over 60 partial views rather than 12.
+        let (mut partial, mut registered) = (0, 0);
+        for seed in 0..5 {
+            let rig = SyntheticRig::paper(10, 0.1, 31 + seed);
+            let (views, expected) = partial_views(&rig, 32 + seed);
+            let (out, reg) = register(&views, &CalibrateOptions::default().register);
+            check_registration(&views, &out, &reg, &expected);
+            eprintln!(
+                "rig {seed}: {} of {} partial views registered; unregistered {:?}",
+                reg.registered.len(),
+                expected.len(),
+                reg.unregistered
+            );
+            partial += expected.len();
+            registered += reg.registered.len();
+        }
+        eprintln!("registered {registered} of {partial} partial views");
+        assert!(
+            registered as f64 >= 0.95 * partial as f64,
+            "registered {registered} of {partial}"
+        );
+    }
+
+    #[test]
+    fn calibrates_from_views_with_a_fifth_of_them_partial() {
+        // The paper rig from nothing but labelled views, a fifth of them partial and
+        // unanchored: Zhang, pose graph and adjustment must reach the truth.
+        let sigma = 0.1;
+        let rig = SyntheticRig::paper(10, sigma, 31);
+        let (views, expected) = partial_views(&rig, 32);
         let cal = calibrate(
             &rig.board,
             &rig.device_infos(),
@@ -293,18 +513,11 @@ mod pipeline {
             &CalibrateOptions::default(),
         )
         .unwrap();
-        let reg = &cal.registration;
-        assert_eq!(reg.unanchored, scrambled);
-        assert!(
-            reg.registered.len() as f64 >= 0.95 * scrambled as f64,
-            "registered {} of {scrambled}: {:?}",
-            reg.registered.len(),
-            reg.unregistered
-        );
+        assert_eq!(cal.registration.unanchored, expected.len());
         assert!(cal.excluded.is_empty(), "{:?}", cal.excluded);
         assert_eq!(cal.devices.len(), rig.devices.len());
         // The noise floor and the truth: σ per coordinate within 3 %, focal lengths within
-        // 6 of their standard deviations.
+        // 4.6 of their standard deviations (Bonferroni over 9 devices: P < 4·10⁻⁵).
         assert!(
             (cal.solution.sigma / sigma - 1.0).abs() < 0.03,
             "σ {}",
@@ -313,7 +526,7 @@ mod pipeline {
         for (d, (est, truth)) in cal.devices.iter().zip(&rig.devices).enumerate() {
             let e = est.model.intrinsics.fx - truth.model.intrinsics.fx;
             let s = cal.solution.intrinsic_std[d][0];
-            assert!(e.abs() < 6.0 * s, "{} fx error {e} std {s}", est.name);
+            assert!(e.abs() < 4.6 * s, "{} fx error {e} std {s}", est.name);
             let dt = (est.pose.translation.vector - truth.pose.translation.vector).norm();
             assert!(dt < 1.0, "{} position error {dt} mm", est.name);
         }
