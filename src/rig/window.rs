@@ -4,12 +4,12 @@
 //! Takes a projector's rig-file name, a monitor name (as winit reports it: the RandR output,
 //! e.g. `HDMI-1`; Xvfb's is `screen`) and the raster size; gives a [`Projector`] whose
 //! window covers that monitor exactly: override-redirect at the monitor's position and size,
-//! so no window manager moves or decorates it. [`Projector::prepare`] renders the
-//! sequence's patterns once; [`Projector::show`] returns only when the X server has drawn the
-//! slide (a round trip after the present), or fails with [`DeviceError::Gone`] when the
-//! window was destroyed, unmapped, or its X connection closed (the client killed by another
-//! X client, or the server gone). [`monitors`] lists the monitors for `hexcal devices`;
-//! [`bench_show`] times `show`.
+//! so no window manager moves or decorates it. [`Projector::prepare`] renders one line of
+//! each pattern (fringes vary along one axis); [`Projector::show`] returns only when the X
+//! server has drawn the slide (a round trip after the present), or fails with
+//! [`DeviceError::Gone`] when the window was destroyed, unmapped, or its X connection closed
+//! (the client killed by another X client, or the server gone). [`monitors`] lists the
+//! monitors for `hexcal devices`; [`bench_show`] times `show`.
 //!
 //! winit allows one event loop per process and opens the X display (`$DISPLAY`) once, so
 //! every window projector of a process is served by one display thread that owns the event
@@ -18,8 +18,7 @@
 //! connection needs libX11 ≥ 1.7 (`XSetIOErrorExitHandler`); older ones exit the process.
 
 use super::device::{DeviceError, Projector, Slide};
-use crate::phase::Sequence;
-use rayon::prelude::*;
+use crate::phase::{Direction, Sequence};
 use std::collections::HashMap;
 use std::num::NonZeroU32;
 use std::rc::Rc;
@@ -85,13 +84,21 @@ pub fn monitors() -> Result<Vec<Monitor>, DisplayError> {
     service()?.ask(Request::Monitors, REQUEST_TIMEOUT)
 }
 
-/// What a window shows.
+/// What a window shows, as 0x00RRGGBB pixels. A fringe pattern varies along one axis
+/// only (DESIGN.md §6), so one line of it is kept and repeated.
 #[derive(Clone, Debug)]
 enum Content {
     /// One grey level everywhere.
     Level(u8),
-    /// A grey image at the window's size.
-    Image(Arc<image::GrayImage>),
+    /// Column fringes: one row, repeated down the window.
+    Columns(Arc<[u32]>),
+    /// Row fringes: one pixel per row, repeated along it.
+    Rows(Arc<[u32]>),
+}
+
+/// 0x00RRGGBB of grey level `g`.
+fn grey(g: u8) -> u32 {
+    u32::from(g) * 0x0001_0101
 }
 
 /// Why a window could not show a slide.
@@ -494,12 +501,17 @@ impl App {
             }
         };
         let mut buffer = s.surface.buffer_mut().map_err(drawing)?;
-        // 8-bit grey to 0x00RRGGBB.
+        let width = s.size.0 as usize;
         match &content {
-            Content::Level(g) => buffer.fill(u32::from(*g) * 0x0001_0101),
-            Content::Image(img) => {
-                for (d, &g) in buffer.iter_mut().zip(img.as_raw()) {
-                    *d = u32::from(g) * 0x0001_0101;
+            Content::Level(g) => buffer.fill(grey(*g)),
+            Content::Columns(row) => {
+                for line in buffer.chunks_exact_mut(width) {
+                    line.copy_from_slice(row);
+                }
+            }
+            Content::Rows(column) => {
+                for (line, &v) in buffer.chunks_exact_mut(width).zip(column.iter()) {
+                    line.fill(v);
                 }
             }
         }
@@ -538,8 +550,8 @@ pub struct WindowProjector {
     size: (u32, u32),
     window: WindowId,
     service: &'static Service,
-    /// Frame k of the prepared sequence, as sent to the projector.
-    patterns: Vec<Arc<image::GrayImage>>,
+    /// Frame k of the prepared sequence, as the window draws it.
+    patterns: Vec<Content>,
 }
 
 impl WindowProjector {
@@ -606,9 +618,15 @@ impl Projector for WindowProjector {
                 p.width, p.height, self.size.0, self.size.1
             )));
         }
+        // The drive levels of `Sequence::pattern_image`, one line per frame.
+        let level = |k, u: u32, v: u32| grey(sequence.drive(code, k, f64::from(u), f64::from(v)));
         self.patterns = (0..sequence.frame_count())
-            .into_par_iter()
-            .map(|k| Arc::new(sequence.pattern_image(code, k)))
+            .map(|k| match sequence.frame(k).map(|f| f.direction) {
+                Some(Direction::Columns) => {
+                    Content::Columns((0..p.width).map(|u| level(k, u, 0)).collect())
+                }
+                _ => Content::Rows((0..p.height).map(|v| level(k, 0, v)).collect()),
+            })
             .collect();
         Ok(())
     }
@@ -617,15 +635,15 @@ impl Projector for WindowProjector {
         let content = match slide {
             Slide::Black => Content::Level(0),
             Slide::White => Content::Level(255),
-            Slide::Pattern(k) => {
-                Content::Image(Arc::clone(self.patterns.get(k).ok_or_else(|| {
-                    DeviceError::Unsupported {
-                        device: self.name.clone(),
-                        setting: "sequence".into(),
-                        reason: format!("pattern {k} asked, {} prepared", self.patterns.len()),
-                    }
-                })?))
-            }
+            Slide::Pattern(k) => self
+                .patterns
+                .get(k)
+                .ok_or_else(|| DeviceError::Unsupported {
+                    device: self.name.clone(),
+                    setting: "sequence".into(),
+                    reason: format!("pattern {k} asked, {} prepared", self.patterns.len()),
+                })?
+                .clone(),
         };
         let window = self.window;
         let r = self.service.ask(
@@ -675,6 +693,8 @@ impl Drop for WindowProjector {
 pub struct ShowBench {
     /// The monitor.
     pub monitor: Monitor,
+    /// Patterns rendered by `prepare`, and how long it took.
+    pub prepared: (usize, Duration),
     /// Per slide, in order.
     pub times: Vec<Duration>,
 }
@@ -689,9 +709,11 @@ impl std::fmt::Display for ShowBench {
         };
         write!(
             f,
-            "window projector on {}: {} slides, show → drawn: median {:.2} ms, 90 % {:.2} ms, \
-             max {:.2} ms",
+            "window projector on {}: prepare {} patterns {:.2} ms; {} slides, show → drawn: \
+             median {:.2} ms, 90 % {:.2} ms, max {:.2} ms",
             self.monitor,
+            self.prepared.0,
+            1e3 * self.prepared.1.as_secs_f64(),
             t.len(),
             ms(0.5),
             ms(0.9),
@@ -721,7 +743,9 @@ pub fn bench_show(monitor: Option<&str>, slides: usize) -> Result<ShowBench, Dev
     }])
     .map_err(|e| failed(e.to_string()))?;
     let mut p = WindowProjector::open("bench", &m.name, m.width, m.height)?;
+    let start = Instant::now();
     p.prepare(&sequence, 0)?;
+    let prepared = (sequence.frame_count(), start.elapsed());
     let times = (0..slides.max(1))
         .map(|i| {
             let start = Instant::now();
@@ -729,5 +753,9 @@ pub fn bench_show(monitor: Option<&str>, slides: usize) -> Result<ShowBench, Dev
             Ok(start.elapsed())
         })
         .collect::<Result<Vec<_>, DeviceError>>()?;
-    Ok(ShowBench { monitor: m, times })
+    Ok(ShowBench {
+        monitor: m,
+        prepared,
+        times,
+    })
 }
