@@ -2,9 +2,11 @@
 """OpenCV's SimpleBlobDetector (the blob finder behind findCirclesGrid) on the images of
 `hexcal bench detect-grid --out DIR`, side by side with hexcal's detect + grid figures.
 
-    python3 -m venv .venv && .venv/bin/pip install opencv-python-headless numpy
+`hexcal bench detect-grid` runs it itself (embedded) after its own timings when
+/usr/bin/python3 has cv2 (Debian: apt-get install python3-opencv). By hand:
+
     cargo run --release -- bench detect-grid --out /tmp/bench
-    .venv/bin/python scripts/bench_opencv_blobs.py /tmp/bench [--runs 7]
+    /usr/bin/python3 scripts/bench_opencv_blobs.py /tmp/bench [--runs 7]
 
 Per image: median time of SimpleBlobDetector.detect (OpenCV's own threads, as many as it
 uses by default), recall of whole circles (a keypoint within a third of the circle's radius

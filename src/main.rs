@@ -230,8 +230,9 @@ enum Bench {
         /// Timed runs per image (after one warm-up run); medians are printed.
         #[arg(long, default_value_t = 7)]
         runs: usize,
-        /// Write the views, their truth and the figures here (for
-        /// scripts/bench_opencv_blobs.py).
+        /// Keep the views, their truth and the figures here (else a temporary directory,
+        /// removed afterwards); OpenCV's SimpleBlobDetector runs on them
+        /// (scripts/bench_opencv_blobs.py) when /usr/bin/python3 has cv2.
         #[arg(long)]
         out: Option<PathBuf>,
     },
@@ -656,10 +657,27 @@ fn main() -> anyhow::Result<()> {
         Command::Bench {
             what: Bench::DetectGrid { runs, out },
         } => {
-            let scenes = hexcal::detection::bench::scenes();
-            let report =
-                hexcal::detection::bench::bench_detect_grid(&scenes, runs, out.as_deref())?;
-            print!("{report}");
+            use hexcal::detection::bench;
+            // The views go to --out, else to a temporary directory, for OpenCV's run.
+            let dir = out.clone().unwrap_or_else(|| {
+                std::env::temp_dir().join(format!("hexcal-bench-{}", std::process::id()))
+            });
+            std::fs::create_dir_all(&dir)?;
+            let report = bench::bench_detect_grid(&bench::scenes(), runs, Some(&dir));
+            let side_by_side = report
+                .is_ok()
+                .then(|| bench::opencv_side_by_side(&dir, runs));
+            if out.is_none() {
+                std::fs::remove_dir_all(&dir)?;
+            }
+            print!("{}", report?);
+            match side_by_side {
+                Some(Ok(table)) => {
+                    print!("\nOpenCV SimpleBlobDetector on the same views:\n{table}")
+                }
+                Some(Err(why)) => println!("\nOpenCV SimpleBlobDetector not run: {why}"),
+                None => {}
+            }
         }
         Command::Bench {
             what:

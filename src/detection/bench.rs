@@ -1,7 +1,8 @@
 //! `hexcal bench detect-grid`: detection + grid building timed on rendered board views
 //! (1920×1200 and 4096×3000), with the recall and centre error against the renderer's truth;
-//! the views, their truth and these figures can be written to a directory for
-//! `scripts/bench_opencv_blobs.py` (OpenCV's SimpleBlobDetector on the same images).
+//! the views, their truth and these figures are written to a directory where
+//! `scripts/bench_opencv_blobs.py` runs OpenCV's SimpleBlobDetector on the same images
+//! ([`opencv_side_by_side`]).
 
 use super::{analyse, Settings};
 use crate::board::Board;
@@ -218,4 +219,39 @@ pub fn bench_detect_grid(
         std::fs::write(&path, text).map_err(|source| BenchError::Write { path, source })?;
     }
     Ok(report)
+}
+
+/// The Python that runs OpenCV (Debian's `python3-opencv`; a pyenv `python3` on PATH would
+/// shadow it).
+pub const OPENCV_PYTHON: &str = "/usr/bin/python3";
+
+/// Runs `scripts/bench_opencv_blobs.py` (embedded) with [`OPENCV_PYTHON`] on the views and
+/// figures that [`bench_detect_grid`] wrote to `dir`: OpenCV's SimpleBlobDetector timed
+/// `runs` times per image, its recall and centre error side by side with hexcal's. Its
+/// printed table, or why it could not run (no such Python, no `cv2`, the script failed).
+pub fn opencv_side_by_side(dir: &Path, runs: usize) -> Result<String, String> {
+    let python = Path::new(OPENCV_PYTHON);
+    let probe = std::process::Command::new(python)
+        .args(["-c", "import cv2"])
+        .output()
+        .map_err(|e| format!("{OPENCV_PYTHON} not runnable ({e})"))?;
+    if !probe.status.success() {
+        return Err(format!(
+            "{OPENCV_PYTHON} has no cv2 (apt-get install python3-opencv)"
+        ));
+    }
+    let out = std::process::Command::new(python)
+        .args(["-c", include_str!("../../scripts/bench_opencv_blobs.py")])
+        .arg(dir)
+        .args(["--runs", &runs.to_string()])
+        .output()
+        .map_err(|e| format!("{OPENCV_PYTHON} failed to start ({e})"))?;
+    if out.status.success() {
+        Ok(String::from_utf8_lossy(&out.stdout).into_owned())
+    } else {
+        Err(format!(
+            "scripts/bench_opencv_blobs.py failed: {}",
+            String::from_utf8_lossy(&out.stderr).trim()
+        ))
+    }
 }
