@@ -12,7 +12,7 @@ mod fit;
 mod refine;
 pub mod synth;
 
-use circleness::{Constants, Peak, Scale, FIRST_LEVEL_MIN_SIGMA, LEVEL_SIGMA, MIN_LEVEL_SIGMA};
+use circleness::{Constants, Peak, Scale, LEVEL_SIGMA, MIN_LEVEL_SIGMA};
 use filter::{blur_decimate, Kernel, Plane, View};
 use nalgebra::{Matrix2, Point2};
 use rayon::prelude::*;
@@ -74,12 +74,8 @@ pub struct Circle {
 /// background, imaged with a PSF of σ ≲ 1.5 px.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DetectParams {
-    /// Smallest radius √(ab) to look for (px). Default 4.
+    /// Smallest radius √(ab) to look for (px): the first scale is σ = max(r/√2, 1). Default 4.
     pub min_radius: f64,
-    /// Largest axis ratio a/b of the ellipses to look for: 4 (the default) reaches ~75° of
-    /// tilt. The first scale is σ = max(min(r/√2, r/√ratio), 1): a disk of radius r responds
-    /// most at σ = r/√2, a long ellipse (a bar) of minor semi-axis b = r/√ratio at σ = b.
-    pub max_aspect: f64,
     /// Largest radius to look for (px): the last scale reaches r/√2. Default 40.
     pub max_radius: f64,
     /// Circleness a peak needs. C ≤ 0.303 (an ideal disk), ≈ 0.15 for a disk of the
@@ -106,7 +102,6 @@ impl Default for DetectParams {
     fn default() -> Self {
         DetectParams {
             min_radius: 4.0,
-            max_aspect: 4.0,
             max_radius: 40.0,
             min_circleness: 0.02,
             contrast_ref: None,
@@ -135,43 +130,27 @@ pub fn detect(image: &GrayImage, params: &DetectParams) -> Vec<Circle> {
     if h_ref.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return Vec::new();
     }
-    // Peaks at the scales below r_min/√2, there for thin foreshortened circles, are refined
-    // after the others: on a rounder circle they mark parts of it (a marker's annulus) and
-    // would refine to a worse fit of a circle the others find whole.
-    let sigma_disk = (params.min_radius / SQRT_2).max(1.0) - 1e-9;
-    let (mut peaks, thin): (Vec<Peak>, Vec<Peak>) =
-        suppress(circleness_peaks(full, params, Constants::new(h_ref)))
-            .into_iter()
-            .partition(|p| p.sigma >= sigma_disk);
-    peaks.extend(thin);
+    let peaks = suppress(circleness_peaks(full, params, Constants::new(h_ref)));
     let settings = refine::Settings {
         rays: params.rays.max(12),
         min_contrast: (params.min_contrast as f64 * h_ref) as f32,
         radius_range: (0.5 * params.min_radius, 1.5 * params.max_radius),
         max_rms: (params.max_edge_rms, params.max_edge_rms_per_px),
     };
-    let circles = refine_all(full, &peaks, &settings);
-    let mut circles = remove_duplicates(merge_halves(full, circles, &settings));
-    circles.sort_by(|a, b| b.score.total_cmp(&a.score));
-    circles
+    remove_duplicates(refine_all(full, &peaks, &settings))
 }
 
-/// Scales σ_k = σ_min·2^(k/4) over [σ_min, r_max/√2], σ_min = max(min(r_min/√2,
-/// r_min/√max_aspect), 1), grouped into pyramid octaves; the peaks of every octave in
-/// full-resolution coordinates.
+/// Scales σ_k = σ_min·2^(k/4) over [max(r_min/√2, 1), r_max/√2], grouped into pyramid
+/// octaves; the peaks of every octave in full-resolution coordinates.
 fn circleness_peaks(full: View<'_>, params: &DetectParams, k: Constants) -> Vec<Peak> {
-    let sigma_min = (params.min_radius / SQRT_2)
-        .min(params.min_radius / params.max_aspect.max(1.0).sqrt())
-        .max(1.0);
+    let sigma_min = (params.min_radius / SQRT_2).max(1.0);
     let sigma_max = (params.max_radius / SQRT_2).max(sigma_min);
     let n_scales = (4.0 * (sigma_max / sigma_min).log2() - 1e-9)
         .ceil()
         .max(0.0) as usize
         + 1;
-    let octave_of = |sigma: f64| {
-        let o = ((sigma / MIN_LEVEL_SIGMA).log2() + 1e-9).floor().max(0.0) as usize;
-        o.max(usize::from(sigma >= FIRST_LEVEL_MIN_SIGMA - 1e-9))
-    };
+    let octave_of =
+        |sigma: f64| ((sigma / MIN_LEVEL_SIGMA).log2() + 1e-9).floor().max(0.0) as usize;
     let sigmas: Vec<f64> = (0..n_scales)
         .map(|i| sigma_min * 2f64.powf(i as f64 / 4.0))
         .collect();
@@ -282,7 +261,7 @@ fn suppress(mut peaks: Vec<Peak>) -> Vec<Peak> {
     kept
 }
 
-/// Refines the peaks (in the given order) in parallel waves; after each wave, the peaks that
+/// Refines the peaks (strongest first) in parallel waves; after each wave, the peaks that
 /// lie inside a circle found so far are skipped: one circle can hold several peaks that
 /// NMS keeps (a marker's inner disk and points on its white annulus, the curved inner side
 /// of a large disk's edge), and refining them would only find it again.
@@ -341,107 +320,11 @@ fn refine_all(full: View<'_>, peaks: &[Peak], settings: &refine::Settings) -> Ve
     circles
 }
 
-/// A strongly foreshortened marker circle (≳ 70° of tilt) shows its white annulus as two
-/// bright ends along its major axis, with the thin inner disk between them blurred away:
-/// each end can hold a circleness peak that refines to an elongated half-outline. Two such
-/// fits, elongated (a ≥ 1.5 b), of one orientation (within 15°), of similar width (b within
-/// 1.5×), lying on each other's major axis (offset < b/2 across it) and overlapping along it
-/// (centre distance < a₁ + a₂), are refined again from the ellipse spanning both, and
-/// replaced by it if that fit holds both centres. Two distinct circles cannot pair so: the
-/// board's neighbours closest to a circle's major axis sit ≥ 3.3 a away along it, or
-/// ≥ 1.7 b across it (pitch/radius = 10/3).
-fn merge_halves(full: View<'_>, circles: Vec<Circle>, settings: &refine::Settings) -> Vec<Circle> {
-    let elongated = |c: &Circle| c.ellipse.a >= 1.5 * c.ellipse.b;
-    let cell = circles
-        .iter()
-        .filter(|c| elongated(c))
-        .map(|c| 2.0 * c.ellipse.a)
-        .fold(1.0, f64::max);
-    let max_x = circles
-        .iter()
-        .map(|c| c.ellipse.center.x)
-        .fold(0.0, f64::max);
-    let max_y = circles
-        .iter()
-        .map(|c| c.ellipse.center.y)
-        .fold(0.0, f64::max);
-    let mut grid = Buckets::new(cell, max_x, max_y);
-    for (i, c) in circles.iter().enumerate().filter(|(_, c)| elongated(c)) {
-        grid.insert(c.ellipse.center, i);
-    }
-    let mut pairs: Vec<(usize, usize, Ellipse)> = Vec::new();
-    for (i, c) in circles.iter().enumerate().filter(|(_, c)| elongated(c)) {
-        for j in grid.near(c.ellipse.center).filter(|&j| j > i) {
-            if let Some(e) = spanning(&c.ellipse, &circles[j].ellipse) {
-                pairs.push((i, j, e));
-            }
-        }
-    }
-    if pairs.is_empty() {
-        return circles;
-    }
-    let merged: Vec<Option<Circle>> = pairs
-        .par_iter()
-        .map_init(refine::Scratch::default, |s, &(i, j, guess)| {
-            let score = circles[i].score.max(circles[j].score) as f32;
-            refine::outline(full, &guess, guess.center, score, settings, s).filter(|m| {
-                let conic = fit::Conic::from_ellipse(&m.ellipse);
-                conic.value(circles[i].ellipse.center) < 0.0
-                    && conic.value(circles[j].ellipse.center) < 0.0
-            })
-        })
-        .collect();
-    let mut used = vec![false; circles.len()];
-    let mut out = Vec::with_capacity(circles.len());
-    for (&(i, j, _), m) in pairs.iter().zip(merged) {
-        if let Some(m) = m.filter(|_| !used[i] && !used[j]) {
-            used[i] = true;
-            used[j] = true;
-            out.push(m);
-        }
-    }
-    out.extend(
-        circles
-            .into_iter()
-            .zip(used)
-            .filter(|(_, u)| !u)
-            .map(|(c, _)| c),
-    );
-    out
-}
-
-/// The ellipse spanning two aligned halves of one elongated outline (see [`merge_halves`]),
-/// or `None` when they do not pair.
-fn spanning(p: &Ellipse, q: &Ellipse) -> Option<Ellipse> {
-    let axis = |e: &Ellipse| nalgebra::Vector2::new(e.angle.cos(), e.angle.sin());
-    let (u, v) = (axis(p), axis(q));
-    let d = q.center - p.center;
-    let along = d.dot(&u);
-    let across = |w: nalgebra::Vector2<f64>| (d.x * w.y - d.y * w.x).abs();
-    let aligned = u.perp(&v).abs() < 15f64.to_radians().sin()
-        && (p.b / q.b).max(q.b / p.b) < 1.5
-        && across(u) < 0.5 * p.b.min(q.b)
-        && across(v) < 0.5 * p.b.min(q.b)
-        && along.abs() < p.a + q.a;
-    if !aligned {
-        return None;
-    }
-    // The two far ends along u, p's behind and q's ahead (or the reverse).
-    let s = along.signum();
-    let (lo, hi) = (-s * p.a, along + s * q.a);
-    Some(Ellipse {
-        center: p.center + 0.5 * (lo + hi) * u,
-        a: 0.5 * (hi - lo).abs(),
-        b: p.b.max(q.b),
-        angle: p.angle,
-    })
-}
-
 /// Several peaks can refine to the same circle (e.g. a marker's inner disk and the whole
-/// circle): in the given order (merged outlines, then the order of refinement), a circle
-/// whose centre lies inside a kept one's ellipse, or whose ellipse holds a kept centre, is
-/// dropped.
-fn remove_duplicates(circles: Vec<Circle>) -> Vec<Circle> {
+/// circle): strongest first, a circle whose centre lies inside a kept one's ellipse, or
+/// whose ellipse holds a kept centre, is dropped.
+fn remove_duplicates(mut circles: Vec<Circle>) -> Vec<Circle> {
+    circles.sort_by(|a, b| b.score.total_cmp(&a.score));
     let cell = circles.iter().map(|c| c.ellipse.a).fold(1.0, f64::max);
     let max_x = circles
         .iter()

@@ -151,7 +151,9 @@ pub(crate) fn refine(
     set: &Settings,
     s: &mut Scratch,
 ) -> Option<Circle> {
-    s.directions(set.rays);
+    let n = set.rays;
+    s.directions(n);
+    let min_points = (n * 3 / 5).max(6);
 
     // 1. Outward pass to the first falling crossing, within 3 r̂; the background is the
     //    median over a few rays of their lowest value within 2 r̂ (in the gap).
@@ -160,7 +162,7 @@ pub(crate) fn refine(
     let m = (3.0 * r_hat / step).ceil() as usize + 1;
     s.values.clear();
     for i in 0..BACKGROUND_RAYS {
-        let (dx, dy) = s.dirs[i * set.rays / BACKGROUND_RAYS];
+        let (dx, dy) = s.dirs[i * n / BACKGROUND_RAYS];
         let lo = (0..(2 * m) / 3)
             .filter_map(|j| img.bilinear(c0.x + j as f64 * step * dx, c0.y + j as f64 * step * dy))
             .fold(f32::INFINITY, f32::min);
@@ -194,25 +196,8 @@ pub(crate) fn refine(
         guess.b *= scale;
     }
 
-    outline(img, &guess, c0, score, set, s)
-}
-
-/// Steps 3–4 of [`refine`] from a guess of the whole outline: the levels around it, the
-/// inward passes to the outer boundary, and the checks (`c0`, the detection point, must lie
-/// inside the fitted ellipse).
-pub(crate) fn outline(
-    img: View<'_>,
-    guess: &Ellipse,
-    c0: Point2<f64>,
-    score: f32,
-    set: &Settings,
-    s: &mut Scratch,
-) -> Option<Circle> {
-    let n = set.rays;
-    s.directions(n);
-    let min_points = (n * 3 / 5).max(6);
     // 3. Levels around the guess.
-    let (bg, fg) = levels(img, guess, set.min_contrast, s)?;
+    let (bg, fg) = levels(img, &guess, set.min_contrast, s)?;
     let mid = 0.5 * (fg + bg);
 
     // 4. Inward passes to the crossings of the mean level: from 1.6× the guess, then from
@@ -224,7 +209,7 @@ pub(crate) fn outline(
     //    touches it, leaves the fit to the remaining outline accurate).
     let mut fit: Option<Fit> = None;
     for pass in 0..2 {
-        let g = fit.as_ref().map_or(*guess, |f| f.ellipse);
+        let g = fit.as_ref().map_or(guess, |f| f.ellipse);
         let c = g.center;
         s.points.clear();
         let mut cut = 0;
