@@ -226,18 +226,11 @@ impl AravisCamera {
     }
 
     fn unsupported(&self, setting: &str, reason: String) -> DeviceError {
-        DeviceError::Unsupported {
-            device: self.name.clone(),
-            setting: setting.to_string(),
-            reason,
-        }
+        DeviceError::unsupported(&self.name, setting, reason)
     }
 
     fn failed(&self, reason: String) -> DeviceError {
-        DeviceError::Failed {
-            device: self.name.clone(),
-            reason,
-        }
+        DeviceError::failed(&self.name, reason)
     }
 
     fn has(&self, feature: &str) -> bool {

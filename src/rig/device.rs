@@ -177,6 +177,23 @@ pub enum DeviceError {
 }
 
 impl DeviceError {
+    /// `device` cannot do `setting`, for `reason`.
+    pub fn unsupported(device: &str, setting: &str, reason: String) -> Self {
+        DeviceError::Unsupported {
+            device: device.to_string(),
+            setting: setting.to_string(),
+            reason,
+        }
+    }
+
+    /// `device` failed, for `reason`.
+    pub fn failed(device: &str, reason: String) -> Self {
+        DeviceError::Failed {
+            device: device.to_string(),
+            reason,
+        }
+    }
+
     /// Whether triggering the frame again may help (a timeout or an incomplete frame).
     pub fn retryable(&self) -> bool {
         matches!(

@@ -444,18 +444,11 @@ impl<D: V4l2Device> V4l2Camera<D> {
     }
 
     fn unsupported(&self, setting: &str, reason: String) -> DeviceError {
-        DeviceError::Unsupported {
-            device: self.name.clone(),
-            setting: setting.to_string(),
-            reason,
-        }
+        DeviceError::unsupported(&self.name, setting, reason)
     }
 
     fn failed(&self, reason: String) -> DeviceError {
-        DeviceError::Failed {
-            device: self.name.clone(),
-            reason,
-        }
+        DeviceError::failed(&self.name, reason)
     }
 
     /// Choose and set the pixel format for `bits` at `width`×`height`.
