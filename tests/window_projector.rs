@@ -353,7 +353,14 @@ fn a_killed_window_client_is_gone() {
         let e = WindowProjector::open("back", "screen", 640, 480)
             .err()
             .unwrap();
-        assert!(e.to_string().contains("X connection closed"), "{e}");
+        // Whether the display thread or winit notices the closed connection first, the
+        // error names it.
+        let e = e.to_string();
+        assert!(
+            e.starts_with("back")
+                && (e.contains("X connection closed") || e.contains("X11 connection error")),
+            "{e}"
+        );
     });
 }
 
