@@ -701,57 +701,9 @@ fn projector(_: &Sequence) -> (Box<dyn Projector>, ScreenCheck) {
 #[cfg(feature = "window")]
 const CHILD_DISPLAY: &str = "HEXCAL_HWLOOP_DISPLAY";
 
-/// A private Xvfb of the projector's size, killed on drop.
 #[cfg(feature = "window")]
-struct Xvfb {
-    child: std::process::Child,
-    display: String,
-}
-
-#[cfg(feature = "window")]
-impl Xvfb {
-    fn start() -> Xvfb {
-        use std::process::{Command, Stdio};
-        let base = 600 + 7 * (std::process::id() % 40);
-        for n in base..base + 40 {
-            let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
-            if socket.exists() || Path::new(&format!("/tmp/.X{n}-lock")).exists() {
-                continue;
-            }
-            let mut child = Command::new("Xvfb")
-                .arg(format!(":{n}"))
-                .args(["-screen", "0", &format!("{W}x{H}x24"), "-nolisten", "tcp"])
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .spawn()
-                .expect("Xvfb (Debian package xvfb)");
-            let deadline = std::time::Instant::now() + Duration::from_secs(20);
-            while std::time::Instant::now() < deadline {
-                if child.try_wait().unwrap().is_some() {
-                    break; // another server took the number
-                }
-                if socket.exists() {
-                    return Xvfb {
-                        child,
-                        display: format!(":{n}"),
-                    };
-                }
-                std::thread::sleep(Duration::from_millis(20));
-            }
-            let _ = child.kill();
-            let _ = child.wait();
-        }
-        panic!("no free X display number for Xvfb");
-    }
-}
-
-#[cfg(feature = "window")]
-impl Drop for Xvfb {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
+#[path = "support/xvfb.rs"]
+mod xvfb;
 
 /// Run test `name` in a child process of this binary with `DISPLAY` on a private Xvfb (one
 /// winit event loop per process, on the display it was started with); in the child, `body`.
@@ -761,7 +713,7 @@ fn on_display(name: &str, body: impl FnOnce()) {
         body();
         return;
     }
-    let x = Xvfb::start();
+    let x = xvfb::Xvfb::start(W, H);
     let out = std::process::Command::new(std::env::current_exe().unwrap())
         .args([name, "--exact", "--nocapture", "--test-threads=1"])
         .env("DISPLAY", &x.display)

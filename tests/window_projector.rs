@@ -13,77 +13,18 @@ use hexcal::phase::{ProjectorResponse, ProjectorSetup, Sequence};
 use hexcal::rig::file::RigFile;
 use hexcal::rig::window::WindowProjector;
 use hexcal::rig::{Camera, DeviceError, Pixels, Projector, Slide};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::path::Path;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+
+#[path = "support/xvfb.rs"]
+mod xvfb;
+use xvfb::Xvfb;
 
 /// Set in a child process: the X display its test runs on.
 const CHILD_DISPLAY: &str = "HEXCAL_WINDOW_TEST_DISPLAY";
 /// Set in a child process: the pid of its Xvfb.
 const CHILD_XVFB: &str = "HEXCAL_WINDOW_TEST_XVFB";
-
-/// An Xvfb server on a display number nobody uses, killed on drop.
-struct Xvfb {
-    child: Child,
-    display: String,
-}
-
-impl Xvfb {
-    fn start(width: u32, height: u32) -> Xvfb {
-        // Spread parallel tests (and other processes' servers) over display numbers.
-        static NEXT: AtomicU32 = AtomicU32::new(0);
-        let base = 200 + 10 * (std::process::id() % 50);
-        for _ in 0..40 {
-            let n = base + NEXT.fetch_add(1, Ordering::SeqCst) % 300;
-            let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
-            if socket.exists() || Path::new(&format!("/tmp/.X{n}-lock")).exists() {
-                continue;
-            }
-            let mut child = Command::new("Xvfb")
-                .arg(format!(":{n}"))
-                .args(["-screen", "0", &format!("{width}x{height}x24")])
-                .args(["-nolisten", "tcp"])
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .spawn()
-                .expect("Xvfb (Debian package xvfb)");
-            let deadline = Instant::now() + Duration::from_secs(20);
-            while Instant::now() < deadline {
-                if child.try_wait().unwrap().is_some() {
-                    break; // Lost the display number to another server: try the next.
-                }
-                if socket.exists() {
-                    return Xvfb {
-                        child,
-                        display: format!(":{n}"),
-                    };
-                }
-                std::thread::sleep(Duration::from_millis(20));
-            }
-            let _ = child.kill();
-            let _ = child.wait();
-        }
-        panic!("no free X display number for Xvfb");
-    }
-}
-
-impl Drop for Xvfb {
-    /// SIGTERM, so the server removes its lock file and socket; SIGKILL if it lingers.
-    fn drop(&mut self) {
-        // SAFETY: signalling our own child, still unreaped.
-        unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM) };
-        let deadline = Instant::now() + Duration::from_secs(5);
-        while self.child.try_wait().ok().flatten().is_none() {
-            if Instant::now() > deadline {
-                let _ = self.child.kill();
-                let _ = self.child.wait();
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-    }
-}
 
 /// Run test `name`'s `body` in a child process of this binary on its own Xvfb of
 /// `width` × `height`; in that child, just run `body`.
@@ -97,7 +38,7 @@ fn isolated(name: &str, (width, height): (u32, u32), body: impl FnOnce()) {
         .args([name, "--exact", "--nocapture", "--test-threads=1"])
         .env("DISPLAY", &x.display)
         .env(CHILD_DISPLAY, &x.display)
-        .env(CHILD_XVFB, x.child.id().to_string())
+        .env(CHILD_XVFB, x.pid().to_string())
         .output()
         .unwrap();
     let text = format!(
