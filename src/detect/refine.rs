@@ -29,6 +29,9 @@ const RING_ANNULUS_MID: f64 = 0.875;
 /// labelled past the border then have centre errors ≤ 0.02 px, against up to 2 px without
 /// this check.
 const MAX_CUT_RAYS: f64 = 0.12;
+/// Smallest accepted b/a: a circle tilted by ≤ 75° (DESIGN.md's range, cos 75° = 0.26) still
+/// reads ≥ 0.23 under strong perspective; thinner fits are slivers of larger outlines.
+const MIN_AXIS_RATIO: f64 = 0.2;
 /// Rays of the outward pass that also measure the background along their whole length.
 const BACKGROUND_RAYS: usize = 6;
 
@@ -246,7 +249,7 @@ pub(crate) fn refine(
     let e = fit.ellipse;
     let radius = e.radius();
     let ok = fit.inliers >= min_points
-        && e.b >= 0.12 * e.a
+        && e.b >= MIN_AXIS_RATIO * e.a
         && radius >= set.radius_range.0
         && radius <= set.radius_range.1
         && fit::Conic::from_ellipse(&e).value(c0) < 0.0
@@ -264,7 +267,11 @@ pub(crate) fn refine(
 /// over rays of the lowest value at 1.3–1.6× the boundary; the foreground the median over
 /// rays of the first maximum inside the outer edge (found at a quarter of the contrast to
 /// the centre), i.e. the white outer annulus of a marker circle that blur has dimmed, so
-/// that the mean level sits on the steep part of the outer edge. `None` below `min_contrast`.
+/// that the mean level sits on the steep part of the outer edge. The maximum is sought
+/// within 0.4× the ray's length (short of a marker's inner disk at 0.45 R), but at least
+/// min(2 px, 0.4 a): along the minor axis of a thin ellipse (b ≈ 2–3 px at 70–75° of
+/// tilt) 0.4 b ends on the blurred edge and read the foreground ~15 % low, which moved
+/// the mean-level crossings out and made b ~20 % too long. `None` below `min_contrast`.
 fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Option<(f32, f32)> {
     let c = g.center;
     let centre = foreground(img, c, g.b)?;
@@ -295,7 +302,7 @@ fn levels(img: View<'_>, g: &Ellipse, min_contrast: f32, s: &mut Scratch) -> Opt
                 c,
                 u,
                 t,
-                (t - 0.4 * rho).max(0.0),
+                (t - (0.4 * rho).max((0.4 * g.a).min(2.0))).max(0.0),
                 (rho / 32.0).max(0.25),
                 0.05 * (centre - bg),
             ) {

@@ -63,8 +63,10 @@ pub struct GridParams {
     /// Candidates lie within this factor of the nominal neighbour distance d/(2R) (either
     /// way). The next lattice ring sits at √3 times it.
     pub max_neighbour_ratio: f64,
-    /// Largest ratio between a neighbour's radius and the centre's (either way); loose
-    /// enough for a ringed circle whose fit caught the ring's inner edge (0.45 R).
+    /// Largest ratio between a neighbour's radius √(ab) and the centre's (either way).
+    /// Perspective makes neighbours differ by ≤ 7 % at 75° of tilt (the shared samples), and
+    /// thin ellipses' fitted radii scatter by ~10 %; a circle cut by an occluder, fitted to
+    /// what is left of it, or a marker's inner disk (0.45 R) differ by far more.
     pub radius_ratio: f64,
     /// Relative tolerance of an opposing pair's chord-normalised length ν against d/R
     /// (true pairs: within 5 % at r = 5 px; nearest wrong kinds at −13 % and +32 %).
@@ -101,7 +103,7 @@ impl Default for GridParams {
         GridParams {
             candidates: 12,
             max_neighbour_ratio: 1.5,
-            radius_ratio: 2.5,
+            radius_ratio: 1.4,
             pair_tolerance: 0.07,
             midpoint_tolerance: 0.12,
             slot_tolerance: 15f64.to_radians(),
