@@ -12,7 +12,7 @@ mod fit;
 mod refine;
 pub mod synth;
 
-use circleness::{Constants, Peak, Scale, LEVEL_SIGMA, MIN_LEVEL_SIGMA};
+use circleness::{Constants, Peak, Scale, FIRST_LEVEL_MIN_SIGMA, LEVEL_SIGMA, MIN_LEVEL_SIGMA};
 use filter::{blur_decimate, Kernel, Plane, View};
 use nalgebra::{Matrix2, Point2};
 use rayon::prelude::*;
@@ -74,8 +74,12 @@ pub struct Circle {
 /// background, imaged with a PSF of σ ≲ 1.5 px.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DetectParams {
-    /// Smallest radius √(ab) to look for (px): the first scale is σ = max(r/√2, 1). Default 4.
+    /// Smallest radius √(ab) to look for (px). Default 4.
     pub min_radius: f64,
+    /// Largest axis ratio a/b of the ellipses to look for: 4 (the default) reaches ~75° of
+    /// tilt. The first scale is σ = max(min(r/√2, r/√ratio), 1): a disk of radius r responds
+    /// most at σ = r/√2, a long ellipse (a bar) of minor semi-axis b = r/√ratio at σ ≈ b.
+    pub max_aspect: f64,
     /// Largest radius to look for (px): the last scale reaches r/√2. Default 40.
     pub max_radius: f64,
     /// Circleness a peak needs. C ≤ 0.303 (an ideal disk), ≈ 0.15 for a disk of the
@@ -102,6 +106,7 @@ impl Default for DetectParams {
     fn default() -> Self {
         DetectParams {
             min_radius: 4.0,
+            max_aspect: 4.0,
             max_radius: 40.0,
             min_circleness: 0.02,
             contrast_ref: None,
@@ -130,27 +135,42 @@ pub fn detect(image: &GrayImage, params: &DetectParams) -> Vec<Circle> {
     if h_ref.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return Vec::new();
     }
-    let peaks = suppress(circleness_peaks(full, params, Constants::new(h_ref)));
+    // Peaks at the scales below r_min/√2, there for thin foreshortened circles, are refined
+    // after the others: on a rounder circle they mark parts of it (a marker's annulus) and
+    // would refine to a worse fit of a circle the others find whole.
+    let sigma_disk = (params.min_radius / SQRT_2).max(1.0) - 1e-9;
+    let (mut peaks, thin): (Vec<Peak>, Vec<Peak>) =
+        suppress(circleness_peaks(full, params, Constants::new(h_ref)))
+            .into_iter()
+            .partition(|p| p.sigma >= sigma_disk);
+    peaks.extend(thin);
     let settings = refine::Settings {
         rays: params.rays.max(12),
         min_contrast: (params.min_contrast as f64 * h_ref) as f32,
         radius_range: (0.5 * params.min_radius, 1.5 * params.max_radius),
         max_rms: (params.max_edge_rms, params.max_edge_rms_per_px),
     };
-    remove_duplicates(refine_all(full, &peaks, &settings))
+    let mut circles = remove_duplicates(refine_all(full, &peaks, &settings));
+    circles.sort_by(|a, b| b.score.total_cmp(&a.score));
+    circles
 }
 
-/// Scales σ_k = σ_min·2^(k/4) over [max(r_min/√2, 1), r_max/√2], grouped into pyramid
-/// octaves; the peaks of every octave in full-resolution coordinates.
+/// Scales σ_k = σ_min·2^(k/4) over [σ_min, r_max/√2], σ_min = max(min(r_min/√2,
+/// r_min/√max_aspect), 1), grouped into pyramid octaves; the peaks of every octave in
+/// full-resolution coordinates.
 fn circleness_peaks(full: View<'_>, params: &DetectParams, k: Constants) -> Vec<Peak> {
-    let sigma_min = (params.min_radius / SQRT_2).max(1.0);
+    let sigma_min = (params.min_radius / SQRT_2)
+        .min(params.min_radius / params.max_aspect.max(1.0).sqrt())
+        .max(1.0);
     let sigma_max = (params.max_radius / SQRT_2).max(sigma_min);
     let n_scales = (4.0 * (sigma_max / sigma_min).log2() - 1e-9)
         .ceil()
         .max(0.0) as usize
         + 1;
-    let octave_of =
-        |sigma: f64| ((sigma / MIN_LEVEL_SIGMA).log2() + 1e-9).floor().max(0.0) as usize;
+    let octave_of = |sigma: f64| {
+        let o = ((sigma / MIN_LEVEL_SIGMA).log2() + 1e-9).floor().max(0.0) as usize;
+        o.max(usize::from(sigma >= FIRST_LEVEL_MIN_SIGMA - 1e-9))
+    };
     let sigmas: Vec<f64> = (0..n_scales)
         .map(|i| sigma_min * 2f64.powf(i as f64 / 4.0))
         .collect();
@@ -261,7 +281,7 @@ fn suppress(mut peaks: Vec<Peak>) -> Vec<Peak> {
     kept
 }
 
-/// Refines the peaks (strongest first) in parallel waves; after each wave, the peaks that
+/// Refines the peaks (in the given order) in parallel waves; after each wave, the peaks that
 /// lie inside a circle found so far are skipped: one circle can hold several peaks that
 /// NMS keeps (a marker's inner disk and points on its white annulus, the curved inner side
 /// of a large disk's edge), and refining them would only find it again.
@@ -321,10 +341,9 @@ fn refine_all(full: View<'_>, peaks: &[Peak], settings: &refine::Settings) -> Ve
 }
 
 /// Several peaks can refine to the same circle (e.g. a marker's inner disk and the whole
-/// circle): strongest first, a circle whose centre lies inside a kept one's ellipse, or
-/// whose ellipse holds a kept centre, is dropped.
-fn remove_duplicates(mut circles: Vec<Circle>) -> Vec<Circle> {
-    circles.sort_by(|a, b| b.score.total_cmp(&a.score));
+/// circle): in the order of refinement, a circle whose centre lies inside a kept one's
+/// ellipse, or whose ellipse holds a kept centre, is dropped.
+fn remove_duplicates(circles: Vec<Circle>) -> Vec<Circle> {
     let cell = circles.iter().map(|c| c.ellipse.a).fold(1.0, f64::max);
     let max_x = circles
         .iter()

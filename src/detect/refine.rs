@@ -32,6 +32,9 @@ const MAX_CUT_RAYS: f64 = 0.12;
 /// Smallest accepted b/a: a circle tilted by ≤ 75° (DESIGN.md's range, cos 75° = 0.26) still
 /// reads ≥ 0.23 under strong perspective; thinner fits are slivers of larger outlines.
 const MIN_AXIS_RATIO: f64 = 0.2;
+/// Largest fraction of rays on which the image just outside a fitted outline is still white
+/// (see [`closed`]).
+const MAX_SPILL: f64 = 0.05;
 /// Rays of the outward pass that also measure the background along their whole length.
 const BACKGROUND_RAYS: usize = 6;
 
@@ -221,10 +224,11 @@ pub(crate) fn refine(
             let rho = o.norm();
             let u = o / rho;
             let nominal = if pass == 0 { 1.6 * rho } else { rho + 2.5 };
-            let start = nominal.min(exit_distance(img, c, u));
+            let exit = exit_distance(img, c, u);
+            let start = outside(img, c, u, nominal.min(exit), (2.2 * rho).min(exit), mid);
             match inward_crossing(img, c, u, start, 0.6 * rho, rho / 16.0, mid) {
                 Some(t) => s.points.push(c + t * u),
-                None if start < nominal
+                None if start >= exit
                     && img
                         .bilinear(c.x + start * u.x, c.y + start * u.y)
                         .is_some_and(|v| v >= mid) =>
@@ -249,6 +253,7 @@ pub(crate) fn refine(
     let e = fit.ellipse;
     let radius = e.radius();
     let ok = fit.inliers >= min_points
+        && closed(img, &e, mid, s)
         && e.b >= MIN_AXIS_RATIO * e.a
         && radius >= set.radius_range.0
         && radius <= set.radius_range.1
@@ -261,6 +266,27 @@ pub(crate) fn refine(
         foreground: fg,
         edge_rms: fit.rms as f32,
     })
+}
+
+/// Whether the fitted outline closes the circle: just outside it, max(1.5 px, 0.2 ρ) past
+/// the boundary on each ray (≥ 1 σ of any PSF up to 1.5 px, and short of the neighbours at
+/// ≥ 1.67 ρ), the image is below the mean level on all but [`MAX_SPILL`] of the rays. A fit
+/// to part of a circle — what an occluder leaves of it, or one end of a steeply tilted
+/// marker's annulus with its inner disk — leaves white outside it. Also false when the
+/// outline itself runs off the image on more than [`MAX_CUT_RAYS`] of the rays.
+fn closed(img: View<'_>, e: &Ellipse, mid: f32, s: &Scratch) -> bool {
+    let (mut seen, mut spilled, mut cut) = (0usize, 0usize, 0usize);
+    for &d in &s.dirs {
+        let o = ellipse_offset(e, d);
+        let rho = o.norm();
+        let k = 1.0 + (1.5 / rho).max(0.2);
+        if let Some(v) = img.bilinear(e.center.x + k * o.x, e.center.y + k * o.y) {
+            seen += 1;
+            spilled += usize::from(v >= mid);
+        }
+        cut += usize::from(img.bilinear(e.center.x + o.x, e.center.y + o.y).is_none());
+    }
+    spilled as f64 <= MAX_SPILL * seen as f64 && cut as f64 <= MAX_CUT_RAYS * s.dirs.len() as f64
 }
 
 /// Background and foreground levels around the ellipse `g`: the background is the median
@@ -442,6 +468,21 @@ fn ring_annulus(img: View<'_>, e: &Ellipse, contrast: f32, s: &mut Scratch) -> O
     s.values.extend(s.ks.iter().map(|&x| (x - k).abs()));
     let mad = median(&mut s.values)?;
     (mad < 0.1 * k && (1.4..=2.6).contains(&k)).then_some(k as f64)
+}
+
+/// The start of an inward walk: `t`, or when the image is at or above `level` there (a guess
+/// short of the outline, e.g. one end of a steeply tilted marker's annulus taken for its
+/// edge), the first point below it stepping out by ½ px up to `t_max`.
+fn outside(img: View<'_>, c: Point2<f64>, u: Vector2<f64>, t: f64, t_max: f64, level: f32) -> f64 {
+    let mut t = t;
+    while t < t_max
+        && img
+            .bilinear(c.x + t * u.x, c.y + t * u.y)
+            .is_some_and(|v| v >= level)
+    {
+        t = (t + 0.5).min(t_max);
+    }
+    t
 }
 
 /// Walking inward from `c + t_start·u` in steps of `step` px down to `t_end`, the highest
