@@ -94,9 +94,12 @@ pub struct DetectParams {
     /// Rays (edge points) per circle. Default 90.
     pub rays: usize,
     /// Largest accepted RMS edge-point distance from the fitted ellipse:
-    /// `max_edge_rms + max_edge_rms_per_px · radius` (px). Defaults 0.15 and 0.01: noise
-    /// scatters the edge points of a real circle by σ_noise / edge slope ≈ 0.02–0.1 px,
-    /// while stripes, corners and other non-elliptic outlines leave ≳ 0.3 px.
+    /// `(max_edge_rms + max_edge_rms_per_px · radius) · √(a/b)` (px). Defaults 0.15 and
+    /// 0.01: noise scatters the edge points of a real circle by σ_noise / edge slope ≈
+    /// 0.02–0.1 px, while stripes, corners and other non-elliptic outlines leave ≳ 0.3 px.
+    /// The √(a/b) allows for blur at the sharp ends of a thin ellipse (radius of curvature
+    /// b²/a, 0.6 px at 75° of tilt and r = 5 px), which pulls the mean-level contour in
+    /// there by up to ~0.6 px: edge RMS 0.2 px on such circles.
     pub max_edge_rms: f64,
     /// See `max_edge_rms`.
     pub max_edge_rms_per_px: f64,

@@ -32,6 +32,14 @@ const MAX_CUT_RAYS: f64 = 0.12;
 /// Smallest accepted b/a: a circle tilted by ≤ 75° (DESIGN.md's range, cos 75° = 0.26) still
 /// reads ≥ 0.23 under strong perspective; thinner fits are slivers of larger outlines.
 const MIN_AXIS_RATIO: f64 = 0.2;
+/// The detection peak must lie inside the fitted ellipse scaled by this: a thin ellipse's
+/// peak found at a coarse pyramid level can sit a little outside its minor axis, while a fit
+/// that wandered to a neighbour leaves its peak ≥ 2.33× away (pitch/radius − 1).
+const PEAK_REACH: f64 = 1.5;
+/// Most inward passes of the edge-point search.
+const MAX_PASSES: usize = 4;
+/// After two passes, the search stops once a pass moves the centre less than this (px).
+const CONVERGED_PX: f64 = 0.05;
 /// Largest fraction of rays on which the image just outside a fitted outline is still white
 /// (see [`closed`]).
 const MAX_SPILL: f64 = 0.05;
@@ -47,7 +55,8 @@ pub(crate) struct Settings {
     pub(crate) min_contrast: f32,
     /// Accepted radius range √(ab) (px).
     pub(crate) radius_range: (f64, f64),
-    /// Maximum RMS edge-point distance from the ellipse: `max_rms.0 + max_rms.1 · radius`.
+    /// Maximum RMS edge-point distance from the ellipse: `(max_rms.0 + max_rms.1 · radius)
+    /// · √(a/b)`.
     pub(crate) max_rms: (f64, f64),
 }
 
@@ -80,6 +89,8 @@ struct Fit {
     ellipse: Ellipse,
     rms: f64,
     inliers: usize,
+    /// How far the centre moved from the ellipse the edge points were sought around (px).
+    moved: f64,
 }
 
 fn median(v: &mut [f32]) -> Option<f32> {
@@ -145,6 +156,7 @@ fn robust_fit(points: &[Point2<f64>], s: &mut Scratch) -> Option<Fit> {
         ellipse,
         rms: (ss / s.keep.len() as f64).sqrt(),
         inliers: s.keep.len(),
+        moved: 0.0,
     })
 }
 
@@ -207,15 +219,20 @@ pub(crate) fn refine(
     let mid = 0.5 * (fg + bg);
 
     // 4. Inward passes to the crossings of the mean level: from 1.6× the guess, then from
-    //    2.5 px outside the first fit.
+    //    2.5 px outside the previous fit, until the centre moves less than
+    //    CONVERGED_PX (at most MAX_PASSES). A guess found from one end of a steeply tilted
+    //    marker's annulus is short at that end; each pass reaches further out there.
     //    A ray leaving the image starts at its last point inside instead; where the circle
     //    is still brighter than the mean level there, its outline runs off the frame. A
     //    circle cut on more than MAX_CUT_RAYS of its rays is dropped: the fit to the rest
     //    has a biased centre (a sliver past the border, as for circles whose rim just
     //    touches it, leaves the fit to the remaining outline accurate).
     let mut fit: Option<Fit> = None;
-    for pass in 0..2 {
+    for pass in 0..MAX_PASSES {
         let g = fit.as_ref().map_or(guess, |f| f.ellipse);
+        if pass >= 2 && fit.as_ref().is_some_and(|f| f.moved < CONVERGED_PX) {
+            break;
+        }
         let c = g.center;
         s.points.clear();
         let mut cut = 0;
@@ -245,7 +262,10 @@ pub(crate) fn refine(
             return None;
         }
         let points = std::mem::take(&mut s.points);
-        fit = robust_fit(&points, s);
+        fit = robust_fit(&points, s).map(|f| Fit {
+            moved: (f.ellipse.center - c).norm(),
+            ..f
+        });
         s.points = points;
         fit.as_ref()?;
     }
@@ -257,8 +277,14 @@ pub(crate) fn refine(
         && e.b >= MIN_AXIS_RATIO * e.a
         && radius >= set.radius_range.0
         && radius <= set.radius_range.1
-        && fit::Conic::from_ellipse(&e).value(c0) < 0.0
-        && fit.rms <= set.max_rms.0 + set.max_rms.1 * radius;
+        && fit::Conic::from_ellipse(&Ellipse {
+            a: PEAK_REACH * e.a,
+            b: PEAK_REACH * e.b,
+            ..e
+        })
+        .value(c0)
+            < 0.0
+        && fit.rms <= (set.max_rms.0 + set.max_rms.1 * radius) * (e.a / e.b).sqrt();
     ok.then_some(Circle {
         ellipse: e,
         score: score as f64,
