@@ -30,6 +30,20 @@ pub struct Truth {
     pub centre_visible: bool,
     /// Every whole circle.
     pub circles: Vec<TrueCircle>,
+    /// Circles cut by the frame or an occluder, or too small: a label there is neither
+    /// required nor wrong.
+    pub partial: Vec<CutCircle>,
+}
+
+/// A circle of the truth that is not whole in view.
+#[derive(Clone, Deserialize)]
+pub struct CutCircle {
+    /// Lattice position in the seen side's frame.
+    pub q: i32,
+    /// See `q`.
+    pub r: i32,
+    /// Centre of the imaged outline (px), when the whole outline is imaged.
+    pub ellipse: Option<[f64; 2]>,
 }
 
 /// One whole circle of the truth.
