@@ -354,9 +354,9 @@ impl PoseWriter {
                 fr.width, fr.height, stack.width, stack.height
             )));
         }
-        crate::atomic::write_with(
+        crate::atomic::write_encoded(
             &path,
-            |tmp| encode_png(tmp, fr).map_err(|e| frame_error(e.to_string())),
+            |bytes| encode_png(bytes, fr).map_err(|e| frame_error(e.to_string())),
             |e| frame_error(e.to_string()),
         )?;
         stack.frames.push(FrameEntry {
@@ -398,23 +398,18 @@ impl PoseWriter {
     }
 }
 
-/// Encode `f` as PNG in memory, then write the file: every write error reaches the caller
-/// (an encoder writing to a buffered file would finish it on drop, where a full disk's
-/// error is lost and a truncated file looks written).
-fn encode_png(path: &Path, f: &CameraFrame) -> image::ImageResult<()> {
+/// Encode `f` as PNG (fast compression: frames are large and many).
+fn encode_png(out: &mut impl std::io::Write, f: &CameraFrame) -> image::ImageResult<()> {
     use image::codecs::png::{CompressionType, FilterType, PngEncoder};
     use image::{ExtendedColorType, ImageEncoder};
-    let mut bytes = Vec::new();
-    let enc = PngEncoder::new_with_quality(&mut bytes, CompressionType::Fast, FilterType::Sub);
+    let enc = PngEncoder::new_with_quality(out, CompressionType::Fast, FilterType::Sub);
     match &f.pixels {
-        Pixels::Gray8(p) => enc.write_image(p, f.width, f.height, ExtendedColorType::L8)?,
+        Pixels::Gray8(p) => enc.write_image(p, f.width, f.height, ExtendedColorType::L8),
         Pixels::Gray16(p) => {
             let samples: Vec<u8> = p.iter().flat_map(|v| v.to_be_bytes()).collect();
-            enc.write_image(&samples, f.width, f.height, ExtendedColorType::L16)?
+            enc.write_image(&samples, f.width, f.height, ExtendedColorType::L16)
         }
     }
-    std::fs::write(path, &bytes)?;
-    Ok(())
 }
 
 /// A stack folder opened for reading (`stack.json` checked against its sequence).

@@ -222,10 +222,10 @@ fn write_png_atomic(img: &image::RgbImage, path: &Path) -> Result<(), DetectionE
         path: path.to_owned(),
         message,
     };
-    crate::atomic::write_with(
+    crate::atomic::write_encoded(
         path,
-        |tmp| {
-            img.save_with_format(tmp, image::ImageFormat::Png)
+        |bytes| {
+            img.write_to(bytes, image::ImageFormat::Png)
                 .map_err(|e| err(e.to_string()))
         },
         |e| err(e.to_string()),

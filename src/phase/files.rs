@@ -117,13 +117,13 @@ fn write_err(path: &Path) -> impl Fn(String) -> DecodeFilesError + '_ {
 
 fn write_tiff_f32(path: &Path, w: u32, h: u32, data: &[f32]) -> Result<(), DecodeFilesError> {
     let err = write_err(path);
-    crate::atomic::write_with(
+    crate::atomic::write_encoded(
         path,
-        |tmp| {
-            let file = std::fs::File::create(tmp).map_err(|e| err(e.to_string()))?;
-            let mut enc = tiff::encoder::TiffEncoder::new(std::io::BufWriter::new(file))
-                .map_err(|e| err(e.to_string()))?;
-            enc.write_image::<tiff::encoder::colortype::Gray32Float>(w, h, data)
+        |bytes| {
+            tiff::encoder::TiffEncoder::new(bytes)
+                .and_then(|mut enc| {
+                    enc.write_image::<tiff::encoder::colortype::Gray32Float>(w, h, data)
+                })
                 .map_err(|e| err(e.to_string()))
         },
         |e| err(e.to_string()),
@@ -132,10 +132,10 @@ fn write_tiff_f32(path: &Path, w: u32, h: u32, data: &[f32]) -> Result<(), Decod
 
 fn write_png_gray(path: &Path, img: &image::GrayImage) -> Result<(), DecodeFilesError> {
     let err = write_err(path);
-    crate::atomic::write_with(
+    crate::atomic::write_encoded(
         path,
-        |tmp| {
-            img.save_with_format(tmp, image::ImageFormat::Png)
+        |bytes| {
+            img.write_to(bytes, image::ImageFormat::Png)
                 .map_err(|e| err(e.to_string()))
         },
         |e| err(e.to_string()),

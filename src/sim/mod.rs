@@ -230,42 +230,39 @@ pub fn render(scene: &Scene) -> Result<View, SimError> {
     })
 }
 
-/// Write `bytes` to `path` atomically (a temporary file in the same directory, renamed).
-fn write_atomic(
-    path: &Path,
-    write: impl FnOnce(&Path) -> Result<(), SimError>,
-) -> Result<(), SimError> {
-    crate::atomic::write_with(path, write, |source| SimError::Io {
-        path: path.into(),
-        source,
-    })
-}
-
 /// Write a frame as a grey PNG, atomically: 8-bit frames as 8-bit, 12- and 16-bit frames as
 /// 16-bit (12-bit values stay < 4096).
 pub fn write_png(frame: &Frame, path: &Path) -> Result<(), SimError> {
     let (w, h) = (frame.size.width, frame.size.height);
-    write_atomic(path, |tmp| {
-        let res = if frame.bits == 8 {
-            let data: Vec<u8> = frame.data.iter().map(|&v| v as u8).collect();
-            image::GrayImage::from_raw(w, h, data)
-                .map(|img| img.save_with_format(tmp, image::ImageFormat::Png))
-        } else {
-            image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, frame.data.clone())
-                .map(|img| img.save_with_format(tmp, image::ImageFormat::Png))
-        };
-        match res {
-            Some(Ok(())) => Ok(()),
-            Some(Err(e)) => Err(SimError::Encode {
-                path: path.into(),
-                message: e.to_string(),
-            }),
-            None => Err(SimError::Encode {
-                path: path.into(),
-                message: "frame size does not match its data".into(),
-            }),
-        }
-    })
+    let io = |source| SimError::Io {
+        path: path.into(),
+        source,
+    };
+    crate::atomic::write_encoded(
+        path,
+        |bytes| {
+            let res = if frame.bits == 8 {
+                let data: Vec<u8> = frame.data.iter().map(|&v| v as u8).collect();
+                image::GrayImage::from_raw(w, h, data)
+                    .map(|img| img.write_to(bytes, image::ImageFormat::Png))
+            } else {
+                image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, frame.data.clone())
+                    .map(|img| img.write_to(bytes, image::ImageFormat::Png))
+            };
+            match res {
+                Some(Ok(())) => Ok(()),
+                Some(Err(e)) => Err(SimError::Encode {
+                    path: path.into(),
+                    message: e.to_string(),
+                }),
+                None => Err(SimError::Encode {
+                    path: path.into(),
+                    message: "frame size does not match its data".into(),
+                }),
+            }
+        },
+        io,
+    )
 }
 
 /// Write a view as `DIR/NAME.png` and `DIR/NAME.json` (created atomically); returns the
@@ -279,11 +276,9 @@ pub fn write_view(view: &View, dir: &Path) -> Result<[PathBuf; 2], SimError> {
     let json = png.with_extension("json");
     write_png(&view.frame, &png)?;
     let text = serde_json::to_string_pretty(&view.truth).expect("ground truth serialises");
-    write_atomic(&json, |tmp| {
-        std::fs::write(tmp, text).map_err(|source| SimError::Io {
-            path: json.clone(),
-            source,
-        })
+    crate::atomic::write(&json, text.as_bytes()).map_err(|source| SimError::Io {
+        path: json.clone(),
+        source,
     })?;
     Ok([png, json])
 }
