@@ -665,9 +665,8 @@ fn a_controller_answering_garbage_names_port_pose_and_frame_and_keeps_earlier_po
         "{text}"
     );
     assert!(
-        text.starts_with(&format!(
-            "pose 1, frame 6: {port}: trigger controller {port}: "
-        )) && text.contains("no reply to Fire after 3 attempts")
+        text.starts_with(&format!("pose 1, frame 6: {port}: trigger controller: "))
+            && text.contains("no reply to Fire after 3 attempts")
             && !text.contains("; 0 garbled"),
         "{text}"
     );

@@ -225,23 +225,16 @@ impl Trigger for super::trigger::TriggerController {
             frames,
             hexcal_firmware_protocol::Pacing::PerFire,
         )
-        .map_err(|e| self.device_error(e))
+        .map_err(|e| e.into_device_error(self.port_name()))
     }
 
     fn fire(&mut self) -> Result<u32, DeviceError> {
-        super::trigger::TriggerController::fire(self).map_err(|e| self.device_error(e))
+        super::trigger::TriggerController::fire(self)
+            .map_err(|e| e.into_device_error(self.port_name()))
     }
 
     fn disarm(&mut self) -> Result<(), DeviceError> {
-        super::trigger::TriggerController::disarm(self).map_err(|e| self.device_error(e))
-    }
-}
-
-impl super::trigger::TriggerController {
-    fn device_error(&self, e: super::trigger::TriggerError) -> DeviceError {
-        DeviceError::Failed {
-            device: self.port_name().to_string(),
-            reason: e.to_string(),
-        }
+        super::trigger::TriggerController::disarm(self)
+            .map_err(|e| e.into_device_error(self.port_name()))
     }
 }

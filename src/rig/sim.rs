@@ -484,10 +484,7 @@ impl WiredTrigger {
     }
 
     fn error(&self, e: super::trigger::TriggerError) -> DeviceError {
-        DeviceError::Failed {
-            device: self.controller.port_name().to_string(),
-            reason: e.to_string(),
-        }
+        e.into_device_error(self.controller.port_name())
     }
 }
 

@@ -157,6 +157,22 @@ pub enum TriggerError {
     },
 }
 
+impl TriggerError {
+    /// This error as the capture-level error of the device `port`: the reason without the
+    /// port, which the device error names already.
+    pub(crate) fn into_device_error(self, port: &str) -> super::device::DeviceError {
+        let text = self.to_string();
+        let reason = match text.strip_prefix(&format!("trigger controller {port}: ")) {
+            Some(rest) => format!("trigger controller: {rest}"),
+            None => text,
+        };
+        super::device::DeviceError::Failed {
+            device: port.to_string(),
+            reason,
+        }
+    }
+}
+
 /// The name of a command, for error messages.
 fn command_name(command: &Command) -> &'static str {
     match command {
