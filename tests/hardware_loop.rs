@@ -729,43 +729,21 @@ fn on_display(name: &str, body: impl FnOnce()) {
     assert!(text.contains("1 passed"), "{name} did not run in the child");
 }
 
-/// The screen as grey levels (XWD from `xwd -root`: a big-endian header of 25 32-bit
-/// fields, the window name, the colour map, then 32-bit ZPixmap rows); a pixel that is not
-/// grey counts as level 256.
+/// The screen as grey levels; a pixel that is not grey counts as level 256.
 #[cfg(feature = "window")]
 fn screen_levels() -> Vec<u16> {
-    let display = std::env::var(CHILD_DISPLAY).unwrap();
-    let out = std::process::Command::new("xwd")
-        .args(["-root", "-silent", "-display", &display])
-        .output()
-        .expect("xwd (Debian package x11-apps)");
-    assert!(out.status.success(), "xwd failed");
-    let d = out.stdout;
-    let field = |i: usize| u32::from_be_bytes(d[4 * i..4 * i + 4].try_into().unwrap());
-    let (header, format, width, height) = (field(0), field(2), field(4), field(5));
-    let (little, bpp, stride, ncolors) = (field(7) == 0, field(11), field(12), field(19));
-    let masks = [field(14), field(15), field(16)];
-    assert_eq!(
-        (format, bpp, width, height),
-        (2, 32, W, H),
-        "ZPixmap, 32 bits"
-    );
-    let start = (header + 12 * ncolors) as usize;
-    let mut levels = Vec::with_capacity((W * H) as usize);
-    for y in 0..H as usize {
-        for x in 0..W as usize {
-            let o = start + y * stride as usize + 4 * x;
-            let b: [u8; 4] = d[o..o + 4].try_into().unwrap();
-            let p = if little {
-                u32::from_le_bytes(b)
+    let (width, height, px) = xvfb::screenshot(&std::env::var(CHILD_DISPLAY).unwrap());
+    assert_eq!((width, height), (W, H), "screen size");
+    px.iter()
+        .map(|&p| {
+            let [r, g, b] = [p >> 16, (p >> 8) & 0xff, p & 0xff];
+            if r == g && g == b {
+                r as u16
             } else {
-                u32::from_be_bytes(b)
-            };
-            let [r, g, b] = masks.map(|m| (p & m) >> m.trailing_zeros());
-            levels.push(if r == g && g == b { r as u16 } else { 256 });
-        }
-    }
-    levels
+                256
+            }
+        })
+        .collect()
 }
 
 /// The window projector, full screen on the private Xvfb; the screen is compared with the

@@ -55,42 +55,9 @@ fn display() -> String {
     std::env::var(CHILD_DISPLAY).unwrap()
 }
 
-/// The root window as 0xRRGGBB pixels, read by `xwd` (XWD: a big-endian header of 25
-/// 32-bit fields, the window name, the colour map, then the ZPixmap rows).
-fn screenshot() -> (u32, u32, Vec<u32>) {
-    let out = Command::new("xwd")
-        .args(["-root", "-silent", "-display", &display()])
-        .output()
-        .expect("xwd (Debian package x11-apps)");
-    assert!(out.status.success(), "xwd failed");
-    let d = out.stdout;
-    let field = |i: usize| u32::from_be_bytes(d[4 * i..4 * i + 4].try_into().unwrap());
-    let (header, format, width, height) = (field(0), field(2), field(4), field(5));
-    let (byte_order, bpp, stride) = (field(7), field(11), field(12));
-    let (masks, ncolors) = ([field(14), field(15), field(16)], field(19));
-    assert_eq!((format, bpp), (2, 32), "ZPixmap, 32 bits per pixel");
-    let start = header as usize + 12 * ncolors as usize;
-    let channel = |p: u32, mask: u32| (p & mask) >> mask.trailing_zeros();
-    let mut px = Vec::with_capacity((width * height) as usize);
-    for y in 0..height as usize {
-        for x in 0..width as usize {
-            let o = start + y * stride as usize + 4 * x;
-            let b: [u8; 4] = d[o..o + 4].try_into().unwrap();
-            let p = if byte_order == 0 {
-                u32::from_le_bytes(b)
-            } else {
-                u32::from_be_bytes(b)
-            };
-            let [r, g, b] = masks.map(|m| channel(p, m));
-            px.push((r << 16) | (g << 8) | b);
-        }
-    }
-    (width, height, px)
-}
-
 /// Pixels of the screen that differ from `expect` (grey levels), and the first of them.
 fn mismatches(expect: &[u8]) -> (usize, Option<(usize, u32, u8)>) {
-    let (_, _, px) = screenshot();
+    let (_, _, px) = xvfb::screenshot(&display());
     assert_eq!(px.len(), expect.len());
     let mut first = None;
     let n = px

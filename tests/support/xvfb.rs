@@ -74,3 +74,36 @@ impl Drop for Xvfb {
         }
     }
 }
+
+/// The root window of `display` as 0xRRGGBB pixels, read by `xwd` (XWD: a big-endian header
+/// of 25 32-bit fields, the window name, the colour map, then 32-bit ZPixmap rows): width,
+/// height and the pixels row by row.
+pub fn screenshot(display: &str) -> (u32, u32, Vec<u32>) {
+    let out = Command::new("xwd")
+        .args(["-root", "-silent", "-display", display])
+        .output()
+        .expect("xwd (Debian package x11-apps)");
+    assert!(out.status.success(), "xwd failed");
+    let d = out.stdout;
+    let field = |i: usize| u32::from_be_bytes(d[4 * i..4 * i + 4].try_into().unwrap());
+    let (header, format, width, height) = (field(0), field(2), field(4), field(5));
+    let (little, bpp, stride, ncolors) = (field(7) == 0, field(11), field(12), field(19));
+    let masks = [field(14), field(15), field(16)];
+    assert_eq!((format, bpp), (2, 32), "ZPixmap, 32 bits per pixel");
+    let start = (header + 12 * ncolors) as usize;
+    let mut px = Vec::with_capacity((width * height) as usize);
+    for y in 0..height as usize {
+        for x in 0..width as usize {
+            let o = start + y * stride as usize + 4 * x;
+            let b: [u8; 4] = d[o..o + 4].try_into().unwrap();
+            let p = if little {
+                u32::from_le_bytes(b)
+            } else {
+                u32::from_be_bytes(b)
+            };
+            let [r, g, b] = masks.map(|m| (p & m) >> m.trailing_zeros());
+            px.push((r << 16) | (g << 8) | b);
+        }
+    }
+    (width, height, px)
+}
