@@ -581,19 +581,7 @@ impl Camera for AravisCamera {
     }
 
     fn trigger(&mut self) -> Result<(), DeviceError> {
-        match self.applied {
-            Some(Applied {
-                trigger: TriggerSource::Software,
-                ..
-            }) => {}
-            Some(_) => {
-                return Err(self.unsupported(
-                    "trigger",
-                    "software trigger on a camera configured for its line input".into(),
-                ))
-            }
-            None => return Err(self.failed("trigger before configure".into())),
-        }
+        DeviceError::check_software_trigger(&self.name, self.applied.as_ref().map(|a| a.trigger))?;
         if self.stream.is_none() {
             return Err(self.failed("trigger before start".into()));
         }

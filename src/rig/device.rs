@@ -194,6 +194,23 @@ impl DeviceError {
         }
     }
 
+    /// Whether `device`, configured with `trigger` (`None`: not configured yet), takes a
+    /// software trigger.
+    pub fn check_software_trigger(
+        device: &str,
+        trigger: Option<TriggerSource>,
+    ) -> Result<(), Self> {
+        match trigger {
+            Some(TriggerSource::Software) => Ok(()),
+            Some(_) => Err(Self::unsupported(
+                device,
+                "trigger",
+                "software trigger on a camera configured for its line input".into(),
+            )),
+            None => Err(Self::failed(device, "trigger before configure".into())),
+        }
+    }
+
     /// Whether triggering the frame again may help (a timeout or an incomplete frame).
     pub fn retryable(&self) -> bool {
         matches!(

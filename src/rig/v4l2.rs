@@ -744,19 +744,7 @@ impl<D: V4l2Device> Camera for V4l2Camera<D> {
     }
 
     fn trigger(&mut self) -> Result<(), DeviceError> {
-        match self.applied {
-            Some(Applied {
-                trigger: TriggerSource::Software,
-                ..
-            }) => {}
-            Some(_) => {
-                return Err(self.unsupported(
-                    "trigger",
-                    "software trigger on a camera configured for its line input".into(),
-                ))
-            }
-            None => return Err(self.failed("trigger before configure".into())),
-        }
+        DeviceError::check_software_trigger(&self.name, self.applied.as_ref().map(|a| a.trigger))?;
         let now = self.device.now();
         let Some(stream) = self.stream.as_mut() else {
             return Err(self.failed("trigger before start".into()));
