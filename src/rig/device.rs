@@ -255,3 +255,25 @@ impl Trigger for super::trigger::TriggerController {
             .map_err(|e| e.into_device_error(self.port_name()))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn software_trigger_needs_a_software_configuration() {
+        assert!(DeviceError::check_software_trigger("cam0", Some(TriggerSource::Software)).is_ok());
+        let line = DeviceError::check_software_trigger("cam0", Some(TriggerSource::Line));
+        assert!(
+            matches!(&line, Err(DeviceError::Unsupported { device, setting, .. })
+                if device == "cam0" && setting == "trigger"),
+            "{line:?}"
+        );
+        let early = DeviceError::check_software_trigger("cam0", None);
+        assert!(
+            matches!(&early, Err(DeviceError::Failed { device, reason })
+                if device == "cam0" && reason.contains("before configure")),
+            "{early:?}"
+        );
+    }
+}
