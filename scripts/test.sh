@@ -32,6 +32,8 @@ hw=aravis,v4l2,window
 cargo clippy --features $hw --all-targets -- -D warnings
 cargo test --features $hw --test aravis_loopback --test window_projector --test hardware_loop
 cargo test --features $hw --lib rig::v4l2
+# Documentation: every intra-doc link resolves (drivers included).
+RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --features $hw
 # The firmware protocol must stay no_std: build it for the controller's target (RP2040).
 if rustup target add thumbv6m-none-eabi >/dev/null 2>&1; then
     cargo build -p hexcal-firmware-protocol --target thumbv6m-none-eabi

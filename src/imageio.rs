@@ -1,5 +1,5 @@
 //! Image loading: 8- or 16-bit, grey or colour PNG, JPEG, TIFF (and PNM) files into a
-//! [`GrayImage`](crate::detect::GrayImage).
+//! [`GrayImage`].
 //!
 //! Grey values keep the file's scale (0–255 for 8-bit, 0–65535 for 16-bit, as stored for
 //! float files); colour becomes Rec. 709 luma (0.2126 R + 0.7152 G + 0.0722 B) on that same

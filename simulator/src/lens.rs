@@ -44,7 +44,7 @@ pub struct RayJet {
 /// Node spacing of [`RayGrid`] (px).
 const STEP: f64 = 4.0;
 
-/// Exact rays of a lens on a grid every [`STEP`] pixels, interpolated by tensor cubic Lagrange
+/// Exact rays of a lens on a grid every `STEP` pixels, interpolated by tensor cubic Lagrange
 /// polynomials (exact for cubics; error O(STEP⁴·∂⁴ray): ~1e-6 px for k1 = −0.3 at f = 300 px,
 /// falling as 1/f³). Each grid cell is checked at its centre against the exact ray; cells where
 /// the interpolation is off by more than [`RayGrid::TOLERANCE_PX`], or a node is invalid, fall

@@ -3,7 +3,7 @@
 //! which side is seen.
 //!
 //! Takes a board description (the built-in [`Board::hex600`] or a TOML board file, see
-//! [`file`]) and gives every circle of either side in that side's own lattice frame and in the
+//! [`file`](mod@file)) and gives every circle of either side in that side's own lattice frame and in the
 //! board frame, the marker cells and their codes, the rigid transform between the two sides,
 //! a check of the rules that make the codes decodable ([`Board::validate`]) and the printable
 //! target of either side ([`Board::svg`]).
@@ -308,7 +308,7 @@ pub struct MarkerCell {
 
 /// A board: geometry of the lattice, circles, rings, codes and the side transform.
 ///
-/// Its fields are the keys of a board file ([`file`] documents the format); build one from
+/// Its fields are the keys of a board file ([`file`](mod@file) documents the format); build one from
 /// a file with [`Board::load`] or [`Board::resolve`], which also [`Board::validate`] it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -31,7 +31,7 @@ impl Board {
     /// board's name and the side.
     ///
     /// The side is drawn as seen looking at it, in its own frame: board point (x, y) of the
-    /// side is at SVG (size[0]/2 + x, size[1]/2 − y). Scale bar and label sit in the margin
+    /// side is at SVG (size\[0\]/2 + x, size\[1\]/2 − y). Scale bar and label sit in the margin
     /// below the circles, white on black; a board whose margin is narrower than 12 mm gets a
     /// 12 mm white strip added below it for them (the only case where the document is larger
     /// than the board).

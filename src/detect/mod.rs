@@ -2,9 +2,9 @@
 //! by radius, and a subpixel centre from an ellipse fitted to each circle's outer edge.
 //!
 //! Takes a grey image and gives every white circle it finds as an [`Ellipse`] with a radius
-//! and a quality score. Stages: [`circleness`] (peaks of the multi-scale circleness on a
-//! pyramid), non-maximum suppression by radius, [`refine`] (outer-edge points and a direct
-//! ellipse fit, [`fit`]), and a final removal of duplicates. Entry point: [`detect`].
+//! and a quality score. Stages: `circleness` (peaks of the multi-scale circleness on a
+//! pyramid), non-maximum suppression by radius, `refine` (outer-edge points and a direct
+//! ellipse fit, `fit`), and a final removal of duplicates. Entry point: [`detect`].
 
 mod circleness;
 mod filter;

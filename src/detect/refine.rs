@@ -13,8 +13,12 @@
 //!    (1.3–1.6×, inside the gap that reaches ≥ 1.67× at the board's border and 2.33×
 //!    between circles), foreground from the first maximum inside each ray's outer edge.
 //! 4. Inward passes: rays at evenly spaced parametric angles of the current ellipse,
-//!    walking inward from outside its boundary to the first rising crossing of the mean
-//!    level; twice, the second time around the first pass's ellipse.
+//!    walking inward from outside its boundary (first stepping out of any white there,
+//!    [`outside`]) to the first rising crossing of the mean level; each pass around the
+//!    previous pass's ellipse, until the centre settles.
+//! 5. Checks: enough inliers, b/a ≥ [`MIN_AXIS_RATIO`], radius in range, the peak near the
+//!    fit, the edge RMS, and that the fit closes the circle ([`closed`]: no white just
+//!    outside it, not cut by the frame).
 
 use super::filter::View;
 use super::fit::{self, fit_ellipse, Conic};
