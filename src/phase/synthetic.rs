@@ -189,6 +189,29 @@ pub struct Truth {
     pub interior: Vec<bool>,
 }
 
+impl Truth {
+    /// The truth-based standard deviations (σ_u, σ_v) of a decoded projector coordinate,
+    /// per camera pixel index, for projector `p` (DESIGN.md §6): σ_φ = √(2/N)·σ_I/B,
+    /// σ_u = W·σ_φ/(2π·√Σn²), σ_v likewise with H and the row counts.
+    pub fn sigma_uv(&self, seq: &Sequence, p: usize) -> impl Fn(usize) -> (f64, f64) + '_ {
+        let norm = |d| {
+            seq.counts(d)
+                .iter()
+                .map(|&c| f64::from(c * c))
+                .sum::<f64>()
+                .sqrt()
+        };
+        let code = seq.projectors()[p];
+        let n = f64::from(seq.steps());
+        let ku = f64::from(code.width) / (TAU * norm(Direction::Columns));
+        let kv = f64::from(code.height) / (TAU * norm(Direction::Rows));
+        move |i| {
+            let sphi = (2.0 / n).sqrt() * self.sigma_i[i] / self.modulation[p][i];
+            (ku * sphi, kv * sphi)
+        }
+    }
+}
+
 /// Renders the frames of one camera's stack.
 pub struct Renderer<'a> {
     scene: &'a Scene,
@@ -489,21 +512,12 @@ pub fn accuracy(
     truth: &Truth,
     seq: &Sequence,
 ) -> Vec<ProjectorAccuracy> {
-    let n = f64::from(seq.steps());
     decoded
         .projectors
         .iter()
         .enumerate()
         .map(|(p, maps)| {
-            let code = seq.projectors()[p];
-            let info = |d| {
-                seq.counts(d)
-                    .iter()
-                    .map(|&c| f64::from(c * c))
-                    .sum::<f64>()
-                    .sqrt()
-            };
-            let (ic, ir) = (info(Direction::Columns), info(Direction::Rows));
+            let sigma = truth.sigma_uv(seq, p);
             let (mut cnt, mut su, mut sv, mut gross) = (0usize, 0f64, 0f64, 0usize);
             for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
                 if !ok || !truth.interior[i] {
@@ -514,10 +528,7 @@ pub fn accuracy(
                 cnt += 1;
                 su += eu * eu;
                 sv += ev * ev;
-                // σ_φ = √(2/N)·σ_I/B, σ_u = W·σ_φ/(2π·√Σn²) from the truth.
-                let sphi = (2.0 / n).sqrt() * truth.sigma_i[i] / truth.modulation[p][i];
-                let s_u = f64::from(code.width) * sphi / (TAU * ic);
-                let s_v = f64::from(code.height) * sphi / (TAU * ir);
+                let (s_u, s_v) = sigma(i);
                 if eu.abs() > (6.0 * s_u).max(1.0) || ev.abs() > (6.0 * s_v).max(1.0) {
                     gross += 1;
                 }

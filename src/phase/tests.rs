@@ -52,28 +52,17 @@ fn check_case(case: &Case, label: &str) {
     let n = f64::from(seq.steps());
     let g = seq.groups() as f64;
     let np = seq.projectors().len();
+    let accs = accuracy(decoded, truth, seq);
     for (p, maps) in decoded.projectors.iter().enumerate() {
-        let code = seq.projectors()[p];
-        let acc = accuracy(decoded, truth, seq)[p];
-        // Truth-based prediction over the same valid pixels: σ_φ = √(2/N)·σ_I/B,
-        // σ_u = W·σ_φ/(2π·√Σn²) (DESIGN.md §6), RMS over pixels.
-        let info = |d| {
-            seq.counts(d)
-                .iter()
-                .map(|&c| f64::from(c * c))
-                .sum::<f64>()
-                .sqrt()
-        };
+        let acc = accs[p];
+        // Truth-based prediction over the same valid pixels (DESIGN.md §6), RMS over pixels.
+        let sigma = truth.sigma_uv(seq, p);
         let (mut pu, mut pv, mut pu_all, mut cnt_all) = (0f64, 0f64, 0f64, 0usize);
         for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
             if !ok {
                 continue;
             }
-            let sphi = (2.0 / n).sqrt() * truth.sigma_i[i] / truth.modulation[p][i];
-            let su =
-                f64::from(code.width) * sphi / (std::f64::consts::TAU * info(Direction::Columns));
-            let sv =
-                f64::from(code.height) * sphi / (std::f64::consts::TAU * info(Direction::Rows));
+            let (su, sv) = sigma(i);
             pu_all += su * su;
             cnt_all += 1;
             if truth.interior[i] {
@@ -252,29 +241,18 @@ fn unwrap_errors(case: &Case) -> (usize, [[f64; 3]; 2]) {
         truth,
         decoded,
     } = case;
-    let n = f64::from(seq.steps());
-    let info = |d| {
-        seq.counts(d)
-            .iter()
-            .map(|&c| f64::from(c * c))
-            .sum::<f64>()
-            .sqrt()
-    };
-    let (ic, ir) = (info(Direction::Columns), info(Direction::Rows));
     let pixels = truth.interior.len();
     let mut any = vec![false; pixels];
     let mut classes = [[0f64; 3]; 2];
     for (p, maps) in decoded.projectors.iter().enumerate() {
-        let code = seq.projectors()[p];
+        let sigma = truth.sigma_uv(seq, p);
         for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
             if !ok {
                 continue;
             }
             any[i] = true;
-            // σ_φ = √(2/N)·σ_I/B, σ_u = W·σ_φ/(2π·√Σn²) (DESIGN.md §6).
-            let sphi = (2.0 / n).sqrt() * truth.sigma_i[i] / truth.modulation[p][i];
-            let bu = (6.0 * f64::from(code.width) * sphi / (std::f64::consts::TAU * ic)).max(1.0);
-            let bv = (6.0 * f64::from(code.height) * sphi / (std::f64::consts::TAU * ir)).max(1.0);
+            let (su, sv) = sigma(i);
+            let (bu, bv) = ((6.0 * su).max(1.0), (6.0 * sv).max(1.0));
             let eu = (f64::from(maps.u.as_raw()[i]) - truth.u[p][i]).abs() / bu;
             let ev = (f64::from(maps.v.as_raw()[i]) - truth.v[p][i]).abs() / bv;
             let c = &mut classes[usize::from(!truth.interior[i])];
