@@ -93,8 +93,6 @@ struct Fit {
     ellipse: Ellipse,
     rms: f64,
     inliers: usize,
-    /// How far the centre moved from the ellipse the edge points were sought around (px).
-    moved: f64,
 }
 
 fn median(v: &mut [f32]) -> Option<f32> {
@@ -160,7 +158,6 @@ fn robust_fit(points: &[Point2<f64>], s: &mut Scratch) -> Option<Fit> {
         ellipse,
         rms: (ss / s.keep.len() as f64).sqrt(),
         inliers: s.keep.len(),
-        moved: 0.0,
     })
 }
 
@@ -232,11 +229,13 @@ pub(crate) fn refine(
     //    has a biased centre (a sliver past the border, as for circles whose rim just
     //    touches it, leaves the fit to the remaining outline accurate).
     let mut fit: Option<Fit> = None;
+    // How far the last pass moved the centre (px).
+    let mut moved = f64::INFINITY;
     for pass in 0..MAX_PASSES {
-        let g = fit.as_ref().map_or(guess, |f| f.ellipse);
-        if pass >= 2 && fit.as_ref().is_some_and(|f| f.moved < CONVERGED_PX) {
+        if pass >= 2 && moved < CONVERGED_PX {
             break;
         }
+        let g = fit.as_ref().map_or(guess, |f| f.ellipse);
         let c = g.center;
         s.points.clear();
         let mut cut = 0;
@@ -266,12 +265,9 @@ pub(crate) fn refine(
             return None;
         }
         let points = std::mem::take(&mut s.points);
-        fit = robust_fit(&points, s).map(|f| Fit {
-            moved: (f.ellipse.center - c).norm(),
-            ..f
-        });
+        fit = robust_fit(&points, s);
         s.points = points;
-        fit.as_ref()?;
+        moved = (fit.as_ref()?.ellipse.center - c).norm();
     }
     let fit = fit?;
     let e = fit.ellipse;
