@@ -1,7 +1,7 @@
 //! Grid-building speed on the six sample images, from their true ellipses (the detector's
 //! share of the 80 ms detect + grid budget is not part of this). Prints per-image timings.
 //!
-//! Run: `cargo bench --bench grid` (set HEXCAL_SAMPLES if the samples are elsewhere).
+//! Run: `cargo bench --bench grid`.
 
 #[path = "../tests/support/grid_truth.rs"]
 mod truth;

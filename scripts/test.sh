@@ -5,7 +5,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
-    # Debian packages of DESIGN.md §11 used by the tests: python3 with OpenCV and YAML read
+    # Debian packages of docs/design.md §11 used by the tests: python3 with OpenCV and YAML read
     # the calibration outputs; chromium renders the HTML report (tests/report_html.rs);
     # libaravis-dev (+ libusb-1.0-0-dev, which its .pc needs) for the `aravis` feature;
     # libclang-dev for the `v4l2` feature (bindgen generates the V4L2 bindings); for the

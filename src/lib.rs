@@ -26,3 +26,14 @@ pub mod report;
 pub mod rig;
 pub mod sim;
 pub(crate) mod tomlspan;
+
+/// Paths of the test data vendored in the repository (`tests/data`).
+#[cfg(test)]
+pub(crate) mod testdata {
+    use std::path::PathBuf;
+
+    /// The independent sample images with ground truth (`tests/data/samples`, README there).
+    pub(crate) fn samples_dir() -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/samples")
+    }
+}

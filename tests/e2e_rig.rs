@@ -1,11 +1,11 @@
 //! End to end on the paper-like rig (6 cameras, 3 projectors): render every camera's view of
-//! every board pose at the default imaging conditions (DESIGN.md §9), detect circles, build
+//! every board pose at the default imaging conditions (docs/design.md §9), detect circles, build
 //! grids, fit projector pixels at the ellipse centres, calibrate all nine devices, verify on
 //! held-out poses, and compare with the rig's ground truth.
 //!
 //! The projectors' decoded maps are not rendered and decoded here (that is the phase stage's
 //! own test): each is the exact projector pixel of the board point behind every white camera
-//! pixel plus the decoding noise DESIGN.md §9 predicts (σ_u = 0.35, σ_v = 0.2 projector px).
+//! pixel plus the decoding noise docs/design.md §9 predicts (σ_u = 0.35, σ_v = 0.2 projector px).
 //!
 //! Acceptance (issue 5): camera RMS ≤ 0.1 px, projector RMS ≤ 0.15 px, focal error ≤ 0.1 %,
 //! held-out length error ≤ 0.1 mm RMS.

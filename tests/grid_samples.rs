@@ -1,4 +1,4 @@
-//! Grid building on the independent sample images (shared/samples/detect, README there), with
+//! Grid building on the independent sample images (tests/data/samples, README there), with
 //! the true ellipses standing in for the detector: clean, and with circles dropped, centres
 //! jittered, false detections added and the centre cell removed; and the whole chain,
 //! detector then grid.
@@ -328,7 +328,7 @@ fn paint_ring(image: &mut hexcal::detect::GrayImage, c: &Circle, band: [f64; 2])
 }
 
 /// One false ring that turns a plain neighbourhood into a centre code word — the worst
-/// single ring error (DESIGN.md §5) — must neither anchor a wrong frame nor stop the true
+/// single ring error (docs/design.md §5) — must neither anchor a wrong frame nor stop the true
 /// centre from anchoring.
 #[test]
 fn samples_with_a_false_centre_code() {

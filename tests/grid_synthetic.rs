@@ -133,7 +133,7 @@ fn texture(board: &Board, ringed: &std::collections::HashSet<Hex>, p: Vector2<f6
 }
 
 /// Render a side through a view: 2×2 supersampling, Gaussian blur σ = 0.8 px, black 20,
-/// white 200 (DESIGN.md §9 single-frame conditions, noise-free).
+/// white 200 (docs/design.md §9 single-frame conditions, noise-free).
 fn render(board: &Board, side: Side, view: &View) -> GrayImage {
     let ringed = board.ringed(side);
     let sharp = GrayImage::from_fn(view.width, view.height, |x, y| {

@@ -1,4 +1,4 @@
-//! The whole hardware path in one process (DESIGN.md §11, issue 6): the real capture engine
+//! The whole hardware path in one process (docs/design.md §11, issue 6): the real capture engine
 //! drives a GigE Vision camera (Aravis, opened by address, on the in-process loopback camera
 //! that serves the simulator's rendered stack of the rig's board pose), the serial trigger
 //! controller (the host driver on one end of a pty pair, the firmware model on the other; the
@@ -414,7 +414,7 @@ fn assert_reads_back(data: &Dataset, pose: usize, served: &[Pixels]) {
 /// the renderer's truth (interior: uniform albedo within ±3 px, where the PSF does not mix
 /// the phases of differently bright neighbours, which is optics, not decoding).
 ///
-/// Per pixel the decoder's noise model predicts σ_φ = √(2/N)·σ_I(A)/B (DESIGN.md §6) and
+/// Per pixel the decoder's noise model predicts σ_φ = √(2/N)·σ_I(A)/B (docs/design.md §6) and
 /// σ_u = W·σ_φ/(2π·√Σn²) (σ_v likewise). An error beyond 6 of those is gross (a wrong fringe
 /// order): none where σ_φ ≤ 0.10 rad (§6: ≈ 5·10⁻⁷ per pixel there); among the noisier
 /// valid pixels (validity B ≥ 5σ_I allows σ_φ 0.16 with N = 3) no more than a rate of

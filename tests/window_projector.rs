@@ -1,4 +1,4 @@
-//! The window projector under Xvfb (DESIGN.md §11): slides on screen pixel for pixel, errors
+//! The window projector under Xvfb (docs/design.md §11): slides on screen pixel for pixel, errors
 //! naming the projector, a window destroyed or killed from outside, the X server gone, and a
 //! capture whose projector window is killed mid-sequence.
 //!

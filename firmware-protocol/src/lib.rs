@@ -1,4 +1,4 @@
-//! Wire protocol between the hexcal host and the camera trigger controller (DESIGN.md §12).
+//! Wire protocol between the hexcal host and the camera trigger controller (docs/design.md §12).
 //!
 //! Takes typed messages ([`Request`] from the host, [`ControllerMessage`] from the
 //! controller) and gives the bytes that go on the serial line, and back: postcard encoding,

@@ -1,4 +1,4 @@
-//! A model of the trigger-controller firmware (DESIGN.md §12), speaking
+//! A model of the trigger-controller firmware (docs/design.md §12), speaking
 //! `hexcal-firmware-protocol` on any byte stream.
 //!
 //! [`FirmwareModel`] is the controller's state machine: bytes and the controller clock in,

@@ -1,6 +1,6 @@
 //! The geometry pass: once per camera and target pose, trace every pixel to the target and
 //! integrate the texture over the pixel's footprint. Frames are then shaded from this buffer
-//! without tracing again (DESIGN.md §9).
+//! without tracing again (docs/design.md §9).
 //!
 //! Pixels are integrated in three ways:
 //! - **uniform**: no texture edge or outline within the footprint — the texel at the centre;

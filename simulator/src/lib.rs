@@ -1,4 +1,4 @@
-//! The physics behind hexcal's simulated rig (DESIGN.md §9).
+//! The physics behind hexcal's simulated rig (docs/design.md §9).
 //!
 //! This crate knows nothing of hex boards or of hexcal's lens model: it renders any planar
 //! textured target through any lens that implements [`Lens`], adds the imaging chain

@@ -1,5 +1,5 @@
 //! The imaging chain from irradiance to a quantised frame: vignetting → Gaussian PSF → shot
-//! and read noise → gamma → quantisation (DESIGN.md §9).
+//! and read noise → gamma → quantisation (docs/design.md §9).
 //!
 //! Intensities are in DN of an 8-bit scale (full scale 255) whatever the output depth; a
 //! 12- or 16-bit frame stores the same signal times (2^bits − 1)/255, so changing `bits`

@@ -1,4 +1,4 @@
-//! The calibration board (DESIGN.md §3): a double-sided planar target of white circles on
+//! The calibration board (docs/design.md §3): a double-sided planar target of white circles on
 //! black in a hexagonal lattice, with dark marker rings that encode the board centre and
 //! which side is seen.
 //!
@@ -361,7 +361,7 @@ impl SideTransform {
 }
 
 impl Board {
-    /// The default board "hex600" (DESIGN.md §3).
+    /// The default board "hex600" (docs/design.md §3).
     pub fn hex600() -> Board {
         let code = |s| Code::parse(s).expect("built-in code");
         Board {
@@ -540,19 +540,10 @@ mod tests {
         assert!(!Code::parse("011111").unwrap().bit(0));
     }
 
-    /// The independent sample images' ground truth (DESIGN.md §3 rendered by a program that
-    /// shares no code with hexcal): `$HEXCAL_SAMPLES`, else `shared/samples/detect` beside an
-    /// ancestor of the crate.
+    /// The independent sample images' ground truth (docs/design.md §3 rendered by a program that
+    /// shares no code with hexcal), vendored in `tests/data/samples`.
     fn sample(name: &str) -> serde_json::Value {
-        let dir = std::env::var_os("HEXCAL_SAMPLES")
-            .map(std::path::PathBuf::from)
-            .or_else(|| {
-                std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                    .ancestors()
-                    .map(|a| a.join("shared/samples/detect"))
-                    .find(|d| d.is_dir())
-            })
-            .expect("samples not found: set HEXCAL_SAMPLES to …/shared/samples/detect");
+        let dir = crate::testdata::samples_dir();
         let text = std::fs::read_to_string(dir.join(name)).expect(name);
         serde_json::from_str(&text).expect(name)
     }

@@ -1,4 +1,4 @@
-//! The rules a board must keep for its codes to decode (DESIGN.md §3) and for its geometry
+//! The rules a board must keep for its codes to decode (docs/design.md §3) and for its geometry
 //! to make sense; [`Board::validate`] names the field that breaks one.
 
 use super::{Board, Code, Hex, MarkerKind, Side};
@@ -332,7 +332,7 @@ mod tests {
         );
     }
 
-    /// DESIGN.md §3: with spacing 6 any non-marker circle has at most 2 ringed neighbours.
+    /// docs/design.md §3: with spacing 6 any non-marker circle has at most 2 ringed neighbours.
     #[test]
     fn hex600_non_marker_circles_see_at_most_two_rings() {
         let b = Board::hex600();

@@ -1,4 +1,4 @@
-//! Bundle adjustment over all devices, board poses and both board sides (DESIGN.md §8).
+//! Bundle adjustment over all devices, board poses and both board sides (docs/design.md §8).
 //!
 //! Model (§8): x = π(K_d, D_d, T_d · S_k · F_s · X), with T_d = T_device_ref (the reference
 //! device is the gauge), S_k = T_ref_board of board pose k, F_s the side transform

@@ -1,5 +1,5 @@
 //! The image of a board circle: where a camera sees the centre of the ellipse a circle of
-//! radius R projects to (DESIGN.md §8, bias-free circle model).
+//! radius R projects to (docs/design.md §8, bias-free circle model).
 //!
 //! A detector measures the centre of the imaged outline, not the image of the circle's
 //! centre; under perspective the two differ by up to a few tenths of a pixel at strong tilt.
@@ -54,7 +54,7 @@ pub fn ellipse_center(
 
 /// Perspective bias of a circle's image-ellipse centre in undistorted normalised
 /// coordinates for a pinhole: the centre of the conic C = H⁻ᵀ·diag(1, 1, −R²)·H⁻¹ with
-/// H = [r1 r2 P_c] (DESIGN.md §8) minus the projected centre P_c.
+/// H = [r1 r2 P_c] (docs/design.md §8) minus the projected centre P_c.
 pub fn ellipse_bias(
     device_from_side: &Isometry3<f64>,
     center: Point2<f64>,

@@ -1,4 +1,4 @@
-//! Calibration (DESIGN.md §7–8): registration of unanchored views ([`views`]), Zhang's
+//! Calibration (docs/design.md §7–8): registration of unanchored views ([`views`]), Zhang's
 //! planar initialisation per device ([`zhang`]), the pose graph ([`posegraph`]) and one
 //! bundle adjustment over all devices, board poses and both sides ([`bundle`], with the
 //! circle model of [`circle`]); [`pipeline::calibrate`] runs them in order.

@@ -1,4 +1,4 @@
-//! The whole calibration from labelled views (DESIGN.md §7–8): registration of unanchored
+//! The whole calibration from labelled views (docs/design.md §7–8): registration of unanchored
 //! views, Zhang's initialisation per device, the pose graph, one bundle adjustment.
 //!
 //! Takes the rig's devices (names, kinds, image sizes), the board and every camera's

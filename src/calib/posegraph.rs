@@ -1,4 +1,4 @@
-//! Pose-graph initialisation (DESIGN.md §8): a maximum spanning tree over (device, board
+//! Pose-graph initialisation (docs/design.md §8): a maximum spanning tree over (device, board
 //! pose) pairs weighted by point counts chains per-view pose estimates into one frame.
 //!
 //! Takes, per (device, board pose) pair, an estimate of T_device_board and the number of

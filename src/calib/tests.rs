@@ -221,7 +221,7 @@ mod bundle_adjustment {
         let rig = SyntheticRig::paper(10, sigma, 7);
         let sol = bundle::adjust(&rig.perturbed_start(8), &Options::default()).unwrap();
         let (n, p) = sol.dof;
-        // RMS per coordinate of the inliers → σ·√(1 − p/n) (DESIGN.md §8); a 4σ trim of 2D
+        // RMS per coordinate of the inliers → σ·√(1 − p/n) (docs/design.md §8); a 4σ trim of 2D
         // Gaussian norms removes 3e-4 of them and lowers the RMS by < 0.5 %.
         let (sq, cnt) = sol
             .residuals
@@ -391,7 +391,7 @@ mod pipeline {
         order.shuffle(&mut rng);
         let partial_count = (0.2 * truth.len() as f64).round() as usize;
         // Projector coordinates register a view only against an anchored view of the same
-        // board pose and side (DESIGN.md §7): the random choice skips a view that would leave
+        // board pose and side (docs/design.md §7): the random choice skips a view that would leave
         // its (pose, side) without one.
         let mut anchored: HashMap<(usize, String), usize> = HashMap::new();
         let key = |v: &CameraView| (v.pose, format!("{:?}", v.frame));

@@ -1,4 +1,4 @@
-//! Gauge-free verification of a calibration (DESIGN.md §10): triangulate a board pose the
+//! Gauge-free verification of a calibration (docs/design.md §10): triangulate a board pose the
 //! calibration did not use from device pairs and compare with the board's geometry.
 //!
 //! Takes calibrated devices and labelled views of held-out poses; gives per device pair

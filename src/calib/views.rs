@@ -1,6 +1,6 @@
 //! Correspondences in, observations out: one camera's labelled view of one board pose with
 //! the projector coordinates decoded at its circles, the registration of views whose grid
-//! is not anchored (DESIGN.md §7), and the flattening into bundle-adjustment observations.
+//! is not anchored (docs/design.md §7), and the flattening into bundle-adjustment observations.
 //!
 //! Registration uses projector coordinates as descriptors. An unanchored view's points are
 //! matched to anchored points of another camera at the same board pose under the same

@@ -1,4 +1,4 @@
-//! Zhang's planar initialisation (DESIGN.md §8): normalised DLT homographies per view,
+//! Zhang's planar initialisation (docs/design.md §8): normalised DLT homographies per view,
 //! closed-form intrinsics with zero skew, poses from homographies, a linear (k1, k2) start.
 //!
 //! Z. Zhang, "A flexible new technique for camera calibration", IEEE TPAMI 22(11), 2000;

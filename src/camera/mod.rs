@@ -1,4 +1,4 @@
-//! Lens model shared by cameras and projectors (DESIGN.md §2): a pinhole with OpenCV's
+//! Lens model shared by cameras and projectors (docs/design.md §2): a pinhole with OpenCV's
 //! radial-tangential distortion (k1, k2, p1, p2, k3 and the optional rational k4–k6), in
 //! OpenCV's parameter order and meaning so exported models drop into OpenCV code.
 //!

@@ -1,4 +1,4 @@
-//! Lockstep capture (DESIGN.md §11): drive every projector and camera of a rig through the
+//! Lockstep capture (docs/design.md §11): drive every projector and camera of a rig through the
 //! phase-shift sequence, one board pose at a time.
 //!
 //! Takes boxed [`Camera`]s, [`Projector`]s and an optional hardware [`Trigger`]; gives, per

@@ -48,7 +48,7 @@ pub fn board(rig: &RigFile, base: &Path) -> Result<Board, String> {
     Board::load(base.join(&rig.board)).map_err(|e| format!("board: {e}"))
 }
 
-/// The phase-shift sequence of a rig file (DESIGN.md §6): the default for its projectors
+/// The phase-shift sequence of a rig file (docs/design.md §6): the default for its projectors
 /// (gamma 1 is linear, others uncorrected) unless `steps` is set; `steps` below 5P means the
 /// projectors' gamma is linearised by hexcal (frequencies 1…P). Fringe counts as given.
 pub fn sequence(rig: &RigFile) -> Result<Sequence, String> {

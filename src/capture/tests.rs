@@ -380,7 +380,7 @@ fn decoded_stack_folders_match_the_projector_truth() {
         "{n} interior pixels: u RMS {rms:.3} px, predicted σ_u {:.3}",
         p.noise.sigma_u
     );
-    // DESIGN.md §6 acceptance: RMS ≤ 1.2 × the predicted σ_u.
+    // docs/design.md §6 acceptance: RMS ≤ 1.2 × the predicted σ_u.
     assert!(n > 200 && rms <= 1.2 * p.noise.sigma_u, "{n} px, rms {rms}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -1,4 +1,4 @@
-//! Correspondences (DESIGN.md §7): a camera's labelled grid and the projectors' decoded maps
+//! Correspondences (docs/design.md §7): a camera's labelled grid and the projectors' decoded maps
 //! in that camera become one [`CameraView`] — every labelled circle with its ellipse centre
 //! and, for each projector lighting it, the projector pixel (u, v) at that centre.
 //!
@@ -239,7 +239,7 @@ pub fn camera_view(
 #[cfg(test)]
 mod tests;
 
-/// How well the cameras agree on one projector's pixels (DESIGN.md §7): the same board
+/// How well the cameras agree on one projector's pixels (docs/design.md §7): the same board
 /// circle of the same pose, lit by the projector and seen by two cameras, should decode to
 /// the same projector pixel.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]

@@ -1,7 +1,7 @@
 //! Projector pixels at ellipse centres against exact projector geometry: a camera with a
 //! k1 = −0.3 lens sees the board's front; a projector at another angle lights it. The true
 //! map (u, v)(x, y) follows each camera pixel's ray onto the board and into the projector;
-//! the "decoded" maps are that plus Gaussian decoding noise of DESIGN.md §9 (σ_u = 0.35,
+//! the "decoded" maps are that plus Gaussian decoding noise of docs/design.md §9 (σ_u = 0.35,
 //! σ_v = 0.2 projector px), valid where the noise-free image is white.
 
 use super::*;

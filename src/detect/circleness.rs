@@ -1,4 +1,4 @@
-//! Multi-scale circleness (paper Eqs. 1–4, DESIGN.md §4) and its 3×3 peaks.
+//! Multi-scale circleness (paper Eqs. 1–4, docs/design.md §4) and its 3×3 peaks.
 //!
 //! Scale-normalised Hessians σ²·H of the Gaussian-smoothed image on a pyramid: each scale
 //! is evaluated on the coarsest level where its σ is at least [`MIN_LEVEL_SIGMA`] level
@@ -40,7 +40,7 @@ pub(crate) struct Constants {
 }
 
 impl Constants {
-    /// α = 1/(4 ln 2) and β = e²·ln2/(2·h_ref²) (DESIGN.md §4).
+    /// α = 1/(4 ln 2) and β = e²·ln2/(2·h_ref²) (docs/design.md §4).
     pub(crate) fn new(h_ref: f64) -> Constants {
         let ln2 = std::f64::consts::LN_2;
         let e2 = std::f64::consts::E * std::f64::consts::E;
@@ -303,7 +303,7 @@ fn band_peaks_generic(
     peaks
 }
 
-/// Reference contrast h_ref (DESIGN.md §4): 0.3·(P95 − P5) of the image intensities, but
+/// Reference contrast h_ref (docs/design.md §4): 0.3·(P95 − P5) of the image intensities, but
 /// at least 10 σ_noise, so that an image of mostly flat background does not make noise
 /// look contrasted (a disk of contrast 3 σ_noise then scores C < 0.02). From a regular
 /// subsample of at most ~250 000 pixels.
@@ -396,7 +396,7 @@ mod tests {
         assert!(out.iter().any(|&c| c > 0.01), "the blob must register");
     }
 
-    /// DESIGN.md §4: for a disk of contrast h_ref the normalised eigenvalues peak near −h/e,
+    /// docs/design.md §4: for a disk of contrast h_ref the normalised eigenvalues peak near −h/e,
     /// so C ≈ 0.303·½; with the Gaussian-smoothed ideal disk the second factor is exactly ½
     /// when both eigenvalues equal −h/e.
     #[test]

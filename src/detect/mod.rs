@@ -1,4 +1,4 @@
-//! Circle detection (DESIGN.md §4): multi-scale Hessian circleness, non-maximum suppression
+//! Circle detection (docs/design.md §4): multi-scale Hessian circleness, non-maximum suppression
 //! by radius, and a subpixel centre from an ellipse fitted to each circle's outer edge.
 //!
 //! Takes a grey image and gives every white circle it finds as an [`Ellipse`] with a radius
@@ -123,7 +123,7 @@ impl Default for DetectParams {
     }
 }
 
-/// Detects the white circles of a grey image (DESIGN.md §4), strongest first.
+/// Detects the white circles of a grey image (docs/design.md §4), strongest first.
 pub fn detect(image: &GrayImage, params: &DetectParams) -> Vec<Circle> {
     let (w, h) = (image.width() as usize, image.height() as usize);
     if w < 8 || h < 8 {
@@ -264,7 +264,7 @@ impl Buckets {
     }
 }
 
-/// Non-maximum suppression by radius (DESIGN.md §4): strongest first, a peak within
+/// Non-maximum suppression by radius (docs/design.md §4): strongest first, a peak within
 /// r̂ = √2·σ* of a stronger kept one is dropped.
 fn suppress(mut peaks: Vec<Peak>) -> Vec<Peak> {
     peaks.sort_by(|a, b| b.score.total_cmp(&a.score));

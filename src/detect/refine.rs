@@ -1,4 +1,4 @@
-//! Subpixel refinement of one circleness peak (DESIGN.md §4): edge points on rays from the
+//! Subpixel refinement of one circleness peak (docs/design.md §4): edge points on rays from the
 //! coarse centre, each the crossing of the local (background + foreground)/2 level on the
 //! circle's *outer* boundary, and a robust direct ellipse fit to them.
 //!
@@ -25,7 +25,7 @@ use super::fit::{self, fit_ellipse, Conic};
 use super::{Circle, Ellipse};
 use nalgebra::{Point2, Vector2};
 
-/// Middle of a marker's white outer annulus (0.75–1 R, DESIGN.md §3) / circle radius.
+/// Middle of a marker's white outer annulus (0.75–1 R, docs/design.md §3) / circle radius.
 const RING_ANNULUS_MID: f64 = 0.875;
 /// Largest fraction of the inward rays that may meet the image border inside the circle. A
 /// rim δ px past the border cuts arccos(1 − δ/r)/π of the rays: 12 % lets through slivers
@@ -33,7 +33,7 @@ const RING_ANNULUS_MID: f64 = 0.875;
 /// labelled past the border then have centre errors ≤ 0.02 px, against up to 2 px without
 /// this check.
 const MAX_CUT_RAYS: f64 = 0.12;
-/// Smallest accepted b/a: a circle tilted by ≤ 75° (DESIGN.md's range, cos 75° = 0.26) still
+/// Smallest accepted b/a: a circle tilted by ≤ 75° (docs/design.md's range, cos 75° = 0.26) still
 /// reads ≥ 0.23 under strong perspective; thinner fits are slivers of larger outlines.
 const MIN_AXIS_RATIO: f64 = 0.2;
 /// The detection peak must lie inside the fitted ellipse scaled by this: a thin ellipse's

@@ -8,7 +8,7 @@ use super::{Ellipse, GrayImage};
 use nalgebra::Point2;
 
 /// One white ellipse; a ringed one carries a dark annulus between 0.45 and 0.75 of its size
-/// (DESIGN.md §3).
+/// (docs/design.md §3).
 #[derive(Clone, Copy, Debug)]
 pub struct Blob {
     /// Outline of the blob.
@@ -127,7 +127,7 @@ pub fn quantise8(img: &mut GrayImage) {
     }
 }
 
-/// The hex600 board's circles (DESIGN.md §3: pitch 20 mm, radius 6 mm, |x| ≤ 290 mm,
+/// The hex600 board's circles (docs/design.md §3: pitch 20 mm, radius 6 mm, |x| ≤ 290 mm,
 /// |y| ≤ 230 mm, 797 circles) at `radius` px, centred in a `width`×`height` image and
 /// foreshortened by `tilt_deg` along y; circles not wholly inside the image are left out,
 /// and every seventh is ringed. Levels 30 (background) and 200 (circles).

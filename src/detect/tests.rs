@@ -1,24 +1,11 @@
 //! Whole-detector tests: the independent sample images with exact ground truth
-//! (`shared/samples/detect`), and synthetic area-integrated patterns.
+//! (`tests/data/samples`), and synthetic area-integrated patterns.
 
 use super::synth::{add_noise, blur_psf, quantise8, render, Blob, Scene};
 use super::*;
 use crate::imageio::load_gray;
 use rand::{Rng, SeedableRng};
-use std::path::PathBuf;
-
-/// `shared/samples/detect`: `$HEXCAL_SAMPLES_DIR`, else found beside an ancestor of the
-/// crate (the project layout puts `shared/` next to the repository or its worktrees).
-fn samples_dir() -> PathBuf {
-    if let Ok(d) = std::env::var("HEXCAL_SAMPLES_DIR") {
-        return PathBuf::from(d);
-    }
-    let here = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    here.ancestors()
-        .map(|a| a.join("shared/samples/detect"))
-        .find(|p| p.join("README.md").exists())
-        .expect("shared/samples/detect not found beside the repository; set HEXCAL_SAMPLES_DIR")
-}
+use crate::testdata::samples_dir;
 
 /// A ground-truth circle: exact image-ellipse centre and radius √(ab).
 struct Truth {

@@ -5,7 +5,7 @@
 //! Takes image paths (8- or 16-bit, grey or colour PNG/JPEG/TIFF, read by
 //! [`crate::imageio`]) and a board; gives one [`ImageRecord`] per readable image, in input
 //! order, and an error naming the file for each image that cannot be read. Pixel (0, 0) is
-//! the centre of the top-left pixel (DESIGN.md §2).
+//! the centre of the top-left pixel (docs/design.md §2).
 
 pub mod bench;
 mod overlay;
@@ -62,7 +62,7 @@ pub struct PointRecord {
     pub r: i32,
     /// The side seen, when markers fixed it.
     pub side: Option<Side>,
-    /// Whether (q, r) and side are in that side's own board frame (DESIGN.md §3).
+    /// Whether (q, r) and side are in that side's own board frame (docs/design.md §3).
     pub anchored: bool,
 }
 

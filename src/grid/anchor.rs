@@ -1,4 +1,4 @@
-//! Anchoring a component (DESIGN.md §5): the decoded marker cells of a component propose maps
+//! Anchoring a component (docs/design.md §5): the decoded marker cells of a component propose maps
 //! from its frame into a side's board frame; the board's ring pattern confirms or refutes
 //! them.
 

@@ -1,4 +1,4 @@
-//! Pass 2 of grid building (DESIGN.md §5): breadth-first growth of a lattice labelling over
+//! Pass 2 of grid building (docs/design.md §5): breadth-first growth of a lattice labelling over
 //! the local cells, best cells first, placing a cell only when its rotation agrees with every
 //! neighbour already placed.
 

@@ -1,4 +1,4 @@
-//! Pass 1 of grid building (DESIGN.md §5): one local hexagonal cell per detection, found
+//! Pass 1 of grid building (docs/design.md §5): one local hexagonal cell per detection, found
 //! with chord-normalised distances in the centre circle's own ellipse metric.
 
 use super::GridParams;
@@ -125,7 +125,7 @@ impl Cell {
 }
 
 /// The whitening map W = M^(−1/2)/4 of a circle's outer-boundary ellipse, so that |W·Δ| is
-/// the chord-normalised distance ν = √(ΔᵀM⁻¹Δ)/4 (DESIGN.md §5). W is symmetric positive
+/// the chord-normalised distance ν = √(ΔᵀM⁻¹Δ)/4 (docs/design.md §5). W is symmetric positive
 /// definite: it keeps the screen's handedness.
 fn whitening(c: &Circle) -> Matrix2<f64> {
     let e = &c.ellipse;

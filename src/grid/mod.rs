@@ -1,4 +1,4 @@
-//! Grid building (DESIGN.md §5): local hexagonal cells with chord-normalised distances,
+//! Grid building (docs/design.md §5): local hexagonal cells with chord-normalised distances,
 //! marker-ring decoding, and breadth-first assembly into one labelled lattice.
 //!
 //! Takes the detected circles of one image (and the image, to read marker rings) and gives
@@ -53,7 +53,7 @@ pub struct LabelledPoint {
     pub anchored: bool,
 }
 
-/// Tolerances of grid building. The defaults follow DESIGN.md §5; the board supplies d/R and
+/// Tolerances of grid building. The defaults follow docs/design.md §5; the board supplies d/R and
 /// the ring radii.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -174,7 +174,7 @@ pub struct Grid {
     pub stats: GridStats,
 }
 
-/// Build the labelled grid of one image from its detected circles (DESIGN.md §5).
+/// Build the labelled grid of one image from its detected circles (docs/design.md §5).
 pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &GridParams) -> Grid {
     let nu = board.pitch / board.radius;
     let found = cell::find_cells(circles, nu, params);

@@ -1,4 +1,4 @@
-//! Marker-ring reading (DESIGN.md §3, §5): is a dark annulus 0.45R–0.75R printed inside a
+//! Marker-ring reading (docs/design.md §3, §5): is a dark annulus 0.45R–0.75R printed inside a
 //! detected white circle?
 
 use crate::detect::{Circle, GrayImage};

@@ -1,4 +1,4 @@
-//! The stack decoder (DESIGN.md §6): one camera's frames in sequence order → per projector
+//! The stack decoder (docs/design.md §6): one camera's frames in sequence order → per projector
 //! wrapped phases, modulation, unwrapped and fused (u, v), reliability and validity; the
 //! ambient image; the per-pixel noise model measured from the stack itself.
 //!
@@ -172,7 +172,7 @@ impl NoiseModel {
     }
 }
 
-/// Run-level phase noise of one projector: the predictions of DESIGN.md §6 from the
+/// Run-level phase noise of one projector: the predictions of docs/design.md §6 from the
 /// measured modulation and noise, over the projector's valid pixels.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PhaseNoise {
@@ -257,7 +257,7 @@ pub struct ProjectorMaps {
 
 impl ProjectorMaps {
     /// The projector's full-white contribution alone (no ambient, no other projector):
-    /// B_p / a_1(γ), i.e. 2·B_p when linear and 2·B_p/0.989 for γ = 2.2 (DESIGN.md §6).
+    /// B_p / a_1(γ), i.e. 2·B_p when linear and 2·B_p/0.989 for γ = 2.2 (docs/design.md §6).
     pub fn lit_image(&self) -> FloatImage {
         let mut img = self.modulation.clone();
         for p in img.pixels_mut() {
@@ -545,7 +545,7 @@ impl<T: Sample> Decoder<T> {
                             }
                         }
                         for (st, &d) in stats_row[x0..x0 + len].iter_mut().zip(dc.iter()) {
-                            // A = X_0/N (DESIGN.md §6).
+                            // A = X_0/N (docs/design.md §6).
                             let a = d * inv_n;
                             if g == 0 {
                                 st.first_mean = a;
@@ -559,7 +559,7 @@ impl<T: Sample> Decoder<T> {
                             let (re, im) = sums.split_at(CHUNK);
                             let re: &[f32; CHUNK] = re.try_into().expect("CHUNK");
                             let im: &[f32; CHUNK] = im.try_into().expect("CHUNK");
-                            // φ_p = arg X_{f_p}, B_p = 2|X_{f_p}|/N (DESIGN.md §6), as 16-bit
+                            // φ_p = arg X_{f_p}, B_p = 2|X_{f_p}|/N (docs/design.md §6), as 16-bit
                             // fractions of a cycle and of full scale (rounded: both ≥ 0; a
                             // phase of 1 cycle wraps to 0).
                             let mut psi = [0u16; CHUNK];
@@ -581,7 +581,7 @@ impl<T: Sample> Decoder<T> {
                     }
                 },
             );
-        // Σ B² of every pixel; then keep (ψ, B) of the candidates only (DESIGN.md §6: a pixel
+        // Σ B² of every pixel; then keep (ψ, B) of the candidates only (docs/design.md §6: a pixel
         // needs B ≥ 3 % of full scale to be valid, so one below half that in the first group
         // cannot be).
         let inv_b_scale = fs / B_STEPS;
@@ -681,7 +681,7 @@ impl<T: Sample> Decoder<T> {
             .iter()
             .map(|&g| pattern_harmonic(g, 1) as f32)
             .collect();
-        // Mean over fundamental: (γ+1)/(2γ) (DESIGN.md §6).
+        // Mean over fundamental: (γ+1)/(2γ) (docs/design.md §6).
         let mean_ratio: Vec<f32> = gammas
             .iter()
             .map(|&g| (pattern_harmonic(g, 0) / pattern_harmonic(g, 1)) as f32)
@@ -693,7 +693,7 @@ impl<T: Sample> Decoder<T> {
         let inv_b_scale = full_scale / B_STEPS;
         let min_b = 0.03 * full_scale;
         let n32 = n as f32;
-        // σ_u = W/(2π)·√(2/N)·σ_I/√(Σ n_i² B_i²) for the weighted fusion (DESIGN.md §6).
+        // σ_u = W/(2π)·√(2/N)·σ_I/√(Σ n_i² B_i²) for the weighted fusion (docs/design.md §6).
         let noise_gain = (2.0 / n32).sqrt();
 
         let npx = w * height as usize;

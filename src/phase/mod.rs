@@ -1,4 +1,4 @@
-//! Multi-projector phase shifting (DESIGN.md §6): the pattern sequence that all P projectors
+//! Multi-projector phase shifting (docs/design.md §6): the pattern sequence that all P projectors
 //! show at once, and the decoder that turns one camera's stack into each projector's
 //! (u, v) map, modulation, validity, ambient and lit images.
 //!

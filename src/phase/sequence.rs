@@ -1,4 +1,4 @@
-//! The multiplexed phase-shift sequence (DESIGN.md §6): which frame shows what on which
+//! The multiplexed phase-shift sequence (docs/design.md §6): which frame shows what on which
 //! projector, the choice of temporal frequencies and step count, pattern images, and the
 //! gamma arithmetic the decoder needs.
 //!
@@ -16,7 +16,7 @@ use std::f64::consts::PI;
 pub const DEFAULT_COUNTS: [u32; 3] = [20, 21, 25];
 
 /// Highest harmonic of an uncorrected projector gamma that the frequency rule keeps apart
-/// from every fundamental (DESIGN.md §6: 2nd at 0.286, 3rd at 0.011 of the fundamental for
+/// from every fundamental (docs/design.md §6: 2nd at 0.286, 3rd at 0.011 of the fundamental for
 /// γ = 2.2; the 4th, at 0.0014, is tolerated).
 pub const CHECKED_HARMONICS: u32 = 3;
 
@@ -328,7 +328,7 @@ impl Sequence {
         Ok(seq)
     }
 
-    /// The default sequence for these projectors (DESIGN.md §6): when any projector has an
+    /// The default sequence for these projectors (docs/design.md §6): when any projector has an
     /// uncorrected gamma, N = 5P with f_p ≡ ±1 (mod 5) = 1, 4, 6, 9, …; otherwise N = 2P+1 with
     /// f_p = 1…P. Fringe counts {20, 21, 25} for columns and rows.
     pub fn default_for(projectors: &[ProjectorSetup]) -> Result<Sequence, SequenceError> {
@@ -542,7 +542,7 @@ impl Sequence {
             Direction::Columns => (u, code.width),
             Direction::Rows => (v, code.height),
         };
-        // Spatial phase φ = 2π·n·(u + ½)/W; temporal shift 2π·f_p·s/N (DESIGN.md §6).
+        // Spatial phase φ = 2π·n·(u + ½)/W; temporal shift 2π·f_p·s/N (docs/design.md §6).
         let phi = 2.0 * PI * f64::from(frame.count) * (pos + 0.5) / f64::from(size);
         let shift =
             2.0 * PI * f64::from(code.frequency * frame.step % self.steps) / f64::from(self.steps);
@@ -605,7 +605,7 @@ mod tests {
 
     #[test]
     fn default_sequences_follow_the_design_rule() {
-        // DESIGN.md §6: N = 5P, f = {1}, {1,4}, {1,4,6}, {1,4,6,9} for uncorrected gamma.
+        // docs/design.md §6: N = 5P, f = {1}, {1,4}, {1,4,6}, {1,4,6,9} for uncorrected gamma.
         let want = [vec![1], vec![1, 4], vec![1, 4, 6], vec![1, 4, 6, 9]];
         for (i, f) in want.iter().enumerate() {
             let p = i + 1;
@@ -738,7 +738,7 @@ mod tests {
 
     #[test]
     fn gamma_harmonics_match_the_design_figures() {
-        // DESIGN.md §6, γ = 2.2: 2nd 0.286, 3rd 0.011, 4th 0.0014 of the fundamental; mean
+        // docs/design.md §6, γ = 2.2: 2nd 0.286, 3rd 0.011, 4th 0.0014 of the fundamental; mean
         // over fundamental (γ+1)/(2γ) = 0.727; 2·a_1 = 0.989 of full white.
         let a1 = pattern_harmonic(2.2, 1);
         assert!((pattern_harmonic(2.2, 2) / a1 - 0.286).abs() < 0.0005);

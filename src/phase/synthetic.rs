@@ -1,7 +1,7 @@
 //! A synthetic phase-shift scene for the decoder's tests and benchmark: no lens and no board,
 //! only what decoding sees. Per camera pixel: each projector's ground-truth (u, v) from a
 //! homography, whether it lights the pixel, a vignetted gain, an albedo with dark disks and
-//! an ambient level. Frames follow the imaging chain of DESIGN.md §9: irradiance with the
+//! an ambient level. Frames follow the imaging chain of docs/design.md §9: irradiance with the
 //! projector response applied to each pattern inside the sum → Gaussian PSF → read + shot
 //! noise → quantisation, all seeded.
 
@@ -13,7 +13,7 @@ use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 use std::f64::consts::TAU;
 
-/// Camera-side imaging conditions (defaults: DESIGN.md §9 "default imaging conditions").
+/// Camera-side imaging conditions (defaults: docs/design.md §9 "default imaging conditions").
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Imaging {
     /// Read noise σ (DN).
@@ -191,7 +191,7 @@ pub struct Truth {
 
 impl Truth {
     /// The truth-based standard deviations (σ_u, σ_v) of a decoded projector coordinate,
-    /// per camera pixel index, for projector `p` (DESIGN.md §6): σ_φ = √(2/N)·σ_I/B,
+    /// per camera pixel index, for projector `p` (docs/design.md §6): σ_φ = √(2/N)·σ_I/B,
     /// σ_u = W·σ_φ/(2π·√Σn²), σ_v likewise with H and the row counts.
     pub fn sigma_uv(&self, seq: &Sequence, p: usize) -> impl Fn(usize) -> (f64, f64) + '_ {
         let norm = |d| {

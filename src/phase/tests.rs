@@ -1,5 +1,5 @@
 //! Acceptance tests of the decoder on synthetic stacks at the default imaging conditions of
-//! DESIGN.md §9 (8 bit, read noise 2 DN, shot variance 0.1·I, PSF σ 0.8 px, ambient 40 DN on
+//! docs/design.md §9 (8 bit, read noise 2 DN, shot variance 0.1·I, PSF σ 0.8 px, ambient 40 DN on
 //! white, P projectors sharing 195 DN, projector gamma 2.2), against ground truth.
 
 use super::synthetic::{accuracy, Renderer, Scene, Truth};
@@ -55,7 +55,7 @@ fn check_case(case: &Case, label: &str) {
     let accs = accuracy(decoded, truth, seq);
     for (p, maps) in decoded.projectors.iter().enumerate() {
         let acc = accs[p];
-        // Truth-based prediction over the same valid pixels (DESIGN.md §6), RMS over pixels.
+        // Truth-based prediction over the same valid pixels (docs/design.md §6), RMS over pixels.
         let sigma = truth.sigma_uv(seq, p);
         let (mut pu, mut pv, mut pu_all, mut cnt_all) = (0f64, 0f64, 0f64, 0usize);
         for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
@@ -135,7 +135,7 @@ fn check_case(case: &Case, label: &str) {
     // Ambient image against the truth: A − Σ κ_p·B_p, κ_p = a_0/a_1 (0.727 for γ = 2.2).
     // Where projector p lights the pixel (B ≫ σ_I): Var(Ā) = σ_I²/(G·N) and B_p, the RMS over
     // G groups of a modulation with variance 2σ_I²/N, has variance 2σ_I²/(G·N), so the error
-    // is Gaussian with σ_amb² = σ_I²·(1 + 2·Σκ_p²)/(G·N) (DESIGN.md §6 for G = 1, κ = 1).
+    // is Gaussian with σ_amb² = σ_I²·(1 + 2·Σκ_p²)/(G·N) (docs/design.md §6 for G = 1, κ = 1).
     // Where p lights nothing, B_p² = θ·(Y − 1)₊ with θ = 4σ_I²/N and Y ~ Gamma(G, 1/G), whose
     // mean square is θ·E(Y − 1)₊ = θ·e^{−G}·G^G/G!: not Gaussian, so only its RMS is checked.
     // Shot noise correlates A with B_p (brighter frames are noisier), which lowers the

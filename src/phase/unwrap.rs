@@ -1,4 +1,4 @@
-//! Temporal phase unwrapping by orthographic projection (DESIGN.md §6).
+//! Temporal phase unwrapping by orthographic projection (docs/design.md §6).
 //!
 //! With M fringe counts n_i across the screen and t ∈ [0, 1) the position on it, the wrapped
 //! phases (in cycles) are ψ_i = n_i·t − k_i with integer fringe orders k_i. Projecting ψ onto
@@ -422,7 +422,7 @@ mod tests {
 
     #[test]
     fn spacing_of_default_counts_matches_design() {
-        // DESIGN.md §6: {20, 21, 25} has constellation spacing 1.05 rad; {15, 19} 0.26 rad.
+        // docs/design.md §6: {20, 21, 25} has constellation spacing 1.05 rad; {15, 19} 0.26 rad.
         let c = Constellation::new(&[20, 21, 25]).unwrap();
         assert!((c.spacing() - 1.05).abs() < 0.01, "spacing {}", c.spacing());
         let c = Constellation::new(&[15, 19]).unwrap();

@@ -1,4 +1,4 @@
-//! The one-page HTML calibration report (DESIGN.md §8, §10).
+//! The one-page HTML calibration report (docs/design.md §8, §10).
 //!
 //! Takes a [`Calibration`], optional held-out verification figures ([`PairCheck`]s), a title
 //! and the caller's warnings; gives one self-contained HTML page (inline CSS, figures as
@@ -157,7 +157,7 @@ fn kind_colour(k: DeviceKind) -> &'static str {
     }
 }
 
-/// RMS of 2D residual norms the joint fit expects: √2·σ̂·√(1 − p/n) (DESIGN.md §8).
+/// RMS of 2D residual norms the joint fit expects: √2·σ̂·√(1 − p/n) (docs/design.md §8).
 fn expected_rms(cal: &Calibration) -> f64 {
     let (n, p) = cal.solution.dof;
     let keep = if n > 0 {

@@ -1,6 +1,6 @@
 //! What a calibration gives its users: hexcal's own calibration file, an OpenCV FileStorage
 //! YAML per device, a Kalibr-style camchain, and the per-device residual table of the
-//! paper's Table I (DESIGN.md §8).
+//! paper's Table I (docs/design.md §8).
 //!
 //! Takes a [`Calibration`]; gives serialisable values and text. Units: millimetres and
 //! pixels; poses are `T_device_ref` (a point in the reference device's frame mapped into

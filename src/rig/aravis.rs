@@ -1,4 +1,4 @@
-//! GenICam cameras through Aravis (DESIGN.md §11), behind the cargo feature `aravis`.
+//! GenICam cameras through Aravis (docs/design.md §11), behind the cargo feature `aravis`.
 //!
 //! Takes a camera's rig-file name and its address (IP address, serial number or Aravis
 //! device id) and gives a [`Camera`]: Mono8 / Mono10 / Mono12 / Mono16 frames, exposure

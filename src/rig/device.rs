@@ -1,4 +1,4 @@
-//! Device traits (DESIGN.md §11): what the capture engine needs from a camera, a projector
+//! Device traits (docs/design.md §11): what the capture engine needs from a camera, a projector
 //! and a trigger. Every driver (Aravis, V4L2, window, serial controller) and the simulated
 //! rig implement them, so one capture loop drives them all.
 //!

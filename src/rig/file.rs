@@ -1,4 +1,4 @@
-//! Rig files (DESIGN.md §13): one TOML file describes a rig — board, cameras, projectors,
+//! Rig files (docs/design.md §13): one TOML file describes a rig — board, cameras, projectors,
 //! trigger controller, phase-shift sequence, timing and, for simulated devices, their
 //! ground truth and the board poses. Unknown keys and impossible values are errors that
 //! name the key and its line. The format is documented in `docs/rig-file.md`.
@@ -138,7 +138,7 @@ fn default_pulse() -> u32 {
     100
 }
 
-/// The phase-shift sequence (DESIGN.md §6).
+/// The phase-shift sequence (docs/design.md §6).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SequenceSpec {

@@ -1,4 +1,4 @@
-//! The rig (DESIGN.md §11, §13): rig files, the device traits every driver implements, and
+//! The rig (docs/design.md §11, §13): rig files, the device traits every driver implements, and
 //! the drivers — the serial trigger controller ([`trigger`]), which pulses the cameras'
 //! trigger lines and reports each frame's controller timestamp, and the simulated rig.
 

@@ -21,7 +21,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// Ambient light on white (DN) and the level every projector together adds up to on white
-/// (DESIGN.md §9 default stack conditions).
+/// (docs/design.md §9 default stack conditions).
 const AMBIENT_DN: f64 = 40.0;
 const WHITE_DN: f64 = 235.0;
 

@@ -1,4 +1,4 @@
-//! Host driver for the serial camera-trigger controller (DESIGN.md §11, §12).
+//! Host driver for the serial camera-trigger controller (docs/design.md §11, §12).
 //!
 //! [`TriggerController`] opens a serial port (or takes any open [`SerialPort`], such as one
 //! end of a pty pair with the simulated firmware on the other), checks the protocol version

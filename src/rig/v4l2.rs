@@ -1,4 +1,4 @@
-//! Video4Linux2 cameras (DESIGN.md §11), behind the cargo feature `v4l2`.
+//! Video4Linux2 cameras (docs/design.md §11), behind the cargo feature `v4l2`.
 //!
 //! Takes a camera's rig-file name and its device node (`/dev/videoN`) and gives a
 //! [`Camera`]. Two layers: [`V4l2Device`] is the handful of device operations the driver

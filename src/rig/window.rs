@@ -1,4 +1,4 @@
-//! Projectors as borderless windows on X11 monitors (DESIGN.md §11), behind the cargo
+//! Projectors as borderless windows on X11 monitors (docs/design.md §11), behind the cargo
 //! feature `window`.
 //!
 //! Takes a projector's rig-file name, a monitor name (as winit reports it: the RandR output,
@@ -85,7 +85,7 @@ pub fn monitors() -> Result<Vec<Monitor>, DisplayError> {
 }
 
 /// What a window shows, as 0x00RRGGBB pixels. A fringe pattern varies along one axis
-/// only (DESIGN.md §6), so one line of it is kept and repeated.
+/// only (docs/design.md §6), so one line of it is kept and repeated.
 #[derive(Clone, Debug)]
 enum Content {
     /// One grey level everywhere.

@@ -1,4 +1,4 @@
-//! Simulated board views (DESIGN.md §9): hexcal's board, camera model and scene files
+//! Simulated board views (docs/design.md §9): hexcal's board, camera model and scene files
 //! plugged into the `hexcal-simulator` renderer.
 //!
 //! Takes a [`Scene`] (camera, board pose, imaging conditions, seed) and gives a rendered

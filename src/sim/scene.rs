@@ -18,7 +18,7 @@
 //! # eye = [180.0, -380.0, 880.0]
 //! # target = [0.0, 0.0, 0.0]
 //!
-//! [imaging]                # defaults: DESIGN.md §9, single frames
+//! [imaging]                # defaults: docs/design.md §9, single frames
 //! white_dn = 200.0         # DN on an 8-bit scale, whatever `bits` is
 //! black_dn = 20.0
 //! edge_dn = 40.0           # the board's edge faces
@@ -85,7 +85,7 @@ pub struct Scene {
     pub camera: CameraModel,
     /// Where the board is.
     pub pose: PoseSpec,
-    /// Imaging conditions (defaults: DESIGN.md §9, single frames).
+    /// Imaging conditions (defaults: docs/design.md §9, single frames).
     #[serde(default)]
     pub imaging: Imaging,
     /// The board (default hex600).

@@ -1,4 +1,4 @@
-//! Simulator, part 2 (DESIGN.md §9): one camera's whole phase-shift stack of one board pose,
+//! Simulator, part 2 (docs/design.md §9): one camera's whole phase-shift stack of one board pose,
 //! with every projector lighting the board at once.
 //!
 //! The geometry pass runs once: per camera pixel its footprint-integrated albedo and the
@@ -231,7 +231,7 @@ impl StackRenderer {
         if cache.group != Some(frame.group) {
             cache.fill(self, frame.group, [x0, y0, x1, y1]);
         }
-        // Per projector the phase shift of this step: θ = θ₀ − 2π·f_p·s/N (DESIGN.md §6),
+        // Per projector the phase shift of this step: θ = θ₀ − 2π·f_p·s/N (docs/design.md §6),
         // so cos θ = cos θ₀·cos(shift) + sin θ₀·sin(shift).
         let shifts: Vec<(f32, f32)> = self
             .sequence

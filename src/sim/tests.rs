@@ -1,4 +1,4 @@
-//! Tests of simulated views against their ground truth and the shared samples.
+//! Tests of simulated views against their ground truth and the independent samples.
 
 use super::*;
 use crate::board::Hex;
@@ -6,21 +6,7 @@ use crate::camera::{Distortion, Intrinsics};
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector2};
 use serde_json::Value;
 
-/// The shared detection samples: `$HEXCAL_SAMPLES`, else `shared/samples/detect` beside the
-/// repository (as CI lays it out), else the workplace's /work/shared. A missing folder fails
-/// the test rather than skipping it.
-fn samples_dir() -> std::path::PathBuf {
-    let candidates = [
-        std::env::var("HEXCAL_SAMPLES").ok().map(Into::into),
-        Some(Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/samples/detect")),
-        Some("/work/shared/samples/detect".into()),
-    ];
-    candidates
-        .into_iter()
-        .flatten()
-        .find(|p: &std::path::PathBuf| p.join("g1_frontal_00.json").is_file())
-        .expect("shared detection samples not found (set HEXCAL_SAMPLES)")
-}
+use crate::testdata::samples_dir;
 
 /// A sample's camera, pose and JSON.
 fn sample(name: &str) -> (CameraModel, Isometry3<f64>, Value) {
@@ -83,7 +69,7 @@ fn sample_scene(camera: CameraModel, pose: &Isometry3<f64>, v: &Value) -> Scene 
 /// The samples' ground truth is an independent implementation of the same conventions:
 /// pixel origin, lens model, board and back-side frames, lattice, rings.
 #[test]
-fn ground_truth_agrees_with_the_shared_samples() {
+fn ground_truth_agrees_with_the_independent_samples() {
     for name in ["g1_frontal_00", "g5_back_05"] {
         let (camera, pose, v) = sample(name);
         let scene = sample_scene(camera, &pose, &v);
@@ -190,7 +176,7 @@ fn correlation(a: &[f64], b: &[f64]) -> f64 {
 
 /// Our render of a sample's camera and pose looks like the sample around every circle.
 #[test]
-fn renders_correlate_with_the_shared_samples() {
+fn renders_correlate_with_the_independent_samples() {
     for name in ["g1_frontal_00", "g5_back_05"] {
         let (camera, pose, v) = sample(name);
         let scene = sample_scene(camera, &pose, &v);

@@ -4,7 +4,7 @@
 //!
 //! The outline ellipse is the algebraic conic fit of [`RIM_POINTS`] rim points projected
 //! exactly through the full lens model. For a pinhole the outline is an exact ellipse and
-//! the fit reproduces it (its centre is the pole of the vanishing line, DESIGN.md §4/§8);
+//! the fit reproduces it (its centre is the pole of the vanishing line, docs/design.md §4/§8);
 //! with distortion the outline is not quite an ellipse, and the fit is the ellipse an
 //! edge-fitting detector converges to. On the shared samples this agrees with their
 //! `ellipse` to their 1e-6 px rounding (so does the rim polygon's area centroid), whereas

@@ -80,17 +80,9 @@ pub struct Sample {
     pub truth: Truth,
 }
 
-/// The samples folder: `$HEXCAL_SAMPLES`, else `shared/samples/detect` beside an ancestor of
-/// the crate. A missing folder fails loudly rather than skipping.
+/// The vendored samples folder (`tests/data/samples`, README there).
 fn samples_dir() -> PathBuf {
-    if let Some(dir) = std::env::var_os("HEXCAL_SAMPLES") {
-        return dir.into();
-    }
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .ancestors()
-        .map(|a| a.join("shared/samples/detect"))
-        .find(|p| p.is_dir())
-        .expect("sample images not found: set HEXCAL_SAMPLES to …/shared/samples/detect")
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/samples")
 }
 
 /// Load one sample.

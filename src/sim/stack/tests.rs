@@ -1,5 +1,5 @@
 //! Rendered stacks through the whole chain: three projectors light the board at once under
-//! the default stack conditions (DESIGN.md §9: ambient 40 DN on white, the projectors
+//! the default stack conditions (docs/design.md §9: ambient 40 DN on white, the projectors
 //! sharing the rest up to 235 DN, gamma 2.2 uncorrected, so N = 15 and 90 frames, 8 bit,
 //! read noise 2 DN, shot noise, PSF σ 0.8 px), seen through a k1 = −0.3 lens; the decoder
 //! turns each stack into (u, v) maps, detection and the grid label the circles on the
@@ -55,7 +55,7 @@ fn projectors() -> Vec<StackProjector> {
     .collect()
 }
 
-/// Ambient light on white (DN), DESIGN.md §9.
+/// Ambient light on white (DN), docs/design.md §9.
 const AMBIENT: f64 = 40.0;
 
 /// A 640×480 camera with a k1 = −0.3 lens of 50° × 40° field: circles of 11 px radius at the
@@ -166,7 +166,7 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> Vec<CircleError>
             interior_valid as f64 >= 0.99 * interior as f64,
             "{interior_valid} of {interior}"
         );
-        // DESIGN.md §6 acceptance: RMS ≤ 1.2 × prediction, no unwrapping error.
+        // docs/design.md §6 acceptance: RMS ≤ 1.2 × prediction, no unwrapping error.
         assert!(
             n > 10_000 && rms <= 1.2 * predicted,
             "projector {p}: {rms} vs {predicted}"
