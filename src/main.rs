@@ -256,7 +256,10 @@ enum Bench {
 /// `hexcal bench detect`: per image, the median and fastest time of `detect` and the
 /// throughput.
 fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
-    use hexcal::detect::{detect, synth, DetectParams, GrayImage};
+    use {
+        hexcal::detect::{detect, synth, DetectParams},
+        hexcal::images::GrayImage,
+    };
     let inputs: Vec<(String, GrayImage)> = if images.is_empty() {
         vec![
             (
@@ -279,7 +282,7 @@ fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
     } else {
         images
             .iter()
-            .map(|p| Ok((p.display().to_string(), hexcal::imageio::load_gray(p)?)))
+            .map(|p| Ok((p.display().to_string(), hexcal::images::load_gray(p)?)))
             .collect::<anyhow::Result<_>>()?
     };
     let params = DetectParams::default();
@@ -335,7 +338,7 @@ fn calibrate(
         options.bundle.fix_k3 = fix_k3;
         options.bundle.refine_flatness = refine_flatness;
         if let Some(name) = reference {
-            let data = hexcal::capture::dataset::Dataset::open(input)?;
+            let data = hexcal::dataset::Dataset::open(input)?;
             options.bundle.reference = data
                 .info
                 .cameras

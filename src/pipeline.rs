@@ -13,17 +13,23 @@ use crate::board::Board;
 use crate::calib::bundle::{Device, DeviceKind};
 use crate::calib::pipeline::{calibrate, CalibrateOptions, Calibration, DeviceInfo};
 use crate::calib::verify::{verify, PairCheck};
-use crate::capture::dataset::{CameraEntry, Dataset, DatasetInfo, PoseInfo, ProjectorEntry};
-use crate::capture::{open, Session, Timeline};
 use crate::correspond::{camera_view, CameraView, FitParams, ProjectorMap};
+use crate::dataset::{CameraEntry, Dataset, DatasetInfo, PoseInfo, ProjectorEntry};
 use crate::detect::{detect, DetectParams};
 use crate::grid::{build, GridParams};
-use crate::phase::{DecodedStack, Decoder, FrameRef, Sequence};
-use crate::rig::{CameraFrame, Pixels};
+use crate::images::{CameraFrame, Pixels};
 use crossbeam_channel::{bounded, unbounded, Receiver, Sender};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::thread::JoinHandle;
+use {
+    crate::capture::{open, Session},
+    crate::dataset::Timeline,
+};
+use {
+    crate::pattern::Sequence,
+    crate::phase::{DecodedStack, Decoder, FrameRef},
+};
 
 /// What one camera's stack of one pose gave.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -510,8 +516,8 @@ pub fn run(
     let base = rig_path.parent().unwrap_or(Path::new("."));
     let opened = open::open(&rig, base)?;
     let info = DatasetInfo {
-        format: crate::capture::dataset::FORMAT.into(),
-        version: crate::capture::dataset::VERSION,
+        format: crate::dataset::FORMAT.into(),
+        version: crate::dataset::VERSION,
         rig: rig.name.clone(),
         board: rig.board.clone(),
         sequence: opened.sequence.clone(),

@@ -6,9 +6,12 @@
 
 use hexcal::rig::aravis::loopback::synthetic_frame;
 use hexcal::rig::aravis::{list_cameras, AravisCamera, LoopbackCamera, LOOPBACK_ADDRESS};
-use hexcal::rig::{Camera, CameraConfig, CameraFrame, DeviceError, Pixels, TriggerSource};
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
+use {
+    hexcal::images::{CameraFrame, Pixels},
+    hexcal::rig::{Camera, CameraConfig, DeviceError, TriggerSource},
+};
 
 /// One loopback camera at a time: it listens on 127.0.0.1's GVCP port.
 static LOOPBACK: Mutex<()> = Mutex::new(());

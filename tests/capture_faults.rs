@@ -5,7 +5,7 @@
 //! says why and skips.
 
 use hexcal::capture::capture_dataset;
-use hexcal::capture::dataset::{Dataset, StackReader};
+use hexcal::dataset::{Dataset, StackReader};
 use hexcal::rig::file::RigFile;
 use hexcal::rig::sim::SimWorld;
 use std::path::{Path, PathBuf};
@@ -221,9 +221,9 @@ fn a_full_disk_stops_the_capture_naming_file_camera_and_frame_and_loses_nothing(
 
 #[test]
 fn a_frame_written_to_a_full_disk_is_an_error_and_leaves_no_file() {
-    use hexcal::capture::dataset::{CameraEntry, DatasetInfo, ProjectorEntry};
-    use hexcal::capture::StackFrame;
-    use hexcal::rig::{CameraFrame, Pixels};
+    use hexcal::dataset::StackFrame;
+    use hexcal::dataset::{CameraEntry, DatasetInfo, ProjectorEntry};
+    use hexcal::images::{CameraFrame, Pixels};
     let disk = match Tmpfs::mount("full-frame", "256k") {
         Ok(d) => d,
         Err(why) => {
@@ -234,8 +234,8 @@ fn a_frame_written_to_a_full_disk_is_an_error_and_leaves_no_file() {
     let rig = RigFile::parse(RIG, "disk.toml").unwrap();
     let sequence = hexcal::capture::open::sequence(&rig).unwrap();
     let info = DatasetInfo {
-        format: hexcal::capture::dataset::FORMAT.into(),
-        version: hexcal::capture::dataset::VERSION,
+        format: hexcal::dataset::FORMAT.into(),
+        version: hexcal::dataset::VERSION,
         rig: "disk".into(),
         board: "hex600".into(),
         sequence,

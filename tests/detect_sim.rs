@@ -24,8 +24,8 @@
 
 use hexcal::board::{Board, Hex, Side};
 use hexcal::camera::{CameraModel, Distortion, Intrinsics};
-use hexcal::detect::GrayImage;
 use hexcal::detection::{analyse, Analysis, Settings};
+use hexcal::images::GrayImage;
 use hexcal::sim::{render, CircleTruth, Imaging, PoseSpec, Scene};
 use nalgebra::{Point2, Point3};
 use std::collections::HashMap;

@@ -16,13 +16,16 @@ use hexcal::calib::pipeline::{calibrate, CalibrateOptions};
 use hexcal::calib::synthetic::SyntheticRig;
 use hexcal::calib::views::CameraView;
 use hexcal::correspond::{camera_view, FitParams, ProjectorMap};
-use hexcal::detect::{detect, DetectParams, GrayImage};
 use hexcal::grid::{build, GridParams};
 use hexcal::sim::scene::{Imaging, PoseSpec, Scene};
 use nalgebra::{Point2, Point3};
 use rand::{rngs::StdRng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
+use {
+    hexcal::detect::{detect, DetectParams},
+    hexcal::images::GrayImage,
+};
 
 /// One camera's view of one pose, rendered and labelled.
 fn view(rig: &SyntheticRig, camera: usize, pose: usize) -> Option<CameraView> {

@@ -7,13 +7,16 @@
 mod truth;
 
 use hexcal::board::{Board, Hex};
-use hexcal::detect::{detect, Circle, DetectParams, Ellipse};
 use hexcal::grid::{build, Grid, GridParams};
 use nalgebra::Point2;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use std::collections::HashSet;
 use truth::{load, score, true_detections, Sample, Score, SAMPLES};
+use {
+    hexcal::detect::{detect, Circle, DetectParams},
+    hexcal::images::Ellipse,
+};
 
 /// Circles the builder can label from the given true circles: those in a local cell with at
 /// least two complete opposing pairs (as centre or as one of its found neighbours). The
@@ -302,7 +305,7 @@ fn samples_without_centre_cell() {
 
 /// Darken the annulus `band` (fractions of the radius) of detection `c` to its background
 /// level, with 4×4 coverage sampling per pixel: a false marker ring.
-fn paint_ring(image: &mut hexcal::detect::GrayImage, c: &Circle, band: [f64; 2]) {
+fn paint_ring(image: &mut hexcal::images::GrayImage, c: &Circle, band: [f64; 2]) {
     let e = &c.ellipse;
     let (sa, ca) = e.angle.sin_cos();
     let reach = e.a.ceil() as i64 + 1;

@@ -7,8 +7,8 @@
 mod truth;
 
 use hexcal::board::{Board, Hex, Side};
-use hexcal::detect::{Ellipse, GrayImage};
 use hexcal::grid::{build, GridParams};
+use hexcal::images::{Ellipse, GrayImage};
 use nalgebra::{Matrix3, Point2, Rotation3, SymmetricEigen, Vector2, Vector3};
 
 /// A view of one side: board-plane point (x, y) in that side's frame (mm) ↦ pixel.

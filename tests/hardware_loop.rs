@@ -13,17 +13,13 @@
 //! error naming the port, pose and frame; the pose written before reads back intact.
 #![cfg(feature = "aravis")]
 
-use hexcal::capture::dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry, StackReader};
-use hexcal::capture::{CaptureError, CaptureTiming, Session, Timeline};
+use hexcal::dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry, StackReader};
+use hexcal::pattern::Sequence;
 use hexcal::phase::files::{decode_dir, DecodeSummary};
-use hexcal::phase::Sequence;
 use hexcal::rig::aravis::{AravisCamera, LoopbackCamera, LOOPBACK_ADDRESS};
 use hexcal::rig::file::RigFile;
 use hexcal::rig::sim::SimWorld;
 use hexcal::rig::trigger::{TriggerController, TriggerTiming};
-use hexcal::rig::{
-    Camera, CameraConfig, DeviceError, Pixels, Projector, Slide, Trigger, TriggerSource,
-};
 use hexcal::sim::stack::StackRenderer;
 use hexcal_firmware_protocol::LineConfig;
 use hexcal_simulator::firmware::{ModelConfig, SimulatedController};
@@ -33,6 +29,14 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
+use {
+    hexcal::capture::{CaptureError, CaptureTiming, Session},
+    hexcal::dataset::Timeline,
+};
+use {
+    hexcal::images::Pixels,
+    hexcal::rig::{Camera, CameraConfig, DeviceError, Projector, Slide, Trigger, TriggerSource},
+};
 
 /// One loopback camera at a time: it listens on 127.0.0.1's GVCP port.
 static LOOPBACK: Mutex<()> = Mutex::new(());
@@ -348,8 +352,8 @@ fn start(
     )
     .expect("session starts");
     let info = DatasetInfo {
-        format: hexcal::capture::dataset::FORMAT.into(),
-        version: hexcal::capture::dataset::VERSION,
+        format: hexcal::dataset::FORMAT.into(),
+        version: hexcal::dataset::VERSION,
         rig: "hardware-loop".into(),
         board: "hex600".into(),
         sequence: truth.sequence.clone(),
@@ -433,8 +437,8 @@ fn assert_decodes_to_truth(data: &Dataset, pose: usize, truth: &StackRenderer) {
         2.0 * std::f64::consts::PI * f64::from(sum).sqrt()
     };
     let (norm_u, norm_v) = (
-        norm(hexcal::phase::Direction::Columns),
-        norm(hexcal::phase::Direction::Rows),
+        norm(hexcal::pattern::Direction::Columns),
+        norm(hexcal::pattern::Direction::Rows),
     );
     let t = truth.truth(0);
     let albedo = truth.albedo();

@@ -7,15 +7,18 @@
 //! (x11-apps) and `xdotool`.
 #![cfg(feature = "window")]
 
-use hexcal::capture::dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry, StackReader};
 use hexcal::capture::{open, CaptureError, CaptureTiming, Session};
-use hexcal::phase::{ProjectorResponse, ProjectorSetup, Sequence};
+use hexcal::dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry, StackReader};
+use hexcal::pattern::{ProjectorResponse, ProjectorSetup, Sequence};
 use hexcal::rig::file::RigFile;
 use hexcal::rig::window::WindowProjector;
-use hexcal::rig::{Camera, DeviceError, Pixels, Projector, Slide};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+use {
+    hexcal::images::Pixels,
+    hexcal::rig::{Camera, DeviceError, Projector, Slide},
+};
 
 #[path = "support/xvfb.rs"]
 mod xvfb;
@@ -511,8 +514,8 @@ fn pixels(p: &Pixels) -> Vec<u16> {
 
 fn info(seq: &Sequence) -> DatasetInfo {
     DatasetInfo {
-        format: hexcal::capture::dataset::FORMAT.into(),
-        version: hexcal::capture::dataset::VERSION,
+        format: hexcal::dataset::FORMAT.into(),
+        version: hexcal::dataset::VERSION,
         rig: "tiny-window".into(),
         board: "hex600".into(),
         sequence: seq.clone(),

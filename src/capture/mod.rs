@@ -13,17 +13,17 @@
 //!
 //! [`dataset`] stores captured poses on disk.
 
-pub mod dataset;
 pub mod open;
 
-use crate::phase::Sequence;
-use crate::rig::{
-    Camera, CameraConfig, CameraFrame, DeviceError, Pixels, Projector, Slide, Trigger,
-    TriggerSource,
-};
+use crate::dataset::{FrameTiming, StackFrame, Timeline};
+use crate::pattern::Sequence;
 use crossbeam_channel::{bounded, Receiver, Sender};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use {
+    crate::images::{CameraFrame, Pixels},
+    crate::rig::{Camera, CameraConfig, DeviceError, Projector, Slide, Trigger, TriggerSource},
+};
 
 /// Timing of a capture.
 #[derive(Clone, Debug, PartialEq)]
@@ -77,75 +77,6 @@ pub enum CaptureError {
     /// The rig cannot run this capture.
     #[error("{0}")]
     Setup(String),
-}
-
-/// One camera's frame k of a pose.
-#[derive(Clone, Debug)]
-pub struct StackFrame {
-    /// Camera index.
-    pub camera: usize,
-    /// Frame index k in the sequence.
-    pub index: usize,
-    /// The frame (averaged over the repeats).
-    pub frame: CameraFrame,
-}
-
-/// When frame k's steps happened, from the start of the pose.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FrameTiming {
-    /// Frame index k.
-    pub index: usize,
-    /// Every projector presented pattern k.
-    pub shown: Duration,
-    /// The (first) trigger.
-    pub triggered: Duration,
-    /// Every camera's frame k was in.
-    pub collected: Duration,
-    /// Triggers repeated for this frame.
-    pub retries: u32,
-}
-
-/// The measured timeline of one pose.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Timeline {
-    /// Per frame, in order.
-    pub frames: Vec<FrameTiming>,
-    /// Whole pose.
-    pub total: Duration,
-    /// Frames lost on the way (counter gaps).
-    pub dropped: u64,
-}
-
-impl Timeline {
-    /// Frames per second through the engine (sequence frames × cameras / total time).
-    pub fn frames_per_second(&self, cameras: usize) -> f64 {
-        (self.frames.len() * cameras) as f64 / self.total.as_secs_f64().max(1e-9)
-    }
-
-    /// A one-line summary.
-    pub fn summary(&self, cameras: usize) -> String {
-        let n = self.frames.len().max(1) as f64;
-        let mean = |f: fn(&FrameTiming, Duration) -> Duration| {
-            let mut prev = Duration::ZERO;
-            let mut sum = 0.0;
-            for t in &self.frames {
-                sum += f(t, prev).as_secs_f64();
-                prev = t.collected;
-            }
-            1e3 * sum / n
-        };
-        let show = mean(|t, prev| t.shown.saturating_sub(prev));
-        let expose = mean(|t, _| t.collected.saturating_sub(t.triggered));
-        let retries: u32 = self.frames.iter().map(|t| t.retries).sum();
-        format!(
-            "{} frames × {cameras} cameras in {:.2} s ({:.1} frames/s): show {show:.1} ms, \
-             trigger → all frames {expose:.1} ms per frame; {retries} retries, {} dropped",
-            self.frames.len(),
-            self.total.as_secs_f64(),
-            self.frames_per_second(cameras),
-            self.dropped
-        )
-    }
 }
 
 enum Command {
@@ -626,13 +557,13 @@ pub fn capture_dataset(
     place: &mut PlaceBoard,
     log: &mut dyn FnMut(&str),
 ) -> Result<CaptureSummary, String> {
-    use dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry};
+    use crate::dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry};
     let rig = crate::rig::file::RigFile::load(rig_path).map_err(|e| e.to_string())?;
     let base = rig_path.parent().unwrap_or(std::path::Path::new("."));
     let opened = open::open(&rig, base)?;
     let info = DatasetInfo {
-        format: dataset::FORMAT.into(),
-        version: dataset::VERSION,
+        format: crate::dataset::FORMAT.into(),
+        version: crate::dataset::VERSION,
         rig: rig.name.clone(),
         board: rig.board.clone(),
         sequence: opened.sequence.clone(),

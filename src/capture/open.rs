@@ -7,7 +7,7 @@
 
 use super::CaptureTiming;
 use crate::board::Board;
-use crate::phase::{ProjectorCode, ProjectorResponse, ProjectorSetup, Sequence};
+use crate::pattern::{ProjectorCode, ProjectorResponse, ProjectorSetup, Sequence};
 use crate::rig::file::{CameraDriver, ProjectorDriver, RigFile};
 use crate::rig::sim::{SimWorld, WiredTrigger};
 use crate::rig::trigger::{TriggerController, TriggerTiming};
@@ -53,7 +53,7 @@ pub fn board(rig: &RigFile, base: &Path) -> Result<Board, String> {
 /// projectors' gamma is linearised by hexcal (frequencies 1…P). Fringe counts as given.
 pub fn sequence(rig: &RigFile) -> Result<Sequence, String> {
     let p = rig.projectors.len() as u32;
-    let err = |e: crate::phase::SequenceError| format!("sequence: {e}");
+    let err = |e: crate::pattern::SequenceError| format!("sequence: {e}");
     let linearised = rig.sequence.steps.is_some_and(|n| n < 5 * p);
     let setups: Vec<ProjectorSetup> = rig
         .projectors

@@ -3,10 +3,10 @@
 //! refuses), datasets written atomically, resumed, and read back with errors naming the
 //! camera and frame.
 
-use super::dataset::{
+use super::*;
+use crate::dataset::{
     CameraEntry, Dataset, DatasetError, DatasetInfo, ProjectorEntry, StackReader,
 };
-use super::*;
 use crate::rig::file::RigFile;
 use crate::rig::sim::{Faults, SimWorld};
 use std::path::Path;
@@ -224,8 +224,8 @@ fn scratch(name: &str) -> std::path::PathBuf {
 
 fn info(seq: &Sequence) -> DatasetInfo {
     DatasetInfo {
-        format: dataset::FORMAT.into(),
-        version: dataset::VERSION,
+        format: crate::dataset::FORMAT.into(),
+        version: crate::dataset::VERSION,
         rig: "tiny".into(),
         board: "hex600".into(),
         sequence: seq.clone(),

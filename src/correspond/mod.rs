@@ -9,10 +9,10 @@
 //! the patch is biased by up to 0.2 projector px in the corners of a k1 = −0.3 lens.
 
 use crate::board::{Hex, Side};
-use crate::detect::{Circle, Ellipse};
 use crate::grid::Grid;
 use nalgebra::{Point2, SMatrix, SVector};
 use std::collections::HashMap;
+use {crate::detect::Circle, crate::images::Ellipse};
 
 /// How a view's lattice labels relate to the board.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

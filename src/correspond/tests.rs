@@ -7,12 +7,15 @@
 use super::*;
 use crate::board::Board;
 use crate::camera::{CameraModel, Distortion, Intrinsics};
-use crate::detect::{detect, DetectParams, GrayImage};
 use crate::grid::{build, GridParams};
 use crate::sim::{render, Imaging, PoseSpec, Scene};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::{rngs::StdRng, SeedableRng};
 use rand_distr::{Distribution, Normal};
+use {
+    crate::detect::{detect, DetectParams},
+    crate::images::GrayImage,
+};
 
 struct Setup {
     camera: CameraModel,

@@ -3,9 +3,9 @@
 
 use super::synth::{add_noise, blur_psf, quantise8, render, Blob, Scene};
 use super::*;
-use crate::imageio::load_gray;
-use rand::{Rng, SeedableRng};
+use crate::images::load_gray;
 use crate::testdata::samples_dir;
+use rand::{Rng, SeedableRng};
 
 /// A ground-truth circle: exact image-ellipse centre and radius √(ab).
 struct Truth {

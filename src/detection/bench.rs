@@ -6,12 +6,12 @@
 
 use super::{analyse, Settings};
 use crate::board::Board;
-use crate::detect::{detect, GrayImage};
 use crate::grid::build;
 use crate::sim::{render, write_view, Scene, SimError};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
+use {crate::detect::detect, crate::images::GrayImage};
 
 /// A failure of the benchmark.
 #[derive(Debug, thiserror::Error)]

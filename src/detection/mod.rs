@@ -13,11 +13,14 @@ mod overlay;
 pub use overlay::draw_overlay;
 
 use crate::board::{Board, Side};
-use crate::detect::{detect, Circle, DetectParams, GrayImage};
 use crate::grid::{build, Grid, GridParams};
-use crate::imageio::{load_gray, ImageIoError};
+use crate::images::{load_gray, ImageIoError};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use {
+    crate::detect::{detect, Circle, DetectParams},
+    crate::images::GrayImage,
+};
 
 /// A failure on one image.
 #[derive(Debug, thiserror::Error)]

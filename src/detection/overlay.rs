@@ -5,7 +5,7 @@
 
 use super::Analysis;
 use crate::board::Hex;
-use crate::detect::{Ellipse, GrayImage};
+use crate::images::{Ellipse, GrayImage};
 use image::{Rgb, RgbImage};
 use std::collections::HashMap;
 

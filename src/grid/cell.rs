@@ -340,7 +340,7 @@ fn local_cell(
 mod tests {
     use super::*;
     use crate::board::{Board, Hex};
-    use crate::detect::Ellipse;
+    use crate::images::Ellipse;
     use nalgebra::{Matrix2, Point2};
 
     /// Circles of the lattice within `reach` of the origin seen through the affine map

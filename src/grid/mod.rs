@@ -31,11 +31,11 @@ mod cell;
 mod ring;
 
 use crate::board::{Board, Code, Hex, MarkerKind, Side};
-use crate::detect::{Circle, GrayImage};
 use anchor::{BoardRings, Frame, PlacedMarker};
 use nalgebra::Point2;
 use ring::Ring;
 use serde::{Deserialize, Serialize};
+use {crate::detect::Circle, crate::images::GrayImage};
 
 /// A detected circle with its lattice label.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

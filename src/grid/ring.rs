@@ -1,8 +1,8 @@
 //! Marker-ring reading (docs/design.md §3, §5): is a dark annulus 0.45R–0.75R printed inside a
 //! detected white circle?
 
-use crate::detect::{Circle, GrayImage};
 use std::sync::OnceLock;
+use {crate::detect::Circle, crate::images::GrayImage};
 
 /// What the annulus of one circle shows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -94,7 +94,7 @@ fn bilinear(image: &GrayImage, x: f64, y: f64) -> Option<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::detect::Ellipse;
+    use crate::images::Ellipse;
     use nalgebra::Point2;
 
     /// A sharp synthetic circle of radius `r` at (x, y), optionally with a ring, sampled at 4×4

@@ -17,8 +17,9 @@
 //! a pixel estimates σ_I²/N with G − 1 degrees of freedom (free of projector harmonics); a
 //! fit σ_I² = a + b·A over all unsaturated pixels gives the read + shot noise model.
 
-use super::sequence::{pattern_harmonic, Direction, Sequence};
-use super::unwrap::{Constellation, MAX_COUNTS};
+use super::unwrap::Constellation;
+use crate::pattern::MAX_COUNTS;
+use crate::pattern::{pattern_harmonic, Direction, Sequence};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f32::consts::{FRAC_PI_2, PI, TAU};

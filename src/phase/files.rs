@@ -7,7 +7,7 @@
 //! modulation B_p and noise σ_I, and the predicted σ_φ and σ_u, σ_v.
 
 use super::{DecodedStack, Decoder, FrameRef, NoiseModel, PhaseNoise, ProjectorMaps};
-use crate::capture::dataset::{DatasetError, StackReader};
+use crate::dataset::{DatasetError, StackReader};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 

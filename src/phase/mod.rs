@@ -1,17 +1,14 @@
-//! Multi-projector phase shifting (docs/design.md §6): the pattern sequence that all P projectors
-//! show at once, and the decoder that turns one camera's stack into each projector's
+//! Multi-projector phase shifting (docs/design.md §6): the decoder that turns one camera's stack into each projector's
 //! (u, v) map, modulation, validity, ambient and lit images.
 //!
 //! Takes the [`Sequence`] and the camera frames in order; gives a [`DecodedStack`] per camera.
 
 mod decode;
 pub mod files;
-mod sequence;
 pub mod synthetic;
 mod unwrap;
 
 pub use decode::*;
-pub use sequence::*;
 pub use unwrap::*;
 
 #[cfg(test)]

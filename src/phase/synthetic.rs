@@ -6,7 +6,7 @@
 //! noise → quantisation, all seeded.
 
 use super::decode::{Decoder, FrameRef};
-use super::sequence::{pattern_harmonic, Direction, ProjectorResponse, ProjectorSetup, Sequence};
+use crate::pattern::{pattern_harmonic, Direction, ProjectorResponse, ProjectorSetup, Sequence};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};

@@ -4,6 +4,7 @@
 
 use super::synthetic::{accuracy, Renderer, Scene, Truth};
 use super::*;
+use crate::pattern::*;
 
 const GAMMA: ProjectorResponse = ProjectorResponse::Gamma { gamma: 2.2 };
 const LINEARISED: ProjectorResponse = ProjectorResponse::Linearised { gamma: 2.2 };

@@ -10,10 +10,8 @@
 //! noise can produce where fringe edges of different counts lie within ¼ of the longest
 //! period of each other, which includes the wrapped-around boundary tuples at t = 0 ≡ 1.
 
+use crate::pattern::MAX_COUNTS;
 use std::collections::BTreeSet;
-
-/// Most fringe counts per direction (the lookup grid lives in M − 1 ≤ 3 dimensions).
-pub const MAX_COUNTS: usize = 4;
 
 /// Why a constellation cannot be built.
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -13,7 +13,8 @@ pub mod loopback;
 
 pub use loopback::{bench_loopback, LoopbackBench, LoopbackCamera, LOOPBACK_ADDRESS};
 
-use super::device::{Camera, CameraConfig, CameraFrame, DeviceError, Pixels, TriggerSource};
+use super::device::{Camera, CameraConfig, DeviceError, TriggerSource};
+use crate::images::{CameraFrame, Pixels};
 use aravis::glib::{self, object::Cast};
 use aravis::prelude::*;
 use aravis::{

@@ -14,7 +14,4 @@ pub mod v4l2;
 #[cfg(feature = "window")]
 pub mod window;
 
-pub use device::{
-    Camera, CameraConfig, CameraFrame, DeviceError, Pixels, Projector, Slide, Trigger,
-    TriggerSource,
-};
+pub use device::{Camera, CameraConfig, DeviceError, Projector, Slide, Trigger, TriggerSource};

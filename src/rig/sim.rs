@@ -7,11 +7,12 @@
 //! ([`StackRenderer`], geometry once per pose) when every projector shows pattern k.
 //! Faults can be injected per camera (stop delivering, drop frames) for the engine's tests.
 
-use super::device::{Camera, CameraConfig, CameraFrame, DeviceError, Pixels, Projector, Slide};
+use super::device::{Camera, CameraConfig, DeviceError, Projector, Slide};
 use super::file::{LookAt, PosesSpec, RigFile, SimTruth};
 use crate::board::Board;
 use crate::camera::CameraModel;
-use crate::phase::Sequence;
+use crate::images::{CameraFrame, Pixels};
+use crate::pattern::Sequence;
 use crate::sim::stack::{StackProjector, StackRenderer};
 use crate::sim::{Imaging, PoseSpec, Scene};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};

@@ -559,3 +559,22 @@ impl TriggerController {
         }
     }
 }
+
+impl super::device::Trigger for TriggerController {
+    fn name(&self) -> &str {
+        self.port_name()
+    }
+
+    fn arm(&mut self, frames: u32) -> Result<(), DeviceError> {
+        TriggerController::arm(self, frames, hexcal_firmware_protocol::Pacing::PerFire)
+            .map_err(|e| e.into_device_error(self.port_name()))
+    }
+
+    fn fire(&mut self) -> Result<u32, DeviceError> {
+        TriggerController::fire(self).map_err(|e| e.into_device_error(self.port_name()))
+    }
+
+    fn disarm(&mut self) -> Result<(), DeviceError> {
+        TriggerController::disarm(self).map_err(|e| e.into_device_error(self.port_name()))
+    }
+}

@@ -48,7 +48,8 @@ mod tests;
 
 pub use node::Node;
 
-use super::device::{Camera, CameraConfig, CameraFrame, DeviceError, Pixels, TriggerSource};
+use super::device::{Camera, CameraConfig, DeviceError, TriggerSource};
+use crate::images::{CameraFrame, Pixels};
 use std::fmt;
 use std::io;
 use std::time::Duration;

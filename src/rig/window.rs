@@ -18,7 +18,7 @@
 //! connection needs libX11 ≥ 1.7 (`XSetIOErrorExitHandler`); older ones exit the process.
 
 use super::device::{DeviceError, Projector, Slide};
-use crate::phase::{Direction, Sequence};
+use crate::pattern::{Direction, Sequence};
 use std::collections::HashMap;
 use std::num::NonZeroU32;
 use std::rc::Rc;
@@ -736,10 +736,10 @@ pub fn bench_show(monitor: Option<&str>, slides: usize) -> Result<ShowBench, Dev
     }
     .ok_or_else(|| failed(format!("no such monitor; monitors: {all:?}")))?
     .clone();
-    let sequence = Sequence::default_for(&[crate::phase::ProjectorSetup {
+    let sequence = Sequence::default_for(&[crate::pattern::ProjectorSetup {
         width: m.width,
         height: m.height,
-        response: crate::phase::ProjectorResponse::Gamma { gamma: 2.2 },
+        response: crate::pattern::ProjectorResponse::Gamma { gamma: 2.2 },
     }])
     .map_err(|e| failed(e.to_string()))?;
     let mut p = WindowProjector::open("bench", &m.name, m.width, m.height)?;

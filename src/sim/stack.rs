@@ -11,7 +11,7 @@
 use super::texture::face_side;
 use super::{geometry, sensor, Scene, SimError};
 use crate::camera::CameraModel;
-use crate::phase::{Direction, Sequence};
+use crate::pattern::{Direction, Sequence};
 use hexcal_simulator::{Frame, ImageSize, Sensor};
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;

@@ -12,7 +12,7 @@
 
 use crate::board::{Board, Side};
 use crate::camera::CameraModel;
-use crate::detect::Ellipse;
+use crate::images::Ellipse;
 use nalgebra::{Isometry3, Point2, Point3, SymmetricEigen, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 

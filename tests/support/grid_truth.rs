@@ -4,12 +4,15 @@
 #![allow(dead_code)] // Each including crate uses a different part.
 
 use hexcal::board::{Hex, Side};
-use hexcal::detect::{Circle, Ellipse, GrayImage};
 use hexcal::grid::Grid;
 use nalgebra::Point2;
 use serde::Deserialize;
 use std::collections::HashMap;
 use std::path::PathBuf;
+use {
+    hexcal::detect::Circle,
+    hexcal::images::{Ellipse, GrayImage},
+};
 
 /// The six sample images.
 pub const SAMPLES: [&str; 6] = [

@@ -8,7 +8,8 @@
 //! GVCP port of 127.0.0.1).
 
 use super::AravisCamera;
-use crate::rig::device::{Camera, CameraConfig, DeviceError, Pixels, TriggerSource};
+use crate::images::Pixels;
+use crate::rig::device::{Camera, CameraConfig, DeviceError, TriggerSource};
 use aravis::glib::translate::ToGlibPtr;
 use aravis::GvFakeCamera;
 use std::fmt;

@@ -743,7 +743,7 @@ sim.pose = { eye = [300.0, 50.0, 1300.0], target = [0.0, 0.0, 0.0] }
 
 /// One pose through the capture engine with a V4L2 camera on a simulated node that loses
 /// frames `lost`: the timeline and, per frame, its counter and the node's sequence number.
-fn capture_through_engine(lost: &[u32]) -> (crate::capture::Timeline, Vec<(u64, u32)>) {
+fn capture_through_engine(lost: &[u32]) -> (crate::dataset::Timeline, Vec<(u64, u32)>) {
     let rig = RigFile::parse(RIG, "v4l2-sim.toml").unwrap();
     let opened = open::open(&rig, Path::new(".")).unwrap();
     let node = SimNode::new(&[FourCc::YUYV], uvc_controls());

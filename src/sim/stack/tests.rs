@@ -12,9 +12,12 @@ use crate::camera::{Distortion, Intrinsics};
 use crate::correspond::{camera_view, FitParams, ProjectorMap};
 use crate::detect::{detect, DetectParams};
 use crate::grid::{build, GridParams};
-use crate::phase::{Decoder, FrameRef, ProjectorResponse, ProjectorSetup};
 use crate::sim::{Imaging, PoseSpec};
 use nalgebra::Point2;
+use {
+    crate::pattern::{ProjectorResponse, ProjectorSetup},
+    crate::phase::{Decoder, FrameRef},
+};
 
 fn look(eye: [f64; 3]) -> Isometry3<f64> {
     PoseSpec {

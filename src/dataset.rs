@@ -6,11 +6,11 @@
 //! file + rename); a pose is complete when its `pose.json` exists, so an interrupted capture
 //! keeps every finished pose and resumes at the first incomplete one.
 
-use super::{StackFrame, Timeline};
-use crate::phase::Sequence;
-use crate::rig::{CameraFrame, Pixels};
+use crate::images::{CameraFrame, Pixels};
+use crate::pattern::Sequence;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 /// The format name in `dataset.json`.
 pub const FORMAT: &str = "hexcal-dataset";
@@ -494,5 +494,74 @@ impl StackReader {
     /// Full scale of the samples (2^bits − 1).
     pub fn full_scale(&self) -> f32 {
         ((1u32 << self.info.bits) - 1) as f32
+    }
+}
+
+/// One camera's frame k of a pose.
+#[derive(Clone, Debug)]
+pub struct StackFrame {
+    /// Camera index.
+    pub camera: usize,
+    /// Frame index k in the sequence.
+    pub index: usize,
+    /// The frame (averaged over the repeats).
+    pub frame: CameraFrame,
+}
+
+/// When frame k's steps happened, from the start of the pose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameTiming {
+    /// Frame index k.
+    pub index: usize,
+    /// Every projector presented pattern k.
+    pub shown: Duration,
+    /// The (first) trigger.
+    pub triggered: Duration,
+    /// Every camera's frame k was in.
+    pub collected: Duration,
+    /// Triggers repeated for this frame.
+    pub retries: u32,
+}
+
+/// The measured timeline of one pose.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Timeline {
+    /// Per frame, in order.
+    pub frames: Vec<FrameTiming>,
+    /// Whole pose.
+    pub total: Duration,
+    /// Frames lost on the way (counter gaps).
+    pub dropped: u64,
+}
+
+impl Timeline {
+    /// Frames per second through the engine (sequence frames × cameras / total time).
+    pub fn frames_per_second(&self, cameras: usize) -> f64 {
+        (self.frames.len() * cameras) as f64 / self.total.as_secs_f64().max(1e-9)
+    }
+
+    /// A one-line summary.
+    pub fn summary(&self, cameras: usize) -> String {
+        let n = self.frames.len().max(1) as f64;
+        let mean = |f: fn(&FrameTiming, Duration) -> Duration| {
+            let mut prev = Duration::ZERO;
+            let mut sum = 0.0;
+            for t in &self.frames {
+                sum += f(t, prev).as_secs_f64();
+                prev = t.collected;
+            }
+            1e3 * sum / n
+        };
+        let show = mean(|t, prev| t.shown.saturating_sub(prev));
+        let expose = mean(|t, _| t.collected.saturating_sub(t.triggered));
+        let retries: u32 = self.frames.iter().map(|t| t.retries).sum();
+        format!(
+            "{} frames × {cameras} cameras in {:.2} s ({:.1} frames/s): show {show:.1} ms, \
+             trigger → all frames {expose:.1} ms per frame; {retries} retries, {} dropped",
+            self.frames.len(),
+            self.total.as_secs_f64(),
+            self.frames_per_second(cameras),
+            self.dropped
+        )
     }
 }

@@ -5,7 +5,7 @@
 //! float files); colour becomes Rec. 709 luma (0.2126 R + 0.7152 G + 0.0722 B) on that same
 //! scale; alpha is ignored.
 
-use crate::detect::GrayImage;
+use super::GrayImage;
 use image::DynamicImage;
 use std::path::{Path, PathBuf};
 

@@ -12,6 +12,9 @@
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
+/// Most fringe counts per direction (the lookup grid lives in M − 1 ≤ 3 dimensions).
+pub const MAX_COUNTS: usize = 4;
+
 /// Default fringe counts per screen width (columns) and per screen height (rows).
 pub const DEFAULT_COUNTS: [u32; 3] = [20, 21, 25];
 
@@ -445,10 +448,10 @@ impl Sequence {
                 counts: counts.clone(),
                 what,
             };
-            if !(2..=super::unwrap::MAX_COUNTS).contains(&counts.len()) {
+            if !(2..=MAX_COUNTS).contains(&counts.len()) {
                 return Err(bad(format!(
                     "need 2 to {} counts for temporal unwrapping",
-                    super::unwrap::MAX_COUNTS
+                    MAX_COUNTS
                 )));
             }
             if counts.contains(&0) {
