@@ -10,6 +10,7 @@
 //! resynchronises at the next `0x00`); CRC errors, retries and lost events are counted in
 //! [`TriggerStats`]. Errors name the port.
 
+use super::device::DeviceError;
 use std::collections::VecDeque;
 use std::io::{self, ErrorKind, Read, Write};
 use std::time::{Duration, Instant};
@@ -160,13 +161,13 @@ pub enum TriggerError {
 impl TriggerError {
     /// This error as the capture-level error of the device `port`: the reason without the
     /// port, which the device error names already.
-    pub(crate) fn into_device_error(self, port: &str) -> super::device::DeviceError {
+    pub(crate) fn into_device_error(self, port: &str) -> DeviceError {
         let text = self.to_string();
         let reason = match text.strip_prefix(&format!("trigger controller {port}: ")) {
             Some(rest) => format!("trigger controller: {rest}"),
             None => text,
         };
-        super::device::DeviceError::Failed {
+        DeviceError::Failed {
             device: port.to_string(),
             reason,
         }
