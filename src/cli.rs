@@ -1,8 +1,37 @@
 //! The capture-side commands: `capture` and `decode`.
 
 use anyhow::Context;
+use hexcal::app::AppError;
+use hexcal::rig::sim::SimWorld;
 use std::io::BufRead;
 use std::path::Path;
+
+/// Puts the board at pose k: a simulated world's pose when the rig is simulated; then, unless
+/// `auto` (or a simulated world placed it and `sim_places` says that is enough), waits for
+/// the operator's Enter (end of input stops the capture).
+fn placer(
+    auto: bool,
+    sim_places: bool,
+) -> impl FnMut(usize, Option<&SimWorld>) -> Result<bool, AppError> {
+    move |k, world| {
+        if let Some(w) = world {
+            if k >= w.board_poses.len() {
+                return Err(AppError::Input(format!(
+                    "the simulated rig has {} board poses ([poses] count)",
+                    w.board_poses.len()
+                )));
+            }
+            w.place(k);
+        }
+        if auto || (sim_places && world.is_some()) {
+            return Ok(true);
+        }
+        eprintln!("pose {k}: place the board, then press Enter (end of input stops)");
+        let mut line = String::new();
+        let read = std::io::stdin().lock().read_line(&mut line);
+        Ok(read.map_err(AppError::io(Path::new("stdin")))? > 0)
+    }
+}
 
 /// `hexcal capture`: drive the rig for `poses` poses into the dataset `out`.
 pub fn capture(rig: &Path, out: &Path, poses: Option<usize>, auto: bool) -> anyhow::Result<()> {
@@ -10,33 +39,9 @@ pub fn capture(rig: &Path, out: &Path, poses: Option<usize>, auto: bool) -> anyh
     let poses = poses
         .or(file.poses.map(|p| p.count))
         .context("say how many poses with --poses (the rig file has no [poses] table)")?;
-    let stdin = std::io::stdin();
-    let mut place = |k: usize, world: Option<&hexcal::rig::sim::SimWorld>| {
-        if let Some(w) = world {
-            if k >= w.board_poses.len() {
-                return Err(format!(
-                    "the simulated rig has {} board poses ([poses] count)",
-                    w.board_poses.len()
-                ));
-            }
-            w.place(k);
-        }
-        if !auto && world.is_none() {
-            eprintln!("pose {k}: place the board, then press Enter (end of input stops)");
-            let mut line = String::new();
-            if stdin
-                .lock()
-                .read_line(&mut line)
-                .map_err(|e| e.to_string())?
-                == 0
-            {
-                return Ok(false);
-            }
-        }
-        Ok(true)
-    };
+    let mut place = placer(auto, true);
     let mut log = |line: &str| eprintln!("{line}");
-    let summary = hexcal::capture::capture_dataset(rig, out, poses, &mut place, &mut log)
+    let summary = hexcal::app::capture::capture_dataset(rig, out, poses, &mut place, &mut log)
         .map_err(anyhow::Error::msg)?;
     if !summary.skipped.is_empty() {
         eprintln!("already complete, skipped: poses {:?}", summary.skipped);
@@ -81,23 +86,15 @@ pub fn decode(stack: &Path, out: &Path) -> anyhow::Result<()> {
 
 /// `hexcal bench capture`: one simulated pose through the engine, frames discarded.
 pub fn bench_capture(rig_path: &Path) -> anyhow::Result<()> {
-    use hexcal::capture::{open, Session};
+    use hexcal::capture::Session;
     let rig = hexcal::rig::file::RigFile::load(rig_path)?;
-    let base = rig_path.parent().unwrap_or(Path::new("."));
-    let opened = open::open(&rig, base).map_err(anyhow::Error::msg)?;
+    let opened = hexcal::rig::open(&rig)?;
     let world = opened
         .world
         .clone()
         .context("bench capture needs a simulated rig")?;
-    let cameras = opened.cameras.len();
-    let mut session = Session::start(
-        opened.cameras,
-        &opened.configs,
-        opened.projectors,
-        opened.trigger,
-        &opened.sequence,
-        opened.timing,
-    )?;
+    let cameras = opened.devices.cameras.len();
+    let mut session = Session::start(opened.devices, &opened.sequence)?;
     println!(
         "rig {}: {cameras} cameras, {} projectors, {} frames per pose, {} threads",
         rig.name,
@@ -142,8 +139,8 @@ pub enum Progress {
 }
 
 /// The event printer of a progress mode.
-pub fn printer(mode: Progress) -> impl FnMut(&hexcal::pipeline::Event) {
-    use hexcal::pipeline::Event;
+pub fn printer(mode: Progress) -> impl FnMut(&hexcal::app::progress::Event) {
+    use hexcal::app::progress::Event;
     use std::io::{IsTerminal, Write};
     let tty = std::io::stderr().is_terminal();
     move |e: &Event| match mode {
@@ -172,36 +169,13 @@ pub fn printer(mode: Progress) -> impl FnMut(&hexcal::pipeline::Event) {
 pub fn run(
     rig: &Path,
     out: &Path,
-    options: &hexcal::pipeline::RunOptions,
+    options: &hexcal::app::run::RunOptions,
     auto: bool,
     progress: Progress,
 ) -> anyhow::Result<()> {
-    let stdin = std::io::stdin();
-    let mut place = |k: usize, world: Option<&hexcal::rig::sim::SimWorld>| {
-        if let Some(w) = world {
-            if k >= w.board_poses.len() {
-                return Err(format!(
-                    "the simulated rig has {} board poses ([poses] count)",
-                    w.board_poses.len()
-                ));
-            }
-            w.place(k);
-            if auto {
-                return Ok(true);
-            }
-        } else if auto {
-            return Ok(true);
-        }
-        eprintln!("pose {k}: place the board, then press Enter (end of input stops)");
-        let mut line = String::new();
-        Ok(stdin
-            .lock()
-            .read_line(&mut line)
-            .map_err(|e| e.to_string())?
-            > 0)
-    };
+    let mut place = placer(auto, false);
     let t = std::time::Instant::now();
-    let outcome = hexcal::pipeline::run(rig, out, options, &mut place, &mut printer(progress))
+    let outcome = hexcal::app::run::run(rig, out, options, &mut place, &mut printer(progress))
         .map_err(anyhow::Error::msg)?;
     summarise(&outcome, progress);
     if progress != Progress::Json {
@@ -225,7 +199,7 @@ fn peak_memory_mib() -> Option<f64> {
 }
 
 /// The residual table, verification and warnings of a finished run.
-pub fn summarise(outcome: &hexcal::pipeline::Outcome, progress: Progress) {
+pub fn summarise(outcome: &hexcal::app::progress::Outcome, progress: Progress) {
     if progress == Progress::Json {
         return;
     }
@@ -251,7 +225,7 @@ pub fn summarise(outcome: &hexcal::pipeline::Outcome, progress: Progress) {
     }
     if !outcome.truth.is_empty() {
         println!("against the simulated rig's ground truth:");
-        print!("{}", hexcal::pipeline::format_truth(&outcome.truth));
+        print!("{}", hexcal::app::truth::format_truth(&outcome.truth));
     }
     for w in &outcome.warnings {
         println!("warning: {w}");
@@ -261,7 +235,7 @@ pub fn summarise(outcome: &hexcal::pipeline::Outcome, progress: Progress) {
 
 /// `hexcal devices`: what this machine has, as rig-file addresses.
 pub fn devices() -> anyhow::Result<()> {
-    use hexcal::rig::devices::{serial_ports, video_nodes, Found};
+    use hexcal::rig::discover::{serial_ports, video_nodes, Found};
     let mut all: Vec<Found> = Vec::new();
     let mut notes = Vec::new();
     match serial_ports() {
@@ -283,10 +257,10 @@ pub fn devices() -> anyhow::Result<()> {
 }
 
 /// Devices of the drivers built in (cargo features).
-fn extra_devices(all: &mut Vec<hexcal::rig::devices::Found>, notes: &mut Vec<String>) {
+fn extra_devices(all: &mut Vec<hexcal::rig::discover::Found>, notes: &mut Vec<String>) {
     #[cfg(feature = "aravis")]
     all.extend(hexcal::rig::aravis::list_cameras().into_iter().map(|c| {
-        hexcal::rig::devices::Found {
+        hexcal::rig::discover::Found {
             kind: "aravis",
             address: if c.address.is_empty() {
                 c.id
@@ -300,7 +274,7 @@ fn extra_devices(all: &mut Vec<hexcal::rig::devices::Found>, notes: &mut Vec<Str
     notes.push("GenICam cameras are listed by builds with --features aravis".into());
     #[cfg(feature = "window")]
     match hexcal::rig::window::monitors() {
-        Ok(m) => all.extend(m.into_iter().map(|m| hexcal::rig::devices::Found {
+        Ok(m) => all.extend(m.into_iter().map(|m| hexcal::rig::discover::Found {
             kind: "monitor",
             description: format!("{}×{} at {},{}", m.width, m.height, m.x, m.y),
             address: m.name,

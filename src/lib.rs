@@ -10,7 +10,10 @@
 //! and capture stacks with ground truth.
 #![warn(missing_docs)]
 
+pub mod app;
 pub mod atomic;
+#[cfg(feature = "bench")]
+pub mod bench;
 pub mod board;
 pub mod calib;
 pub mod camera;
@@ -18,12 +21,10 @@ pub mod capture;
 pub mod correspond;
 pub mod dataset;
 pub mod detect;
-pub mod detection;
 pub mod grid;
 pub mod images;
 pub mod pattern;
 pub mod phase;
-pub mod pipeline;
 pub mod report;
 pub mod rig;
 pub mod sim;

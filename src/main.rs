@@ -3,8 +3,11 @@
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use hexcal::board::{Board, Side};
+use hexcal::calib::solve::CalibrateOptions;
 use std::path::{Path, PathBuf};
 
+#[cfg(feature = "bench")]
+mod benchcmd;
 mod cli;
 
 /// Calibrate a structured-light rig of many cameras and projectors.
@@ -148,172 +151,12 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Speed benchmarks that print figures.
+    /// Speed benchmarks that print figures (built with `--features bench`).
+    #[cfg(feature = "bench")]
     Bench {
         #[command(subcommand)]
-        what: Bench,
+        what: benchcmd::Bench,
     },
-}
-
-#[derive(Subcommand)]
-enum Bench {
-    /// Bundle adjustment of a synthetic rig from a perturbed start (6 cameras and 3
-    /// projectors: the paper-like rig; otherwise cameras and projectors on a ring).
-    Calib {
-        /// Cameras.
-        #[arg(long, default_value_t = 6)]
-        cameras: usize,
-        /// Projectors.
-        #[arg(long, default_value_t = 3)]
-        projectors: usize,
-        /// Board poses.
-        #[arg(long, default_value_t = 10)]
-        poses: usize,
-        /// Observation noise σ (px).
-        #[arg(long, default_value_t = 0.1)]
-        sigma: f64,
-    },
-    /// Frames per second through the capture engine on a simulated rig (one pose, frames
-    /// discarded), with one camera's stack rendering broken down.
-    Capture {
-        /// The rig file.
-        #[arg(long, default_value = "rigs/sim-paper.toml")]
-        rig: PathBuf,
-    },
-    /// Frames per second through a GigE Vision camera on loopback (the in-process Aravis
-    /// fake camera serving known frames, each checked); needs `--features aravis`.
-    Aravis {
-        /// Frame width.
-        #[arg(long, default_value_t = 1920)]
-        width: u32,
-        /// Frame height.
-        #[arg(long, default_value_t = 1200)]
-        height: u32,
-        /// Bits per sample (8 or 16).
-        #[arg(long, default_value_t = 8)]
-        bits: u8,
-        /// Frames.
-        #[arg(long, default_value_t = 100)]
-        frames: usize,
-    },
-    /// Time from a window projector's `show` to the slide drawn by the X server (pattern
-    /// slides at the monitor's size on `$DISPLAY`); needs `--features window`.
-    Window {
-        /// Monitor (the first one when absent; `hexcal devices` lists them).
-        #[arg(long)]
-        monitor: Option<String>,
-        /// Slides.
-        #[arg(long, default_value_t = 100)]
-        slides: usize,
-    },
-    /// Render the built-in 1920×1200 scene (or --scene): ray grid, geometry, one frame.
-    Render {
-        /// Scene file (TOML); the built-in scene when absent.
-        #[arg(long)]
-        scene: Option<PathBuf>,
-        /// Repetitions (the median is printed).
-        #[arg(long, default_value_t = 5)]
-        repeat: usize,
-    },
-    /// Circle detection on the given images, or on built-in synthetic boards
-    /// (1920×1200 and 4096×3000) when none are given.
-    Detect {
-        /// Images to detect in.
-        images: Vec<PathBuf>,
-        /// Timed runs per image (after one warm-up run); the median is printed.
-        #[arg(long, default_value_t = 7)]
-        runs: usize,
-    },
-    /// Detection + grid building on rendered 1920×1200 and 4096×3000 board views, with
-    /// recall and centre error against the truth.
-    DetectGrid {
-        /// Timed runs per image (after one warm-up run); medians are printed.
-        #[arg(long, default_value_t = 7)]
-        runs: usize,
-        /// Keep the views, their truth and the figures here (else a temporary directory,
-        /// removed afterwards); OpenCV's SimpleBlobDetector runs on them
-        /// (scripts/bench_opencv_blobs.py) when /usr/bin/python3 has cv2.
-        #[arg(long)]
-        out: Option<PathBuf>,
-    },
-    /// Decode one camera's default phase-shift stack (synthetic scene, gamma 2.2).
-    Decode {
-        /// Camera width (px).
-        #[arg(long, default_value_t = 1920)]
-        width: u32,
-        /// Camera height (px).
-        #[arg(long, default_value_t = 1200)]
-        height: u32,
-        /// Number of projectors.
-        #[arg(long, default_value_t = 3)]
-        projectors: usize,
-        /// Timed decodes of the same stack.
-        #[arg(long, default_value_t = 3)]
-        repeats: usize,
-    },
-}
-
-/// `hexcal bench detect`: per image, the median and fastest time of `detect` and the
-/// throughput.
-fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
-    use {
-        hexcal::detect::{detect, synth, DetectParams},
-        hexcal::images::GrayImage,
-    };
-    let inputs: Vec<(String, GrayImage)> = if images.is_empty() {
-        vec![
-            (
-                "synthetic board, r=10 px, tilt 40°".into(),
-                synth::lattice_image(1920, 1200, 10.0, 40.0, 1),
-            ),
-            (
-                "synthetic board, r=4 px, frontal".into(),
-                synth::lattice_image(1920, 1200, 4.0, 0.0, 2),
-            ),
-            (
-                "synthetic board, r=24 px, tilt 40°".into(),
-                synth::lattice_image(4096, 3000, 24.0, 40.0, 3),
-            ),
-            (
-                "synthetic board, r=10 px, frontal".into(),
-                synth::lattice_image(4096, 3000, 10.0, 0.0, 4),
-            ),
-        ]
-    } else {
-        images
-            .iter()
-            .map(|p| Ok((p.display().to_string(), hexcal::images::load_gray(p)?)))
-            .collect::<anyhow::Result<_>>()?
-    };
-    let params = DetectParams::default();
-    println!("threads: {}", rayon::current_num_threads());
-    println!(
-        "{:>11} {:>6} {:>8} {:>10} {:>10} {:>8}  image",
-        "size", "MP", "circles", "median ms", "min ms", "MP/s"
-    );
-    for (name, img) in &inputs {
-        let n = detect(img, &params).len();
-        let mut ms: Vec<f64> = (0..runs.max(1))
-            .map(|_| {
-                let t = std::time::Instant::now();
-                std::hint::black_box(detect(img, &params));
-                t.elapsed().as_secs_f64() * 1e3
-            })
-            .collect();
-        ms.sort_by(f64::total_cmp);
-        let mp = img.width() as f64 * img.height() as f64 / 1e6;
-        let med = ms[ms.len() / 2];
-        println!(
-            "{:>11} {:>6.2} {:>8} {:>10.1} {:>10.1} {:>8.1}  {name}",
-            format!("{}x{}", img.width(), img.height()),
-            mp,
-            n,
-            med,
-            ms[0],
-            mp / (med / 1e3)
-        );
-    }
-    Ok(())
 }
 
 fn load_scene(path: Option<&PathBuf>) -> anyhow::Result<hexcal::sim::Scene> {
@@ -323,73 +166,35 @@ fn load_scene(path: Option<&PathBuf>) -> anyhow::Result<hexcal::sim::Scene> {
     })
 }
 
-/// `hexcal calibrate`: read, calibrate, write, print the residual table.
+/// `hexcal calibrate`: calibrate a dataset folder or a correspondences file, print the
+/// residual table.
 fn calibrate(
     input: &Path,
     out: &Path,
     reference: Option<&str>,
-    fix_k3: bool,
-    refine_flatness: bool,
+    options: CalibrateOptions,
     held_out: usize,
 ) -> anyhow::Result<()> {
-    use hexcal::calib::pipeline::{calibrate, CalibrateOptions, Correspondences};
+    use hexcal::app::calibrate::{calibrate_dataset, calibrate_file, device_index};
     if input.is_dir() {
-        let mut options = CalibrateOptions::default();
-        options.bundle.fix_k3 = fix_k3;
-        options.bundle.refine_flatness = refine_flatness;
+        let mut options = options;
         if let Some(name) = reference {
             let data = hexcal::dataset::Dataset::open(input)?;
-            options.bundle.reference = data
-                .info
-                .cameras
-                .iter()
-                .map(|c| &c.name)
-                .chain(data.info.projectors.iter().map(|p| &p.name))
-                .position(|d| d == name)
-                .with_context(|| format!("{}: no device named {name:?}", input.display()))?;
+            let (cameras, projectors) = (&data.info.cameras, &data.info.projectors);
+            let names = cameras.iter().map(|c| c.name.as_str());
+            let names = names.chain(projectors.iter().map(|p| p.name.as_str()));
+            options.bundle.reference = device_index(input, names, name)?;
         }
-        let outcome = hexcal::pipeline::calibrate_dataset(
-            input,
-            out,
-            held_out,
-            &options,
-            &mut cli::printer(cli::Progress::Human),
-        )
-        .map_err(anyhow::Error::msg)?;
+        let mut printer = cli::printer(cli::Progress::Human);
+        let outcome = calibrate_dataset(input, out, held_out, &options, &mut printer)?;
         cli::summarise(&outcome, cli::Progress::Human);
         return Ok(());
     }
-    let text = std::fs::read_to_string(input)
-        .with_context(|| format!("cannot read {}", input.display()))?;
-    let c: Correspondences = serde_json::from_str(&text)
-        .with_context(|| format!("{}: not a correspondences file", input.display()))?;
-    let board = Board::resolve(&c.board)?;
-    let mut options = CalibrateOptions::default();
-    options.bundle.fix_k3 = fix_k3;
-    options.bundle.refine_flatness = refine_flatness;
-    if let Some(name) = reference {
-        options.bundle.reference = c
-            .devices
-            .iter()
-            .position(|d| d.name == name)
-            .with_context(|| format!("{}: no device named {name:?}", input.display()))?;
-    }
-    let cal = calibrate(&board, &c.devices, c.poses, &c.views, &options)?;
-    let mut written = hexcal::report::write_outputs(&cal, out)?;
-    let html = out.join("report.html");
-    hexcal::report::html::write_html(
-        &hexcal::report::html::ReportInput {
-            calibration: &cal,
-            verification: &[],
-            title: &format!("hexcal calibration of {}", input.display()),
-            warnings: Vec::new(),
-        },
-        &html,
-    )?;
-    written.push(html);
+    let done = calibrate_file(input, out, reference, options)?;
+    let cal = &done.calibration;
     print!(
         "{}",
-        hexcal::report::format_table(&hexcal::report::residual_table(&cal))
+        hexcal::report::format_table(&hexcal::report::residual_table(cal))
     );
     println!(
         "σ {:.4} px; {} of {} unanchored views registered",
@@ -398,62 +203,13 @@ fn calibrate(
         cal.registration.unanchored
     );
     for u in &cal.registration.unregistered {
-        println!(
-            "unregistered: {} pose {}: {}",
-            c.devices[u.camera].name, u.pose, u.reason
-        );
+        let camera = &done.input.devices[u.camera].name;
+        println!("unregistered: {camera} pose {}: {}", u.pose, u.reason);
     }
     for e in &cal.excluded {
         println!("not calibrated: {}: {}", e.name, e.reason);
     }
-    println!("wrote {} files to {}", written.len(), out.display());
-    Ok(())
-}
-
-/// `hexcal verify`: triangulate held-out poses and print the length and flatness table.
-fn verify(calibration: &Path, input: &Path) -> anyhow::Result<()> {
-    use hexcal::calib::bundle::Device;
-    use hexcal::calib::pipeline::Correspondences;
-    let text = std::fs::read_to_string(calibration)
-        .with_context(|| format!("cannot read {}", calibration.display()))?;
-    let cal =
-        hexcal::report::CalibrationFile::from_json(&text, &calibration.display().to_string())?;
-    let text = std::fs::read_to_string(input)
-        .with_context(|| format!("cannot read {}", input.display()))?;
-    let c: Correspondences = serde_json::from_str(&text)
-        .with_context(|| format!("{}: not a correspondences file", input.display()))?;
-    let devices = c
-        .devices
-        .iter()
-        .map(|d| {
-            let r = cal
-                .devices
-                .iter()
-                .find(|r| r.name == d.name)
-                .with_context(|| {
-                    format!(
-                        "{}: device {:?} is not in {}",
-                        input.display(),
-                        d.name,
-                        calibration.display()
-                    )
-                })?;
-            Ok(Device {
-                name: r.name.clone(),
-                kind: r.kind,
-                model: r.model(),
-                pose: r.pose.isometry(),
-            })
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let board = Board::resolve(&c.board)?;
-    let checks = hexcal::calib::verify::verify(&board, &devices, &c.views);
-    anyhow::ensure!(
-        !checks.is_empty(),
-        "{}: no device pair shares ten circles of a pose",
-        input.display()
-    );
-    print!("{}", hexcal::report::format_verification(&checks));
+    println!("wrote {} files to {}", done.files.len(), out.display());
     Ok(())
 }
 
@@ -465,7 +221,7 @@ fn detect_command(
     overlay: Option<&Path>,
     images: &[PathBuf],
 ) -> anyhow::Result<()> {
-    use hexcal::detection::{process_all, to_json, Settings};
+    use hexcal::app::detect::{process_all, to_json, Settings};
     let board = Board::resolve(board)?;
     if let Some(dir) = overlay {
         std::fs::create_dir_all(dir)
@@ -540,7 +296,7 @@ fn main() -> anyhow::Result<()> {
         } => cli::run(
             &rig,
             &out,
-            &hexcal::pipeline::RunOptions {
+            &hexcal::app::run::RunOptions {
                 poses,
                 held_out,
                 keep_stacks,
@@ -554,21 +310,6 @@ fn main() -> anyhow::Result<()> {
                 cli::Progress::Human
             },
         )?,
-        Command::Bench {
-            what: Bench::Capture { rig },
-        } => cli::bench_capture(&rig)?,
-        Command::Bench {
-            what:
-                Bench::Aravis {
-                    width,
-                    height,
-                    bits,
-                    frames,
-                },
-        } => cli::bench_aravis(width, height, bits, frames)?,
-        Command::Bench {
-            what: Bench::Window { monitor, slides },
-        } => cli::bench_window(monitor.as_deref(), slides)?,
         Command::Info => {
             let b = hexcal::board::Board::hex600();
             println!("{}: {} circles per side", b.name, b.lattice().len());
@@ -592,15 +333,16 @@ fn main() -> anyhow::Result<()> {
             fix_k3,
             refine_flatness,
             held_out,
-        } => calibrate(
-            &input,
-            &out,
-            reference.as_deref(),
-            fix_k3,
-            refine_flatness,
-            held_out,
-        )?,
-        Command::Verify { calibration, input } => verify(&calibration, &input)?,
+        } => {
+            let mut options = CalibrateOptions::default();
+            options.bundle.fix_k3 = fix_k3;
+            options.bundle.refine_flatness = refine_flatness;
+            calibrate(&input, &out, reference.as_deref(), options, held_out)?
+        }
+        Command::Verify { calibration, input } => {
+            let checks = hexcal::app::calibrate::verify_file(&calibration, &input)?;
+            print!("{}", hexcal::report::format_verification(&checks));
+        }
         Command::Simulate { scene, out, seed } => {
             let mut scene = load_scene(scene.as_ref())?;
             scene.seed = seed.unwrap_or(scene.seed);
@@ -621,115 +363,8 @@ fn main() -> anyhow::Result<()> {
             overlay,
             images,
         } => detect_command(&board, &json, overlay.as_deref(), &images)?,
-        Command::Bench {
-            what:
-                Bench::Calib {
-                    cameras,
-                    projectors,
-                    poses,
-                    sigma,
-                },
-        } => {
-            let b = hexcal::calib::synthetic::bench_adjust(cameras, projectors, poses, sigma)?;
-            println!(
-                "bundle adjustment: {} devices, {} poses, {} observations, n = {}, p = {}, {} threads",
-                b.devices,
-                b.poses,
-                b.observations,
-                b.dof.0,
-                b.dof.1,
-                rayon::current_num_threads()
-            );
-            println!(
-                "{:.3} s, {} LM iterations; posterior σ {:.4} px (simulated {sigma}), worst focal error {:.4} %",
-                b.seconds,
-                b.iterations,
-                b.posterior_sigma,
-                100.0 * b.worst_focal_error
-            );
-        }
-        Command::Bench {
-            what: Bench::Render { scene, repeat },
-        } => {
-            let scene = load_scene(scene.as_ref())?;
-            println!("{}", hexcal::sim::bench_render(&scene, repeat)?);
-        }
-        Command::Bench {
-            what: Bench::Detect { images, runs },
-        } => bench_detect(&images, runs)?,
-        Command::Bench {
-            what: Bench::DetectGrid { runs, out },
-        } => {
-            use hexcal::detection::bench;
-            // The views go to --out, else to a temporary directory, for OpenCV's run.
-            let dir = out.clone().unwrap_or_else(|| {
-                std::env::temp_dir().join(format!("hexcal-bench-{}", std::process::id()))
-            });
-            std::fs::create_dir_all(&dir)?;
-            let report = bench::bench_detect_grid(&bench::scenes(), runs, Some(&dir));
-            let side_by_side = report
-                .is_ok()
-                .then(|| bench::opencv_side_by_side(&dir, runs));
-            if out.is_none() {
-                std::fs::remove_dir_all(&dir)?;
-            }
-            print!("{}", report?);
-            match side_by_side {
-                Some(Ok(table)) => {
-                    print!("\nOpenCV SimpleBlobDetector on the same views:\n{table}")
-                }
-                Some(Err(why)) => println!("\nOpenCV SimpleBlobDetector not run: {why}"),
-                None => {}
-            }
-        }
-        Command::Bench {
-            what:
-                Bench::Decode {
-                    width,
-                    height,
-                    projectors,
-                    repeats,
-                },
-        } => {
-            let r = hexcal::phase::synthetic::bench_decode(width, height, projectors, repeats);
-            let mib = |b: usize| b as f64 / (1024.0 * 1024.0);
-            println!(
-                "decode {}×{}, {} frames, P = {projectors}, {} threads (stack rendered in {:.1} s)",
-                r.size.0,
-                r.size.1,
-                r.frames,
-                rayon::current_num_threads(),
-                r.render_seconds
-            );
-            for run in &r.runs {
-                let cpu = |s: Option<f64>| s.map_or("n/a".into(), |s| format!("{s:.2} s"));
-                println!(
-                    "decode {:.3} s wall; CPU {} in frame pushes + {} in finish",
-                    run.wall_seconds,
-                    cpu(run.push_cpu_seconds),
-                    cpu(run.finish_cpu_seconds)
-                );
-            }
-            println!(
-                "load average: {}",
-                std::fs::read_to_string("/proc/loadavg")
-                    .unwrap_or_default()
-                    .trim()
-            );
-            println!(
-                "decoder buffers {:.0} MiB, decoded maps {:.0} MiB, peak RSS growth {}",
-                mib(r.decoder_bytes),
-                mib(r.output_bytes),
-                r.peak_growth_bytes
-                    .map_or("n/a".into(), |b| format!("{:.0} MiB", mib(b)))
-            );
-            for (p, a) in r.accuracy.iter().enumerate() {
-                println!(
-                    "projector {p}: valid {} (compared {}), rms u {:.3} v {:.3} px, predicted σ_u {:.3} σ_v {:.3}, gross {}",
-                    a.valid, a.compared, a.rms_u, a.rms_v, a.predicted_u, a.predicted_v, a.gross
-                );
-            }
-        }
+        #[cfg(feature = "bench")]
+        Command::Bench { what } => benchcmd::run(what)?,
     }
     Ok(())
 }

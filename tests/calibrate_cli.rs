@@ -3,7 +3,7 @@
 //! YAML with the same numbers, the Kalibr camchain is valid YAML with one entry per device,
 //! and bad input names the file.
 
-use hexcal::calib::pipeline::Correspondences;
+use hexcal::calib::solve::Correspondences;
 use hexcal::calib::synthetic::SyntheticRig;
 use hexcal::report::CalibrationFile;
 use std::path::Path;

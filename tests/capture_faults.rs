@@ -4,7 +4,7 @@
 //! resumes where it stopped. Needs permission to mount (root, as in CI); without it the test
 //! says why and skips.
 
-use hexcal::capture::capture_dataset;
+use hexcal::app::capture::capture_dataset;
 use hexcal::dataset::{Dataset, StackReader};
 use hexcal::rig::file::RigFile;
 use hexcal::rig::sim::SimWorld;
@@ -107,7 +107,7 @@ fn files(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
-fn capture(rig: &Path, out: &Path) -> Result<hexcal::capture::CaptureSummary, String> {
+fn capture(rig: &Path, out: &Path) -> Result<hexcal::app::capture::CaptureSummary, String> {
     capture_dataset(
         rig,
         out,
@@ -118,6 +118,7 @@ fn capture(rig: &Path, out: &Path) -> Result<hexcal::capture::CaptureSummary, St
         },
         &mut |line| eprintln!("{line}"),
     )
+    .map_err(|e| e.to_string())
 }
 
 /// Every file whole: no temporary file, every PNG decodes, every JSON parses.
@@ -232,7 +233,7 @@ fn a_frame_written_to_a_full_disk_is_an_error_and_leaves_no_file() {
         }
     };
     let rig = RigFile::parse(RIG, "disk.toml").unwrap();
-    let sequence = hexcal::capture::open::sequence(&rig).unwrap();
+    let sequence = rig.sequence().unwrap();
     let info = DatasetInfo {
         format: hexcal::dataset::FORMAT.into(),
         version: hexcal::dataset::VERSION,

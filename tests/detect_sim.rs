@@ -22,9 +22,9 @@
 //! by √(90/2) to ≈ 0.004 px. What remains is model error (the edge-level estimate, sampling
 //! at small radii, the non-elliptic outline under distortion), which the target bounds.
 
+use hexcal::app::detect::{analyse, Analysis, Settings};
 use hexcal::board::{Board, Hex, Side};
 use hexcal::camera::{CameraModel, Distortion, Intrinsics};
-use hexcal::detection::{analyse, Analysis, Settings};
 use hexcal::images::GrayImage;
 use hexcal::sim::{render, CircleTruth, Imaging, PoseSpec, Scene};
 use nalgebra::{Point2, Point3};

@@ -12,7 +12,7 @@
 
 use hexcal::board::Side;
 use hexcal::calib::bundle::DeviceKind;
-use hexcal::calib::pipeline::{calibrate, CalibrateOptions};
+use hexcal::calib::solve::{calibrate, CalibrateOptions};
 use hexcal::calib::synthetic::SyntheticRig;
 use hexcal::calib::views::CameraView;
 use hexcal::correspond::{camera_view, FitParams, ProjectorMap};

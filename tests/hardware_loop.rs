@@ -30,8 +30,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 use {
-    hexcal::capture::{CaptureError, CaptureTiming, Session},
+    hexcal::capture::{CaptureError, Session},
     hexcal::dataset::Timeline,
+    hexcal::rig::{CaptureTiming, RigDevices},
 };
 use {
     hexcal::images::Pixels,
@@ -91,9 +92,8 @@ struct Truth {
 
 fn truth(poses: usize) -> Truth {
     let rig = RigFile::parse(RIG, "hardware-loop.toml").unwrap();
-    let board = hexcal::capture::open::board(&rig, Path::new(".")).unwrap();
-    let world = SimWorld::new(&rig, board).unwrap();
-    let sequence = hexcal::capture::open::sequence(&rig).unwrap();
+    let world = SimWorld::new(&rig, rig.board().unwrap()).unwrap();
+    let sequence = rig.sequence().unwrap();
     let renderers: Vec<StackRenderer> = (0..poses)
         .map(|p| world.stack_renderer(0, p, &sequence).unwrap())
         .collect();
@@ -284,8 +284,7 @@ impl Projector for Watched {
 /// The simulated projector of the truth rig.
 fn simulated_projector() -> Box<dyn Projector> {
     let rig = RigFile::parse(RIG, "hardware-loop.toml").unwrap();
-    let board = hexcal::capture::open::board(&rig, Path::new(".")).unwrap();
-    let world = Arc::new(SimWorld::new(&rig, board).unwrap());
+    let world = Arc::new(SimWorld::new(&rig, rig.board().unwrap()).unwrap());
     let (_, mut projectors) = world.devices();
     Box::new(projectors.remove(0))
 }
@@ -343,12 +342,14 @@ fn start(
         repeats: 1,
     };
     let session = Session::start(
-        vec![Box::new(camera) as Box<dyn Camera>],
-        &[config],
-        vec![Box::new(watched) as Box<dyn Projector>],
-        Some(Box::new(wired)),
+        RigDevices {
+            cameras: vec![Box::new(camera) as Box<dyn Camera>],
+            configs: vec![config],
+            projectors: vec![Box::new(watched) as Box<dyn Projector>],
+            trigger: Some(Box::new(wired)),
+            timing,
+        },
         &truth.sequence,
-        timing,
     )
     .expect("session starts");
     let info = DatasetInfo {

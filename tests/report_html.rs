@@ -8,7 +8,7 @@
 mod cli;
 
 use cli::scratch;
-use hexcal::calib::pipeline::{calibrate, CalibrateOptions};
+use hexcal::calib::solve::{calibrate, CalibrateOptions};
 use hexcal::calib::synthetic::SyntheticRig;
 use hexcal::calib::verify::verify;
 use hexcal::report::html::{write_html, ReportInput};

@@ -12,7 +12,8 @@
 mod cli;
 
 use cli::scratch;
-use hexcal::pipeline::{run, Event, RunOptions};
+use hexcal::app::progress::Event;
+use hexcal::app::run::{run, RunOptions};
 use std::path::Path;
 
 const RIG: &str = r#"

@@ -7,11 +7,12 @@
 //! (x11-apps) and `xdotool`.
 #![cfg(feature = "window")]
 
-use hexcal::capture::{open, CaptureError, CaptureTiming, Session};
+use hexcal::capture::{CaptureError, Session};
 use hexcal::dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry, StackReader};
 use hexcal::pattern::{ProjectorResponse, ProjectorSetup, Sequence};
 use hexcal::rig::file::RigFile;
 use hexcal::rig::window::WindowProjector;
+use hexcal::rig::{CaptureTiming, RigDevices};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -216,9 +217,9 @@ fn a_missing_monitor_or_a_wrong_size_names_the_projector() {
                 "wrong.toml",
             )
             .unwrap();
-            let e = open::open(&rig, Path::new(".")).err().unwrap();
+            let e = hexcal::rig::open(&rig).err().unwrap();
             assert_eq!(
-                e,
+                e.to_string(),
                 "projector side: width, height: the projector is 1920×1080 but monitor screen \
                  is 1280×800"
             );
@@ -425,7 +426,7 @@ fn a_capture_whose_projector_window_is_killed_keeps_the_poses_written() {
                  180.0 }\nsim.pose = { eye = [-300.0, 50.0, -1300.0], target = [0.0, 0.0, 0.0] }",
             );
             let rig = RigFile::parse(&sim_rig, "tiny-window.toml").unwrap();
-            let opened = open::open(&rig, Path::new(".")).unwrap();
+            let opened = hexcal::rig::open(&rig).unwrap();
             let world = opened.world.clone().unwrap();
             let seq = opened.sequence.clone();
             let (cams, mut projs) = world.devices();
@@ -440,10 +441,16 @@ fn a_capture_whose_projector_window_is_killed_keeps_the_poses_written() {
             let timing = CaptureTiming {
                 frame_timeout: Duration::from_millis(500),
                 settle: Duration::ZERO,
-                ..opened.timing
+                ..opened.devices.timing
             };
-            let mut s =
-                Session::start(cameras, &opened.configs, projectors, None, &seq, timing).unwrap();
+            let devices = RigDevices {
+                cameras,
+                configs: opened.devices.configs,
+                projectors,
+                trigger: None,
+                timing,
+            };
+            let mut s = Session::start(devices, &seq).unwrap();
             let dir =
                 std::env::temp_dir().join(format!("hexcal-window-capture-{}", std::process::id()));
             let _ = std::fs::remove_dir_all(&dir);

@@ -1,15 +1,15 @@
 //! Calibration (docs/design.md §7–8): registration of unanchored views ([`views`]), Zhang's
 //! planar initialisation per device ([`zhang`]), the pose graph ([`posegraph`]) and one
 //! bundle adjustment over all devices, board poses and both sides ([`bundle`], with the
-//! circle model of [`circle`]); [`pipeline::calibrate`] runs them in order.
+//! circle model of [`circle`]); [`solve::calibrate`] runs them in order.
 //!
 //! Takes labelled camera views with projector coordinates at their circles and gives every
 //! device's model and pose in the reference device's frame, with residuals and covariance.
 
 pub mod bundle;
 pub mod circle;
-pub mod pipeline;
 pub mod posegraph;
+pub mod solve;
 pub mod synthetic;
 pub mod verify;
 pub mod views;

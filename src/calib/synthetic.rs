@@ -4,7 +4,7 @@
 
 use super::bundle::{Bend, Device, DeviceKind, Observation, Problem, Via};
 use super::circle::ellipse_center;
-use super::pipeline::DeviceInfo;
+use super::solve::DeviceInfo;
 use super::views::{CameraView, Frame, ProjectorPixel, ViewPoint};
 use crate::board::{Board, Hex, Side};
 use crate::camera::{CameraModel, Distortion, Intrinsics};

@@ -365,7 +365,7 @@ mod bundle_adjustment {
 }
 
 mod pipeline {
-    use super::super::pipeline::{calibrate, CalibrateOptions};
+    use super::super::solve::{calibrate, CalibrateOptions};
     use super::super::synthetic::SyntheticRig;
     use super::super::views::{register, CameraView, Frame, Registration};
     use crate::board::Hex;
@@ -534,7 +534,7 @@ mod pipeline {
 }
 
 mod verification {
-    use super::super::pipeline::{calibrate, CalibrateOptions};
+    use super::super::solve::{calibrate, CalibrateOptions};
     use super::super::synthetic::SyntheticRig;
     use super::super::verify::verify;
 

@@ -13,8 +13,6 @@
 //!
 //! [`dataset`] stores captured poses on disk.
 
-pub mod open;
-
 use crate::dataset::{FrameTiming, StackFrame, Timeline};
 use crate::pattern::Sequence;
 use crossbeam_channel::{bounded, Receiver, Sender};
@@ -22,23 +20,11 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use {
     crate::images::{CameraFrame, Pixels},
-    crate::rig::{Camera, CameraConfig, DeviceError, Projector, Slide, Trigger, TriggerSource},
+    crate::rig::{
+        Camera, CameraConfig, CaptureTiming, DeviceError, Projector, RigDevices, Slide, Trigger,
+        TriggerSource,
+    },
 };
-
-/// Timing of a capture.
-#[derive(Clone, Debug, PartialEq)]
-pub struct CaptureTiming {
-    /// Wait after the slowest projector presented a pattern, before triggering.
-    pub settle: Duration,
-    /// Each projector's latency from presented to light on the board.
-    pub latency: Vec<Duration>,
-    /// How long to wait for a camera's frame.
-    pub frame_timeout: Duration,
-    /// Extra triggers of a frame that timed out or arrived incomplete.
-    pub retries: u32,
-    /// Frames taken and averaged per pattern.
-    pub repeats: u32,
-}
 
 /// Why a capture failed.
 #[derive(Debug, thiserror::Error)]
@@ -112,16 +98,17 @@ pub struct Session {
 }
 
 impl Session {
-    /// Configure and start `cameras` (one config each), prepare `projectors` for
+    /// Configure and start a rig's cameras (one config each), prepare its projectors for
     /// `sequence` (projector i shows code i), arm nothing yet.
-    pub fn start(
-        cameras: Vec<Box<dyn Camera>>,
-        configs: &[CameraConfig],
-        projectors: Vec<Box<dyn Projector>>,
-        trigger: Option<Box<dyn Trigger>>,
-        sequence: &Sequence,
-        timing: CaptureTiming,
-    ) -> Result<Session, CaptureError> {
+    pub fn start(devices: RigDevices, sequence: &Sequence) -> Result<Session, CaptureError> {
+        let RigDevices {
+            cameras,
+            configs,
+            projectors,
+            trigger,
+            timing,
+        } = devices;
+        let configs = &configs[..];
         if configs.len() != cameras.len() || projectors.len() != sequence.projectors().len() {
             return Err(CaptureError::Setup(format!(
                 "{} cameras with {} settings, {} projectors for a sequence of {}",
@@ -528,105 +515,6 @@ fn samples(p: &Pixels) -> Vec<u32> {
         Pixels::Gray8(v) => v.iter().map(|&x| u32::from(x)).collect(),
         Pixels::Gray16(v) => v.iter().map(|&x| u32::from(x)).collect(),
     }
-}
-
-/// Puts the board at pose k before it is captured: the simulated world's pose (given when
-/// the rig is simulated), or the operator's; `Ok(false)` stops the capture.
-pub type PlaceBoard<'a> =
-    dyn FnMut(usize, Option<&crate::rig::sim::SimWorld>) -> Result<bool, String> + 'a;
-
-/// What [`capture_dataset`] did.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct CaptureSummary {
-    /// Poses captured now.
-    pub captured: Vec<usize>,
-    /// Poses already complete in the dataset (skipped).
-    pub skipped: Vec<usize>,
-    /// Per captured pose, its timeline.
-    pub timelines: Vec<Timeline>,
-}
-
-/// Capture `poses` board poses of the rig file at `rig_path` into the dataset folder `out`
-/// (created, or resumed: complete poses are skipped). `place(k)` puts the board at pose k
-/// (the simulated world's pose, or the operator's) and may refuse to go on (`Ok(false)`
-/// stops the capture, keeping every complete pose); `log` hears one line per pose.
-pub fn capture_dataset(
-    rig_path: &std::path::Path,
-    out: &std::path::Path,
-    poses: usize,
-    place: &mut PlaceBoard,
-    log: &mut dyn FnMut(&str),
-) -> Result<CaptureSummary, String> {
-    use crate::dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry};
-    let rig = crate::rig::file::RigFile::load(rig_path).map_err(|e| e.to_string())?;
-    let base = rig_path.parent().unwrap_or(std::path::Path::new("."));
-    let opened = open::open(&rig, base)?;
-    let info = DatasetInfo {
-        format: crate::dataset::FORMAT.into(),
-        version: crate::dataset::VERSION,
-        rig: rig.name.clone(),
-        board: rig.board.clone(),
-        sequence: opened.sequence.clone(),
-        cameras: rig
-            .cameras
-            .iter()
-            .map(|c| CameraEntry {
-                name: c.name.clone(),
-                width: c.width,
-                height: c.height,
-                bits: c.bits,
-            })
-            .collect(),
-        projectors: rig
-            .projectors
-            .iter()
-            .map(|p| ProjectorEntry {
-                name: p.name.clone(),
-                width: p.width,
-                height: p.height,
-            })
-            .collect(),
-    };
-    let data = Dataset::create_or_resume(out, info).map_err(|e| e.to_string())?;
-    let rig_copy = out.join("rig.toml");
-    if !rig_copy.exists() {
-        let text = std::fs::read(rig_path).map_err(|e| format!("{}: {e}", rig_path.display()))?;
-        crate::atomic::write(&rig_copy, &text)
-            .map_err(|e| format!("{}: {e}", rig_copy.display()))?;
-    }
-    let done = data.completed().map_err(|e| e.to_string())?;
-    let world = opened.world.clone();
-    let cameras = opened.cameras.len();
-    let mut session = Session::start(
-        opened.cameras,
-        &opened.configs,
-        opened.projectors,
-        opened.trigger,
-        &opened.sequence,
-        opened.timing,
-    )
-    .map_err(|e| e.to_string())?;
-    let mut summary = CaptureSummary::default();
-    for k in 0..poses {
-        if done.contains(&k) {
-            summary.skipped.push(k);
-            continue;
-        }
-        if !place(k, world.as_deref())? {
-            break;
-        }
-        let mut writer = data.pose_writer(k).map_err(|e| e.to_string())?;
-        let timeline = session
-            .capture_pose(k, &mut |f| writer.write(&f).map_err(|e| e.to_string()))
-            .map_err(|e| e.to_string())?;
-        let info = writer.finish(&timeline).map_err(|e| e.to_string())?;
-        data.complete(&info).map_err(|e| e.to_string())?;
-        log(&format!("pose {k}: {}", timeline.summary(cameras)));
-        summary.captured.push(k);
-        summary.timelines.push(timeline);
-    }
-    session.finish().map_err(|e| e.to_string())?;
-    Ok(summary)
 }
 
 #[cfg(test)]

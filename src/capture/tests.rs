@@ -62,7 +62,7 @@ fn rig() -> RigFile {
 /// A session on the tiny rig with `faults` on camera 1 and fast timeouts.
 fn session(faults: Faults) -> (Session, Arc<SimWorld>, Sequence) {
     let rig = rig();
-    let opened = open::open(&rig, Path::new(".")).unwrap();
+    let opened = crate::rig::open(&rig).unwrap();
     let world = opened.world.clone().unwrap();
     let (mut cams, projs) = world.devices();
     cams[1].set_faults(faults);
@@ -71,15 +71,17 @@ fn session(faults: Faults) -> (Session, Arc<SimWorld>, Sequence) {
     let timing = CaptureTiming {
         frame_timeout: Duration::from_millis(200),
         settle: Duration::ZERO,
-        ..opened.timing
+        ..opened.devices.timing
     };
     let s = Session::start(
-        cameras,
-        &opened.configs,
-        projectors,
-        None,
+        RigDevices {
+            cameras: cameras,
+            configs: opened.devices.configs,
+            projectors: projectors,
+            trigger: None,
+            timing: timing,
+        },
         &opened.sequence,
-        timing,
     )
     .unwrap();
     (s, world, opened.sequence)
@@ -405,18 +407,10 @@ fn the_simulated_controller_on_a_pty_triggers_the_same_frames() {
         .replace("name = \"front\"\n", "name = \"front\"\ntrigger_line = 0\n")
         .replace("name = \"back\"\n", "name = \"back\"\ntrigger_line = 1\n");
     let rig = RigFile::parse(&text, "tiny-hw.toml").unwrap();
-    let opened = open::open(&rig, Path::new(".")).unwrap();
-    assert!(opened.trigger.is_some());
+    let opened = crate::rig::open(&rig).unwrap();
+    assert!(opened.devices.trigger.is_some());
     let world = opened.world.clone().unwrap();
-    let mut hw = Session::start(
-        opened.cameras,
-        &opened.configs,
-        opened.projectors,
-        opened.trigger,
-        &opened.sequence,
-        opened.timing,
-    )
-    .unwrap();
+    let mut hw = Session::start(opened.devices, &opened.sequence).unwrap();
     world.place(2);
     let mut frames = Vec::new();
     let timeline = hw

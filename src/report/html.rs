@@ -9,7 +9,7 @@
 
 use super::{residual_table, ReportError, ResidualRow};
 use crate::calib::bundle::{Device, DeviceKind};
-use crate::calib::pipeline::Calibration;
+use crate::calib::solve::Calibration;
 use crate::calib::verify::PairCheck;
 use crate::camera::{LensParam, LensParams};
 use nalgebra::{Point2, Point3, Vector2, Vector3};
@@ -1237,7 +1237,7 @@ fn verification_section(h: &mut String, cal: &Calibration, checks: &[PairCheck])
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::pipeline::{calibrate, Excluded};
+    use crate::calib::solve::{calibrate, Excluded};
     use crate::calib::synthetic::SyntheticRig;
     use std::sync::OnceLock;
 

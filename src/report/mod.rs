@@ -9,7 +9,7 @@
 pub mod html;
 
 use crate::calib::bundle::DeviceKind;
-use crate::calib::pipeline::Calibration;
+use crate::calib::solve::Calibration;
 use crate::camera::{CameraModel, Distortion, Intrinsics};
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use serde::{Deserialize, Serialize};

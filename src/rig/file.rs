@@ -3,11 +3,14 @@
 //! ground truth and the board poses. Unknown keys and impossible values are errors that
 //! name the key and its line. The format is documented in `docs/rig-file.md`.
 
+use crate::board::{Board, BoardError};
 use crate::camera::{Distortion, Intrinsics};
+use crate::dataset::{CameraEntry, DatasetInfo, ProjectorEntry};
+use crate::pattern::{ProjectorCode, ProjectorResponse, ProjectorSetup, Sequence, SequenceError};
 use crate::tomlspan::{line_of, KeySpans};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Camera drivers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -232,6 +235,13 @@ pub struct RigFile {
     /// Board poses of a simulated rig.
     #[serde(default)]
     pub poses: Option<PosesSpec>,
+    /// The folder of the rig file (board files are relative to it); "." for parsed text.
+    #[serde(skip, default = "current_folder")]
+    pub base: PathBuf,
+}
+
+fn current_folder() -> PathBuf {
+    PathBuf::from(".")
 }
 
 fn default_board() -> String {
@@ -290,7 +300,96 @@ impl RigFile {
             origin: origin.clone(),
             source,
         })?;
-        RigFile::parse(&text, &origin)
+        let mut rig = RigFile::parse(&text, &origin)?;
+        rig.base = path.parent().unwrap_or(Path::new(".")).to_owned();
+        Ok(rig)
+    }
+
+    /// The board the rig file names: a built-in name or a board file relative to the rig
+    /// file's folder.
+    pub fn board(&self) -> Result<Board, BoardError> {
+        if let Some(b) = Board::builtin(&self.board) {
+            return Ok(b);
+        }
+        Board::load(self.base.join(&self.board))
+    }
+
+    /// The phase-shift sequence of a rig file (docs/design.md §6): the default for its projectors
+    /// (gamma 1 is linear, others uncorrected) unless `steps` is set; `steps` below 5P means the
+    /// projectors' gamma is linearised by hexcal (frequencies 1…P). Fringe counts as given.
+    pub fn sequence(&self) -> Result<Sequence, SequenceError> {
+        let rig = self;
+        let p = rig.projectors.len() as u32;
+        let linearised = rig.sequence.steps.is_some_and(|n| n < 5 * p);
+        let setups: Vec<ProjectorSetup> = rig
+            .projectors
+            .iter()
+            .map(|s| ProjectorSetup {
+                width: s.width,
+                height: s.height,
+                response: if s.gamma == 1.0 {
+                    ProjectorResponse::Linear
+                } else if linearised {
+                    ProjectorResponse::Linearised { gamma: s.gamma }
+                } else {
+                    ProjectorResponse::Gamma { gamma: s.gamma }
+                },
+            })
+            .collect();
+        let default = Sequence::default_for(&setups)?;
+        let counts = rig.sequence.fringe_counts.clone();
+        let steps = rig.sequence.steps.unwrap_or(default.steps());
+        let codes: Vec<ProjectorCode> = if steps == default.steps() {
+            default.projectors().to_vec()
+        } else {
+            // Frequencies ±1 (mod 5) when harmonics must stay apart, else 1…P.
+            let harmonics = setups.iter().any(|s| s.response.has_harmonics());
+            setups
+                .iter()
+                .enumerate()
+                .map(|(i, s)| ProjectorCode {
+                    width: s.width,
+                    height: s.height,
+                    frequency: if harmonics {
+                        5 * (i as u32 / 2) + if i % 2 == 0 { 1 } else { 4 }
+                    } else {
+                        i as u32 + 1
+                    },
+                    response: s.response,
+                })
+                .collect()
+        };
+        Sequence::new(steps, codes, counts.clone(), counts)
+    }
+
+    /// The dataset description of this rig under `sequence` (docs/dataset.md).
+    pub fn dataset_info(&self, sequence: &Sequence) -> DatasetInfo {
+        DatasetInfo {
+            format: crate::dataset::FORMAT.into(),
+            version: crate::dataset::VERSION,
+            rig: self.name.clone(),
+            board: self.board.clone(),
+            sequence: sequence.clone(),
+            cameras: self
+                .cameras
+                .iter()
+                .map(|c| CameraEntry {
+                    name: c.name.clone(),
+                    width: c.width,
+                    height: c.height,
+                    bits: c.bits,
+                })
+                .collect(),
+            projectors: self
+                .projectors
+                .iter()
+                .map(|p| ProjectorEntry {
+                    name: p.name.clone(),
+                    width: p.width,
+                    height: p.height,
+                })
+                .collect(),
+        }
     }
 
     /// Parse and check rig-file text; errors name `origin`, the key and its line.

@@ -5,8 +5,9 @@
 #[cfg(feature = "aravis")]
 pub mod aravis;
 pub mod device;
-pub mod devices;
+pub mod discover;
 pub mod file;
+pub mod open;
 pub mod sim;
 pub mod trigger;
 #[cfg(feature = "v4l2")]
@@ -15,3 +16,4 @@ pub mod v4l2;
 pub mod window;
 
 pub use device::{Camera, CameraConfig, DeviceError, Projector, Slide, Trigger, TriggerSource};
+pub use open::{open, CaptureTiming, OpenError, OpenedRig, RigDevices, SIMULATED_PORT};

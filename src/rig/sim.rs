@@ -14,12 +14,37 @@ use crate::camera::CameraModel;
 use crate::images::{CameraFrame, Pixels};
 use crate::pattern::Sequence;
 use crate::sim::stack::{StackProjector, StackRenderer};
-use crate::sim::{Imaging, PoseSpec, Scene};
+use crate::sim::{Imaging, PoseSpec, Scene, SimError};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand::{rngs::StdRng, Rng, SeedableRng};
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+
+/// Why a simulated rig could not be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum SimRigError {
+    /// A simulated device without its `sim` truth.
+    #[error("{0}: a sim device needs sim.intrinsics and sim.pose")]
+    NoTruth(String),
+    /// A device's `sim.pose` is impossible.
+    #[error("{device}: sim.pose: {source}")]
+    Pose {
+        /// The device.
+        device: String,
+        /// Why.
+        source: SimError,
+    },
+    /// No `[poses]` table.
+    #[error("a simulated rig needs a [poses] table")]
+    NoPoses,
+    /// No pty pair for the simulated trigger controller.
+    #[error("trigger: no pty pair: {0}")]
+    Pty(serialport::Error),
+    /// The host driver could not talk to the simulated controller.
+    #[error("trigger: {0}")]
+    Controller(#[from] super::trigger::TriggerError),
+}
 
 /// Ambient light on white (DN) and the level every projector together adds up to on white
 /// (docs/design.md §9 default stack conditions).
@@ -63,14 +88,13 @@ pub struct SimWorld {
 }
 
 /// T_device_rig of a device at `eye` looking at `target` (rig y up, image y down).
-pub fn look_at(l: &LookAt) -> Result<Isometry3<f64>, String> {
+pub fn look_at(l: &LookAt) -> Result<Isometry3<f64>, SimError> {
     PoseSpec {
         eye: Some(l.eye),
         target: Some(l.target),
         ..PoseSpec::default()
     }
     .cam_from_board()
-    .map_err(|e| e.to_string())
 }
 
 /// The board poses T_rig_board of a `[poses]` table: turned about the vertical evenly over
@@ -108,9 +132,8 @@ fn device(
     truth: Option<&SimTruth>,
     width: u32,
     height: u32,
-) -> Result<SimDevice, String> {
-    let t =
-        truth.ok_or_else(|| format!("{name}: a sim device needs sim.intrinsics and sim.pose"))?;
+) -> Result<SimDevice, SimRigError> {
+    let t = truth.ok_or_else(|| SimRigError::NoTruth(name.to_string()))?;
     Ok(SimDevice {
         name: name.to_string(),
         model: CameraModel {
@@ -119,14 +142,17 @@ fn device(
             intrinsics: t.intrinsics,
             distortion: t.distortion,
         },
-        pose: look_at(&t.pose).map_err(|e| format!("{name}: sim.pose: {e}"))?,
+        pose: look_at(&t.pose).map_err(|source| SimRigError::Pose {
+            device: name.to_string(),
+            source,
+        })?,
     })
 }
 
 impl SimWorld {
     /// The world of `rig`'s simulated devices on `board` (devices of other drivers are left
     /// out); fails naming the device whose truth is missing or the missing `[poses]`.
-    pub fn new(rig: &RigFile, board: Board) -> Result<SimWorld, String> {
+    pub fn new(rig: &RigFile, board: Board) -> Result<SimWorld, SimRigError> {
         use super::file::{CameraDriver, ProjectorDriver};
         let cameras = rig
             .cameras
@@ -140,10 +166,7 @@ impl SimWorld {
             .filter(|p| p.driver == ProjectorDriver::Sim)
             .map(|p| device(&p.name, p.sim.as_ref(), p.width, p.height))
             .collect::<Result<Vec<_>, _>>()?;
-        let poses = rig
-            .poses
-            .as_ref()
-            .ok_or("a simulated rig needs a [poses] table")?;
+        let poses = rig.poses.as_ref().ok_or(SimRigError::NoPoses)?;
         Ok(SimWorld {
             board,
             board_poses: board_poses(poses),
@@ -202,7 +225,7 @@ impl SimWorld {
         c: usize,
         pose: usize,
         sequence: &Sequence,
-    ) -> Result<StackRenderer, String> {
+    ) -> Result<StackRenderer, SimError> {
         let cam = &self.cameras[c];
         let board = self.board_poses[pose];
         let cam_from_board = cam.pose * board;
@@ -230,7 +253,7 @@ impl SimWorld {
                 gain_dn: gain,
             })
             .collect();
-        StackRenderer::new(&scene, &projectors, AMBIENT_DN, sequence).map_err(|e| e.to_string())
+        StackRenderer::new(&scene, &projectors, AMBIENT_DN, sequence)
     }
 }
 
@@ -388,7 +411,7 @@ impl SimCamera {
             let r = self
                 .world
                 .stack_renderer(self.index, state.pose, sequence)
-                .map_err(|e| self.failed(e))?;
+                .map_err(|e| self.failed(e.to_string()))?;
             self.renderer = Some((state.pose, r));
         }
         let Some((_, renderer)) = &self.renderer else {
@@ -448,21 +471,19 @@ impl WiredTrigger {
     }
 
     /// A controller whose firmware is the simulator's model on an in-process pty pair.
-    pub fn simulated(world: Arc<SimWorld>, timeout: Duration) -> Result<WiredTrigger, String> {
+    pub fn simulated(world: Arc<SimWorld>, timeout: Duration) -> Result<WiredTrigger, SimRigError> {
         use hexcal_simulator::firmware::{ModelConfig, SimulatedController};
         use serialport::SerialPort;
-        let (mut master, slave) =
-            serialport::TTYPort::pair().map_err(|e| format!("trigger: no pty pair: {e}"))?;
+        let (mut master, slave) = serialport::TTYPort::pair().map_err(SimRigError::Pty)?;
         // The firmware's read timeout is its timer resolution.
         master
             .set_timeout(Duration::from_millis(1))
-            .map_err(|e| format!("trigger: pty: {e}"))?;
+            .map_err(SimRigError::Pty)?;
         let firmware = SimulatedController::spawn(master, ModelConfig::default());
         let controller = super::trigger::TriggerController::from_port(
             Box::new(slave),
             super::trigger::TriggerTiming::default(),
-        )
-        .map_err(|e| e.to_string())?;
+        )?;
         Ok(WiredTrigger {
             firmware: Some(firmware),
             ..WiredTrigger::new(controller, world, timeout)

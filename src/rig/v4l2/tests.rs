@@ -5,10 +5,10 @@
 //! frame counters and errors, and a capture through the real engine.
 
 use super::*;
-use crate::capture::{open, CaptureTiming, Session};
+use crate::capture::Session;
 use crate::rig::file::RigFile;
+use crate::rig::{CaptureTiming, RigDevices};
 use std::collections::{HashMap, HashSet, VecDeque};
-use std::path::Path;
 use std::sync::{Arc, Mutex, MutexGuard};
 
 const NODE: &str = "/dev/video-sim";
@@ -745,7 +745,7 @@ sim.pose = { eye = [300.0, 50.0, 1300.0], target = [0.0, 0.0, 0.0] }
 /// frames `lost`: the timeline and, per frame, its counter and the node's sequence number.
 fn capture_through_engine(lost: &[u32]) -> (crate::dataset::Timeline, Vec<(u64, u32)>) {
     let rig = RigFile::parse(RIG, "v4l2-sim.toml").unwrap();
-    let opened = open::open(&rig, Path::new(".")).unwrap();
+    let opened = crate::rig::open(&rig).unwrap();
     let node = SimNode::new(&[FourCc::YUYV], uvc_controls());
     node.sim().lost.extend(lost);
     let timing = CaptureTiming {
@@ -755,15 +755,14 @@ fn capture_through_engine(lost: &[u32]) -> (crate::dataset::Timeline, Vec<(u64, 
         retries: 0,
         repeats: 1,
     };
-    let mut session = Session::start(
-        vec![Box::new(camera(&node))],
-        &[config(64, 48, 8)],
-        opened.projectors,
-        None,
-        &opened.sequence,
+    let devices = RigDevices {
+        cameras: vec![Box::new(camera(&node))],
+        configs: vec![config(64, 48, 8)],
+        projectors: opened.devices.projectors,
+        trigger: None,
         timing,
-    )
-    .unwrap();
+    };
+    let mut session = Session::start(devices, &opened.sequence).unwrap();
     let mut frames = Vec::new();
     let timeline = session
         .capture_pose(0, &mut |f| {

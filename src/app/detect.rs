@@ -7,11 +7,9 @@
 //! order, and an error naming the file for each image that cannot be read. Pixel (0, 0) is
 //! the centre of the top-left pixel (docs/design.md §2).
 
-pub mod bench;
-mod overlay;
-
 pub use overlay::draw_overlay;
 
+use super::overlay;
 use crate::board::{Board, Side};
 use crate::grid::{build, Grid, GridParams};
 use crate::images::{load_gray, ImageIoError};

@@ -4,7 +4,7 @@
 //! `scripts/bench_opencv_blobs.py` runs OpenCV's SimpleBlobDetector on the same images
 //! ([`opencv_side_by_side`]).
 
-use super::{analyse, Settings};
+use crate::app::detect::{analyse, Settings};
 use crate::board::Board;
 use crate::grid::build;
 use crate::sim::{render, write_view, Scene, SimError};

@@ -3,7 +3,7 @@
 //! labelled neighbours (cyan when anchored, yellow when not) and each point's "q,r" label
 //! in a 3×5 pixel font.
 
-use super::Analysis;
+use super::detect::Analysis;
 use crate::board::Hex;
 use crate::images::{Ellipse, GrayImage};
 use image::{Rgb, RgbImage};

@@ -1,0 +1,323 @@
+//! `hexcal calibrate`: a dataset folder's views (or its stacks, decoded) or a
+//! correspondences file to a calibration, verified on held-out poses, with every output file.
+
+use super::process::{process_decoded, PoseViews, StackResult};
+use super::progress::{Event, Outcome};
+use super::AppError;
+use crate::board::Board;
+use crate::calib::bundle::{Device, DeviceKind};
+use crate::calib::solve::{calibrate, CalibrateOptions, Calibration, Correspondences, DeviceInfo};
+use crate::calib::verify::{verify, PairCheck};
+use crate::correspond::CameraView;
+use crate::dataset::{Dataset, DatasetInfo};
+use std::path::{Path, PathBuf};
+
+pub(crate) fn devices_of(info: &DatasetInfo) -> Vec<DeviceInfo> {
+    info.cameras
+        .iter()
+        .map(|c| DeviceInfo {
+            name: c.name.clone(),
+            kind: DeviceKind::Camera,
+            width: c.width,
+            height: c.height,
+        })
+        .chain(info.projectors.iter().map(|p| DeviceInfo {
+            name: p.name.clone(),
+            kind: DeviceKind::Projector,
+            width: p.width,
+            height: p.height,
+        }))
+        .collect()
+}
+
+/// Every pose's views, with what they refer to.
+pub(crate) struct Collected<'a> {
+    pub(crate) board: &'a Board,
+    pub(crate) devices: &'a [DeviceInfo],
+    /// Per pose (renumbered from 0), its views if it has any.
+    pub(crate) all: &'a [Option<PoseViews>],
+    /// First held-out pose.
+    pub(crate) held_from: usize,
+}
+
+/// Calibrate from the views of `all` poses (those from `held_from` on are held out and
+/// verified), write the outputs to `dir`.
+pub(crate) fn finish(
+    c: Collected,
+    dir: &Path,
+    options: &CalibrateOptions,
+    warnings: &[String],
+    events: &mut dyn FnMut(&Event),
+) -> Result<Outcome, AppError> {
+    let Collected {
+        board,
+        devices,
+        all,
+        held_from,
+    } = c;
+    let views_of = |range: std::ops::Range<usize>| -> Vec<CameraView> {
+        all[range]
+            .iter()
+            .flatten()
+            .flat_map(|p| p.stacks.iter().filter_map(|s| s.view.clone()))
+            .collect()
+    };
+    let used = views_of(0..held_from.min(all.len()));
+    let held = views_of(held_from.min(all.len())..all.len());
+    events(&Event::Calibrating { views: used.len() });
+    let cal = calibrate(board, devices, held_from.min(all.len()), &used, options)?;
+    let verification = verify_held_out(board, &cal, &held, held_from);
+    std::fs::create_dir_all(dir).map_err(AppError::io(dir))?;
+    let mut files = crate::report::write_outputs(&cal, dir)?;
+    let text = crate::report::format_verification(&verification);
+    let path = dir.join("verification.txt");
+    crate::atomic::write(&path, text.as_bytes()).map_err(AppError::io(&path))?;
+    files.push(path);
+    let path = dir.join("report.html");
+    crate::report::html::write_html(
+        &crate::report::html::ReportInput {
+            calibration: &cal,
+            verification: &verification,
+            title: &format!("hexcal calibration: {}", dir.display()),
+            warnings: warnings.to_vec(),
+        },
+        &path,
+    )?;
+    files.push(path);
+    let length_rms = crate::report::verification_rms(&verification);
+    events(&Event::Finished {
+        sigma: cal.solution.sigma,
+        length_rms,
+        out: dir.display().to_string(),
+    });
+    Ok(Outcome {
+        devices: devices.to_vec(),
+        calibration: cal,
+        verification,
+        files,
+        timelines: Vec::new(),
+        warnings: Vec::new(),
+        truth: Vec::new(),
+        agreement: crate::correspond::agreement(&used),
+    })
+}
+
+/// Verify held-out views against the calibrated devices (views re-indexed to the kept
+/// devices; poses renumbered from 0).
+fn verify_held_out(
+    board: &Board,
+    cal: &Calibration,
+    held: &[CameraView],
+    held_from: usize,
+) -> Vec<PairCheck> {
+    let kept = |d: usize| cal.device_index.iter().position(|&i| i == d);
+    let views: Vec<CameraView> = held
+        .iter()
+        .filter_map(|v| {
+            let mut v = v.clone();
+            v.camera = kept(v.camera)?;
+            v.pose -= held_from;
+            for p in &mut v.points {
+                p.projectors.retain_mut(|q| match kept(q.projector) {
+                    Some(i) => {
+                        q.projector = i;
+                        true
+                    }
+                    None => false,
+                });
+            }
+            Some(v)
+        })
+        .collect();
+    let devices: Vec<Device> = cal.devices.clone();
+    verify(board, &devices, &views)
+}
+
+/// `hexcal calibrate DATASET`: every complete pose's views (from `views.json`, or decoded
+/// from its stacks), calibrated with `options` and the last `held_out` poses verified;
+/// outputs in `out`.
+pub fn calibrate_dataset(
+    root: &Path,
+    out: &Path,
+    held_out: usize,
+    options: &CalibrateOptions,
+    events: &mut dyn FnMut(&Event),
+) -> Result<Outcome, AppError> {
+    let data = Dataset::open(root)?;
+    let board = Board::resolve(&data.info.board)?;
+    let devices = devices_of(&data.info);
+    let cameras = data.info.cameras.len();
+    let poses = data.completed()?;
+    if poses.is_empty() {
+        return Err(AppError::Input(format!(
+            "{}: no complete pose",
+            root.display()
+        )));
+    }
+    // Renumber the complete poses 0…n−1 in order.
+    let mut all = Vec::new();
+    let mut warnings = Vec::new();
+    for (i, &k) in poses.iter().enumerate() {
+        let views = match data.read_pose_file::<PoseViews>(k, "views.json")? {
+            Some(v) => v,
+            None => {
+                let stacks = data
+                    .info
+                    .cameras
+                    .iter()
+                    .enumerate()
+                    .map(|(c, entry)| {
+                        let dir = data.stack_dir(k, &entry.name);
+                        match crate::phase::files::decode_dir(&dir) {
+                            Ok(d) => process_decoded(&d, &board, c, k, cameras),
+                            Err(e) => StackResult {
+                                camera: entry.name.clone(),
+                                circles: 0,
+                                points: 0,
+                                anchored: false,
+                                projector_points: vec![0; data.info.projectors.len()],
+                                error: Some(e.to_string()),
+                                view: None,
+                            },
+                        }
+                    })
+                    .collect();
+                PoseViews { pose: k, stacks }
+            }
+        };
+        for s in &views.stacks {
+            if let Some(e) = &s.error {
+                warnings.push(format!("pose {k}, camera {}: {e}", s.camera));
+            }
+        }
+        let mut views = views;
+        views.pose = i;
+        for s in &mut views.stacks {
+            if let Some(v) = &mut s.view {
+                v.pose = i;
+            }
+        }
+        all.push(Some(views));
+    }
+    let held_from = all.len().saturating_sub(held_out);
+    let mut outcome = finish(
+        Collected {
+            board: &board,
+            devices: &devices,
+            all: &all,
+            held_from,
+        },
+        out,
+        options,
+        &warnings,
+        events,
+    )?;
+    outcome.warnings = warnings;
+    Ok(outcome)
+}
+
+/// What calibrating a correspondences file gave.
+pub struct FileOutcome {
+    /// The correspondences.
+    pub input: Correspondences,
+    /// The calibration.
+    pub calibration: Calibration,
+    /// Files written.
+    pub files: Vec<PathBuf>,
+}
+
+/// Read a correspondences file (README: "A correspondences file").
+pub fn read_correspondences(path: &Path) -> Result<Correspondences, AppError> {
+    let text = std::fs::read_to_string(path).map_err(AppError::io(path))?;
+    serde_json::from_str(&text).map_err(|source| AppError::Json {
+        path: path.to_owned(),
+        what: "correspondences file",
+        source,
+    })
+}
+
+/// The index of the device called `name` among `names`, for `--reference`.
+pub fn device_index<'a>(
+    input: &Path,
+    mut names: impl Iterator<Item = &'a str>,
+    name: &str,
+) -> Result<usize, AppError> {
+    names
+        .position(|d| d == name)
+        .ok_or_else(|| AppError::Input(format!("{}: no device named {name:?}", input.display())))
+}
+
+/// `hexcal calibrate CORRESPONDENCES.json`: calibrate every device, write the outputs and
+/// the report to `out`; `reference` names the gauge device.
+pub fn calibrate_file(
+    input: &Path,
+    out: &Path,
+    reference: Option<&str>,
+    mut options: CalibrateOptions,
+) -> Result<FileOutcome, AppError> {
+    let c = read_correspondences(input)?;
+    let board = Board::resolve(&c.board)?;
+    if let Some(name) = reference {
+        let names = c.devices.iter().map(|d| d.name.as_str());
+        options.bundle.reference = device_index(input, names, name)?;
+    }
+    let cal = calibrate(&board, &c.devices, c.poses, &c.views, &options)?;
+    let mut files = crate::report::write_outputs(&cal, out)?;
+    let html = out.join("report.html");
+    crate::report::html::write_html(
+        &crate::report::html::ReportInput {
+            calibration: &cal,
+            verification: &[],
+            title: &format!("hexcal calibration of {}", input.display()),
+            warnings: Vec::new(),
+        },
+        &html,
+    )?;
+    files.push(html);
+    Ok(FileOutcome {
+        input: c,
+        calibration: cal,
+        files,
+    })
+}
+
+/// `hexcal verify`: the held-out poses of the correspondences file `input` triangulated
+/// with the devices of the calibration file `calibration`.
+pub fn verify_file(calibration: &Path, input: &Path) -> Result<Vec<PairCheck>, AppError> {
+    let text = std::fs::read_to_string(calibration).map_err(AppError::io(calibration))?;
+    let cal = crate::report::CalibrationFile::from_json(&text, &calibration.display().to_string())?;
+    let c = read_correspondences(input)?;
+    let devices = c
+        .devices
+        .iter()
+        .map(|d| {
+            let r = cal
+                .devices
+                .iter()
+                .find(|r| r.name == d.name)
+                .ok_or_else(|| {
+                    AppError::Input(format!(
+                        "{}: device {:?} is not in {}",
+                        input.display(),
+                        d.name,
+                        calibration.display()
+                    ))
+                })?;
+            Ok(Device {
+                name: r.name.clone(),
+                kind: r.kind,
+                model: r.model(),
+                pose: r.pose.isometry(),
+            })
+        })
+        .collect::<Result<Vec<_>, AppError>>()?;
+    let board = Board::resolve(&c.board)?;
+    let checks = verify(&board, &devices, &c.views);
+    if checks.is_empty() {
+        return Err(AppError::Input(format!(
+            "{}: no device pair shares ten circles of a pose",
+            input.display()
+        )));
+    }
+    Ok(checks)
+}

@@ -1,0 +1,91 @@
+//! `hexcal capture`: a rig's poses into a dataset folder, resumable.
+//!
+//! Takes a rig file and a dataset folder; gives the folder with every captured pose's stacks
+//! (docs/dataset.md) and a summary of what was captured now and what was already there.
+
+use super::AppError;
+use crate::capture::Session;
+use crate::dataset::{Dataset, Timeline};
+use crate::rig::file::RigFile;
+use crate::rig::OpenedRig;
+use std::path::Path;
+
+/// A rig file opened for a dataset: the file, its devices and the dataset folder (created,
+/// or resumed when it is there) with a copy of the rig file.
+pub struct Prepared {
+    /// The rig file.
+    pub rig: RigFile,
+    /// Its devices.
+    pub opened: OpenedRig,
+    /// The dataset.
+    pub data: Dataset,
+}
+
+/// Open the rig file at `rig_path` and create or resume the dataset folder `out` for it;
+/// the rig file is copied into the folder once.
+pub fn prepare(rig_path: &Path, out: &Path) -> Result<Prepared, AppError> {
+    let rig = RigFile::load(rig_path)?;
+    let opened = crate::rig::open(&rig)?;
+    let info = rig.dataset_info(&opened.sequence);
+    let data = Dataset::create_or_resume(out, info)?;
+    let rig_copy = out.join("rig.toml");
+    if !rig_copy.exists() {
+        let text = std::fs::read(rig_path).map_err(AppError::io(rig_path))?;
+        crate::atomic::write(&rig_copy, &text).map_err(AppError::io(&rig_copy))?;
+    }
+    Ok(Prepared { rig, opened, data })
+}
+
+/// Puts the board at pose k before it is captured: the simulated world's pose (given when
+/// the rig is simulated), or the operator's; `Ok(false)` stops the capture.
+pub type PlaceBoard<'a> =
+    dyn FnMut(usize, Option<&crate::rig::sim::SimWorld>) -> Result<bool, AppError> + 'a;
+
+/// What [`capture_dataset`] did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CaptureSummary {
+    /// Poses captured now.
+    pub captured: Vec<usize>,
+    /// Poses already complete in the dataset (skipped).
+    pub skipped: Vec<usize>,
+    /// Per captured pose, its timeline.
+    pub timelines: Vec<Timeline>,
+}
+
+/// Capture `poses` board poses of the rig file at `rig_path` into the dataset folder `out`
+/// (created, or resumed: complete poses are skipped). `place(k)` puts the board at pose k
+/// (the simulated world's pose, or the operator's) and may refuse to go on (`Ok(false)`
+/// stops the capture, keeping every complete pose); `log` hears one line per pose.
+pub fn capture_dataset(
+    rig_path: &Path,
+    out: &Path,
+    poses: usize,
+    place: &mut PlaceBoard,
+    log: &mut dyn FnMut(&str),
+) -> Result<CaptureSummary, AppError> {
+    let Prepared { opened, data, .. } = prepare(rig_path, out)?;
+    let done = data.completed()?;
+    let world = opened.world.clone();
+    let cameras = opened.devices.cameras.len();
+    let mut session = Session::start(opened.devices, &opened.sequence)?;
+    let mut summary = CaptureSummary::default();
+    for k in 0..poses {
+        if done.contains(&k) {
+            summary.skipped.push(k);
+            continue;
+        }
+        if !place(k, world.as_deref())? {
+            break;
+        }
+        let mut writer = data.pose_writer(k)?;
+        let timeline =
+            session.capture_pose(k, &mut |f| writer.write(&f).map_err(|e| e.to_string()))?;
+        let info = writer.finish(&timeline)?;
+        data.complete(&info)?;
+        log(&format!("pose {k}: {}", timeline.summary(cameras)));
+        summary.captured.push(k);
+        summary.timelines.push(timeline);
+    }
+    session.finish()?;
+    Ok(summary)
+}

@@ -1,0 +1,83 @@
+//! The application layer: the jobs a user runs, each orchestrating the stages below.
+//!
+//! - [`run`]: one button — capture every pose, stream each through decode, detection, grid
+//!   and projector fits while the next is captured, calibrate, verify, write the outputs;
+//! - [`capture`]: a rig's poses into a dataset folder;
+//! - [`calibrate`]: a dataset folder or a correspondences file to a calibration;
+//! - [`detect`]: circles and labelled lattice points of image files, with overlays;
+//! - [`process`]: one camera's stack through the stages; [`truth`]: a calibration against a
+//!   simulated rig's ground truth.
+
+pub mod calibrate;
+pub mod capture;
+pub mod detect;
+mod overlay;
+pub mod process;
+pub mod progress;
+pub mod run;
+pub mod truth;
+
+use std::path::PathBuf;
+
+/// Why a job failed: the stage's own error, or the file it could not use.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    /// The rig file.
+    #[error("{0}")]
+    Rig(#[from] crate::rig::file::RigError),
+    /// Opening the rig's devices.
+    #[error("{0}")]
+    Open(#[from] crate::rig::OpenError),
+    /// The dataset folder.
+    #[error("{0}")]
+    Dataset(#[from] crate::dataset::DatasetError),
+    /// The capture.
+    #[error("{0}")]
+    Capture(#[from] crate::capture::CaptureError),
+    /// A board file.
+    #[error("{0}")]
+    Board(#[from] crate::board::BoardError),
+    /// The calibration.
+    #[error("calibration: {0}")]
+    Calibration(#[from] crate::calib::CalibError),
+    /// Writing the outputs.
+    #[error("{0}")]
+    Report(#[from] crate::report::ReportError),
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A JSON file is not what it should be.
+    #[error("{path}: not a {what}: {source}")]
+    Json {
+        /// The file.
+        path: PathBuf,
+        /// What it should be.
+        what: &'static str,
+        /// The parser's message (with line and column).
+        source: serde_json::Error,
+    },
+    /// The input cannot give what the job needs (the message names the file or setting).
+    #[error("{0}")]
+    Input(String),
+    /// A worker thread could not be started.
+    #[error("cannot start a thread: {0}")]
+    Spawn(std::io::Error),
+    /// A worker thread ended without its result.
+    #[error("{0} panicked")]
+    Thread(&'static str),
+}
+
+impl AppError {
+    /// An I/O error on `path`.
+    pub fn io(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> AppError + '_ {
+        move |source| AppError::Io {
+            path: path.to_owned(),
+            source,
+        }
+    }
+}

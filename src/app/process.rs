@@ -1,0 +1,180 @@
+//! One camera's stack of one pose through the stages: decode, detect, grid, projector fits.
+//!
+//! Takes the camera's frames as they arrive (or a decoded stack); gives a [`StackResult`]
+//! with the labelled view. `pose-KKK/views.json` ([`PoseViews`]) holds every camera's
+//! result of a pose.
+
+use crate::board::Board;
+use crate::correspond::{camera_view, CameraView, FitParams, ProjectorMap};
+use crate::dataset::CameraEntry;
+use crate::detect::{detect, DetectParams};
+use crate::grid::{build, GridParams};
+use crate::images::{CameraFrame, Pixels};
+use crate::pattern::Sequence;
+use crate::phase::{DecodedStack, Decoder, FrameRef};
+use crossbeam_channel::Receiver;
+use serde::{Deserialize, Serialize};
+
+/// What one camera's stack of one pose gave.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StackResult {
+    /// Camera name.
+    pub camera: String,
+    /// Circles detected.
+    pub circles: usize,
+    /// Labelled board points.
+    pub points: usize,
+    /// Whether the labels are in the board's own frame (the centre cell was seen).
+    pub anchored: bool,
+    /// Per projector (sequence order): points with a projector pixel.
+    pub projector_points: Vec<usize>,
+    /// Why the stack gave nothing, if it did not.
+    pub error: Option<String>,
+    /// The labelled view (none when the board was not found).
+    pub view: Option<CameraView>,
+}
+
+/// `pose-KKK/views.json`: every camera's result for one pose.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PoseViews {
+    /// Pose index.
+    pub pose: usize,
+    /// Per camera, in rig order.
+    pub stacks: Vec<StackResult>,
+}
+
+/// Detection, grid and projector fits on one camera's decoded stack (circles on the decoded
+/// ambient image: evenly lit and averaged over the stack). `camera` is the camera's device
+/// index, `first_projector` the device index of projector 0.
+pub fn process_decoded(
+    decoded: &DecodedStack,
+    board: &Board,
+    camera: usize,
+    pose: usize,
+    first_projector: usize,
+) -> StackResult {
+    let image = &decoded.ambient;
+    let circles = detect(image, &DetectParams::default());
+    let grid = build(image, &circles, board, &GridParams::default());
+    let maps: Vec<ProjectorMap> = decoded
+        .projectors
+        .iter()
+        .enumerate()
+        .map(|(p, m)| ProjectorMap::from_decoded(first_projector + p, m))
+        .collect();
+    let view = camera_view(camera, pose, &grid, &circles, &maps, &FitParams::default());
+    let projector_points = (0..decoded.projectors.len())
+        .map(|p| {
+            view.as_ref().map_or(0, |v| {
+                v.points
+                    .iter()
+                    .filter(|pt| {
+                        pt.projectors
+                            .iter()
+                            .any(|q| q.projector == first_projector + p)
+                    })
+                    .count()
+            })
+        })
+        .collect();
+    StackResult {
+        camera: decoded.camera.clone(),
+        circles: circles.len(),
+        points: grid.points.len(),
+        anchored: grid.anchored,
+        projector_points,
+        error: None,
+        view,
+    }
+}
+
+/// A decoder of 8- or 16-bit frames, chosen by the first frame.
+enum AnyDecoder {
+    Eight(Decoder<u8>),
+    Sixteen(Decoder<u16>),
+}
+
+/// One camera's stack of one pose to decode and process.
+pub(crate) struct StackJob {
+    pub(crate) sequence: Sequence,
+    pub(crate) entry: CameraEntry,
+    pub(crate) board: Board,
+    pub(crate) camera: usize,
+    pub(crate) pose: usize,
+    pub(crate) first_projector: usize,
+    /// Taken while finishing (one stack at a time).
+    pub(crate) finishing: std::sync::Arc<std::sync::Mutex<()>>,
+}
+
+/// Decode one camera's stack as its frames arrive on `frames`, then process it.
+pub(crate) fn stack_worker(frames: Receiver<CameraFrame>, job: StackJob) -> StackResult {
+    let StackJob {
+        sequence,
+        entry,
+        board,
+        camera,
+        pose,
+        first_projector,
+        finishing,
+    } = job;
+    let failed = |error: String| StackResult {
+        camera: entry.name.clone(),
+        circles: 0,
+        points: 0,
+        anchored: false,
+        projector_points: vec![0; sequence.projectors().len()],
+        error: Some(error),
+        view: None,
+    };
+    let full_scale = ((1u32 << entry.bits.min(16)) - 1) as f32;
+    let mut decoder = None;
+    for k in 0..sequence.frame_count() {
+        let Ok(f) = frames.recv() else {
+            return failed(format!("stack ended after {k} frames"));
+        };
+        let dec = decoder.get_or_insert_with(|| match f.pixels {
+            Pixels::Gray8(_) => Decoder::new(&sequence, &entry.name, f.width, f.height, full_scale)
+                .map(AnyDecoder::Eight),
+            Pixels::Gray16(_) => {
+                Decoder::new(&sequence, &entry.name, f.width, f.height, full_scale)
+                    .map(AnyDecoder::Sixteen)
+            }
+        });
+        let pushed = match (dec, &f.pixels) {
+            (Ok(AnyDecoder::Eight(d)), Pixels::Gray8(p)) => d.push_frame(
+                k,
+                FrameRef {
+                    width: f.width,
+                    height: f.height,
+                    pixels: p,
+                },
+            ),
+            (Ok(AnyDecoder::Sixteen(d)), Pixels::Gray16(p)) => d.push_frame(
+                k,
+                FrameRef {
+                    width: f.width,
+                    height: f.height,
+                    pixels: p,
+                },
+            ),
+            (Err(e), _) => return failed(e.to_string()),
+            _ => return failed(format!("frame {k}: sample depth changed within the stack")),
+        };
+        if let Err(e) = pushed {
+            return failed(e.to_string());
+        }
+    }
+    // One stack at a time turns its phases into maps and detects (bounds the memory of the
+    // maps while the next pose's decoders fill up).
+    let _turn = finishing.lock().unwrap_or_else(|e| e.into_inner());
+    let decoded = match decoder {
+        Some(Ok(AnyDecoder::Eight(d))) => d.finish(),
+        Some(Ok(AnyDecoder::Sixteen(d))) => d.finish(),
+        Some(Err(e)) => return failed(e.to_string()),
+        None => return failed("empty sequence".into()),
+    };
+    match decoded {
+        Ok(d) => process_decoded(&d, &board, camera, pose, first_projector),
+        Err(e) => failed(e.to_string()),
+    }
+}

@@ -1,0 +1,169 @@
+//! What the application layer tells its caller: progress events (for people and, as JSON
+//! lines, for scripts) and the outcome of a run or a calibration.
+
+use super::truth::TruthCheck;
+use crate::calib::solve::{Calibration, DeviceInfo};
+use crate::calib::verify::PairCheck;
+use crate::dataset::Timeline;
+use serde::Serialize;
+
+/// Progress of a run, for people (`Display`) and scripts (JSON lines).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum Event {
+    /// Place the board for this pose (the capture starts next).
+    PoseStarted {
+        /// Pose index.
+        pose: usize,
+        /// Poses in all.
+        of: usize,
+    },
+    /// Frames of a pose captured so far.
+    Frames {
+        /// Pose index.
+        pose: usize,
+        /// Frames done.
+        done: usize,
+        /// Frames in the sequence.
+        of: usize,
+    },
+    /// A pose's capture finished (its processing goes on in the background).
+    PoseCaptured {
+        /// Pose index.
+        pose: usize,
+        /// Capture time (s).
+        seconds: f64,
+        /// Camera frames per second.
+        frames_per_second: f64,
+    },
+    /// A pose was processed: what each device got, coverage so far.
+    PoseProcessed {
+        /// Pose index.
+        pose: usize,
+        /// Per device (cameras, then projectors): points this pose.
+        points: Vec<(String, usize)>,
+        /// Devices seen in fewer than 3 poses so far (they still need views).
+        need_views: Vec<String>,
+        /// Held out for verification.
+        held_out: bool,
+    },
+    /// A pose gave nothing usable; it is skipped.
+    PoseSkipped {
+        /// Pose index.
+        pose: usize,
+        /// Why.
+        reason: String,
+    },
+    /// One camera's stack failed in a pose (the pose goes on without it).
+    StackFailed {
+        /// Pose index.
+        pose: usize,
+        /// Camera.
+        camera: String,
+        /// Why.
+        reason: String,
+    },
+    /// Poses already complete in the dataset, reused.
+    Resumed {
+        /// Their indices.
+        poses: Vec<usize>,
+    },
+    /// Bundle adjustment started.
+    Calibrating {
+        /// Views used.
+        views: usize,
+    },
+    /// Done: the outputs are written.
+    Finished {
+        /// Posterior σ of the adjustment (px).
+        sigma: f64,
+        /// Held-out length error RMS over all pairs (mm), if verified.
+        length_rms: Option<f64>,
+        /// The output folder.
+        out: String,
+    },
+}
+
+impl std::fmt::Display for Event {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Event::PoseStarted { pose, of } => write!(f, "pose {pose} of {of}: capturing"),
+            Event::Frames { pose, done, of } => write!(f, "pose {pose}: frame {done}/{of}"),
+            Event::PoseCaptured {
+                pose,
+                seconds,
+                frames_per_second,
+            } => write!(
+                f,
+                "pose {pose}: captured in {seconds:.1} s ({frames_per_second:.0} frames/s); \
+                 processing while the next pose is captured"
+            ),
+            Event::PoseProcessed {
+                pose,
+                points,
+                need_views,
+                held_out,
+            } => {
+                let seen: Vec<String> = points
+                    .iter()
+                    .filter(|(_, n)| *n > 0)
+                    .map(|(d, n)| format!("{d} {n}"))
+                    .collect();
+                write!(
+                    f,
+                    "pose {pose}{}: points {}",
+                    if *held_out { " (held out)" } else { "" },
+                    if seen.is_empty() {
+                        "none".to_string()
+                    } else {
+                        seen.join(", ")
+                    }
+                )?;
+                if !need_views.is_empty() {
+                    write!(f, "; still need views: {}", need_views.join(", "))?;
+                }
+                Ok(())
+            }
+            Event::PoseSkipped { pose, reason } => write!(f, "pose {pose} skipped: {reason}"),
+            Event::StackFailed {
+                pose,
+                camera,
+                reason,
+            } => write!(f, "pose {pose}, camera {camera}: {reason}"),
+            Event::Resumed { poses } => write!(f, "resuming: poses {poses:?} already complete"),
+            Event::Calibrating { views } => write!(f, "calibrating from {views} camera views"),
+            Event::Finished {
+                sigma,
+                length_rms,
+                out,
+            } => {
+                write!(f, "done: σ {sigma:.4} px")?;
+                if let Some(l) = length_rms {
+                    write!(f, ", held-out length error RMS {l:.4} mm")?;
+                }
+                write!(f, "; outputs in {out}")
+            }
+        }
+    }
+}
+
+/// The result of a run or of calibrating a dataset.
+#[derive(Debug)]
+pub struct Outcome {
+    /// The devices (cameras, then projectors).
+    pub devices: Vec<DeviceInfo>,
+    /// The calibration.
+    pub calibration: Calibration,
+    /// Checks on the held-out poses.
+    pub verification: Vec<PairCheck>,
+    /// Files written.
+    pub files: Vec<std::path::PathBuf>,
+    /// Per captured pose, its capture timeline (empty for poses read from disk).
+    pub timelines: Vec<(usize, Timeline)>,
+    /// Warnings for the report (skipped poses, failed stacks).
+    pub warnings: Vec<String>,
+    /// Against the ground truth, when the rig is simulated.
+    pub truth: Vec<TruthCheck>,
+    /// How well the cameras agree on each projector's pixels.
+    pub agreement: Vec<crate::correspond::Agreement>,
+}

@@ -1,0 +1,364 @@
+//! One-button calibration (`hexcal run`): the stages streamed in one process.
+//!
+//! Takes a rig file (or a dataset on disk); gives a calibration, its verification on
+//! held-out poses and the report files. While pose k+1 is captured, pose k's stacks finish
+//! decoding and go through detection, grid building and the projector fits, each camera in
+//! its own thread fed frame by frame over a bounded crossbeam channel (stacks are never held
+//! whole). Every pose's views land in the dataset (`pose-KKK/views.json`, then `pose.json`)
+//! before the pose counts as done, so an interrupted run keeps every finished pose and a
+//! resumed run or `hexcal calibrate DATASET` completes it.
+
+use super::calibrate::{devices_of, finish, Collected};
+use super::capture::{prepare, PlaceBoard, Prepared};
+use super::process::{stack_worker, PoseViews, StackJob, StackResult};
+use super::progress::{Event, Outcome};
+use super::truth::{check_truth, format_truth};
+use super::AppError;
+use crate::board::Board;
+use crate::calib::solve::CalibrateOptions;
+use crate::capture::Session;
+use crate::dataset::{Dataset, PoseInfo, Timeline};
+use crate::images::CameraFrame;
+use crate::pattern::Sequence;
+use crate::rig::OpenedRig;
+use crossbeam_channel::{bounded, unbounded, Receiver, Sender};
+use std::path::Path;
+use std::thread::JoinHandle;
+
+/// Settings of [`run`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RunOptions {
+    /// Board poses to capture (default: the rig file's `[poses] count`).
+    pub poses: Option<usize>,
+    /// Poses held out for verification (the last ones).
+    pub held_out: usize,
+    /// Write every frame to the dataset as well (PNG; gigabytes per pose).
+    pub keep_stacks: bool,
+}
+/// Per-device coverage as poses come in.
+struct Coverage {
+    names: Vec<String>,
+    poses_seen: Vec<usize>,
+    cameras: usize,
+}
+
+impl Coverage {
+    fn add(&mut self, views: &PoseViews, held_out: bool) -> Event {
+        let mut points = vec![0usize; self.names.len()];
+        for (c, s) in views.stacks.iter().enumerate() {
+            points[c] = s.points;
+            for (p, n) in s.projector_points.iter().enumerate() {
+                points[self.cameras + p] += n;
+            }
+        }
+        if !held_out {
+            for (seen, &n) in self.poses_seen.iter_mut().zip(&points) {
+                *seen += usize::from(n > 0);
+            }
+        }
+        Event::PoseProcessed {
+            pose: views.pose,
+            points: self.names.iter().cloned().zip(points).collect(),
+            need_views: self
+                .names
+                .iter()
+                .zip(&self.poses_seen)
+                .filter(|(_, &n)| n < 3)
+                .map(|(d, _)| d.clone())
+                .collect(),
+            held_out,
+        }
+    }
+}
+
+/// What the background processing of one pose sends back.
+struct Processed {
+    views: PoseViews,
+    info: PoseInfo,
+}
+
+/// `hexcal run`: capture every pose of the rig file at `rig_path` into the dataset `out`
+/// (resuming one that is there), process each pose while the next is captured, calibrate,
+/// verify on the held-out poses and write the outputs to `out/calibration`. `place(k, world)`
+/// puts the board at pose k (the simulated world's, or the operator's) and may stop the
+/// capture (`Ok(false)`); `events` hears the progress.
+pub fn run(
+    rig_path: &Path,
+    out: &Path,
+    options: &RunOptions,
+    place: &mut PlaceBoard,
+    events: &mut dyn FnMut(&Event),
+) -> Result<Outcome, AppError> {
+    let Prepared { rig, opened, data } = prepare(rig_path, out)?;
+    let poses = options
+        .poses
+        .or(rig.poses.map(|p| p.count))
+        .ok_or_else(|| {
+            AppError::Input("say how many poses (the rig file has no [poses] table)".into())
+        })?;
+    let held_from = poses.saturating_sub(options.held_out);
+    let devices = devices_of(&data.info);
+    let world = opened.world.clone();
+    let mut stream = Stream::new(data, &opened, poses, held_from, events);
+    stream.resume()?;
+    let mut session = Session::start(opened.devices, &opened.sequence)?;
+    let mut timelines = Vec::new();
+    for k in 0..poses {
+        if stream.all[k].is_some() {
+            continue;
+        }
+        (stream.events)(&Event::PoseStarted { pose: k, of: poses });
+        if !place(k, world.as_deref())? {
+            break;
+        }
+        timelines.push((
+            k,
+            stream.capture_pose(&mut session, k, options.keep_stacks)?,
+        ));
+    }
+    stream.drain()?;
+    session.finish()?;
+    let Stream {
+        all,
+        warnings,
+        events,
+        ..
+    } = stream;
+    let collected = Collected {
+        board: &opened.board,
+        devices: &devices,
+        all: &all,
+        held_from,
+    };
+    let dir = out.join("calibration");
+    let mut outcome = finish(
+        collected,
+        &dir,
+        &CalibrateOptions::default(),
+        &warnings,
+        events,
+    )?;
+    outcome.timelines = timelines;
+    outcome.warnings = warnings;
+    if let Some(w) = &world {
+        outcome.truth = check_truth(&outcome.calibration, w);
+        let path = dir.join("truth.txt");
+        crate::atomic::write(&path, format_truth(&outcome.truth).as_bytes())
+            .map_err(AppError::io(&path))?;
+        outcome.files.push(path);
+    }
+    Ok(outcome)
+}
+
+/// A run between poses: the dataset, every pose's views so far, and the one pose whose
+/// stacks are still being processed while the next is captured.
+struct Stream<'e> {
+    data: Dataset,
+    board: Board,
+    sequence: Sequence,
+    held_from: usize,
+    coverage: Coverage,
+    all: Vec<Option<PoseViews>>,
+    warnings: Vec<String>,
+    events: &'e mut dyn FnMut(&Event),
+    done_tx: Sender<Result<Processed, AppError>>,
+    done_rx: Receiver<Result<Processed, AppError>>,
+    in_flight: Option<JoinHandle<()>>,
+}
+
+impl<'e> Stream<'e> {
+    fn new(
+        data: Dataset,
+        opened: &OpenedRig,
+        poses: usize,
+        held_from: usize,
+        events: &'e mut dyn FnMut(&Event),
+    ) -> Stream<'e> {
+        let devices = devices_of(&data.info);
+        let coverage = Coverage {
+            names: devices.iter().map(|d| d.name.clone()).collect(),
+            poses_seen: vec![0; devices.len()],
+            cameras: data.info.cameras.len(),
+        };
+        let (done_tx, done_rx) = unbounded();
+        Stream {
+            data,
+            board: opened.board.clone(),
+            sequence: opened.sequence.clone(),
+            held_from,
+            coverage,
+            all: vec![None; poses],
+            warnings: Vec::new(),
+            events,
+            done_tx,
+            done_rx,
+            in_flight: None,
+        }
+    }
+
+    fn cameras(&self) -> usize {
+        self.data.info.cameras.len()
+    }
+
+    /// Take in the views of every pose already complete in the dataset.
+    fn resume(&mut self) -> Result<(), AppError> {
+        let done = self.data.completed()?;
+        let mut resumed = Vec::new();
+        let poses = self.all.len();
+        for &k in done.iter().filter(|&&k| k < poses) {
+            let views = self.data.read_pose_file::<PoseViews>(k, "views.json")?;
+            if let Some(v) = views {
+                (self.events)(&self.coverage.add(&v, k >= self.held_from));
+                self.all[k] = Some(v);
+                resumed.push(k);
+            }
+        }
+        if !resumed.is_empty() {
+            (self.events)(&Event::Resumed { poses: resumed });
+        }
+        Ok(())
+    }
+
+    /// Capture pose `k`, every frame going to its camera's decoding thread (and to disk with
+    /// `keep_stacks`); then hand the pose over to processing while the next is captured.
+    fn capture_pose(
+        &mut self,
+        session: &mut Session,
+        k: usize,
+        keep_stacks: bool,
+    ) -> Result<Timeline, AppError> {
+        let (senders, workers) = self.spawn_stack_workers(k)?;
+        let (cameras, frames) = (self.cameras(), self.sequence.frame_count());
+        let mut writer = self.data.pose_writer(k)?;
+        let mut last = 0;
+        let events = &mut *self.events;
+        let timeline = session.capture_pose(k, &mut |f| {
+            if keep_stacks {
+                writer.write(&f).map_err(|e| e.to_string())?;
+            }
+            if f.camera == cameras - 1 && (f.index + 1) * 10 / frames > last {
+                last = (f.index + 1) * 10 / frames;
+                events(&Event::Frames {
+                    pose: k,
+                    done: f.index + 1,
+                    of: frames,
+                });
+            }
+            senders[f.camera]
+                .send(f.frame)
+                .map_err(|_| "its decoding thread ended".to_string())
+        })?;
+        drop(senders);
+        let info = writer.finish(&timeline)?;
+        (self.events)(&Event::PoseCaptured {
+            pose: k,
+            seconds: timeline.total.as_secs_f64(),
+            frames_per_second: timeline.frames_per_second(cameras),
+        });
+        self.hand_over(k, workers, info)?;
+        Ok(timeline)
+    }
+
+    /// One decoding thread per camera for pose `k`, fed frame by frame.
+    fn spawn_stack_workers(
+        &self,
+        k: usize,
+    ) -> Result<(Vec<Sender<CameraFrame>>, Vec<JoinHandle<StackResult>>), AppError> {
+        let mut senders = Vec::new();
+        let mut workers = Vec::new();
+        let finishing = std::sync::Arc::new(std::sync::Mutex::new(()));
+        for (c, entry) in self.data.info.cameras.iter().enumerate() {
+            let (tx, rx) = bounded(2);
+            senders.push(tx);
+            let job = StackJob {
+                sequence: self.sequence.clone(),
+                entry: entry.clone(),
+                board: self.board.clone(),
+                camera: c,
+                pose: k,
+                first_projector: self.cameras(),
+                finishing: std::sync::Arc::clone(&finishing),
+            };
+            let worker = std::thread::Builder::new()
+                .name(format!("stack {}", entry.name))
+                .spawn(move || stack_worker(rx, job))
+                .map_err(AppError::Spawn)?;
+            workers.push(worker);
+        }
+        Ok((senders, workers))
+    }
+
+    /// Pose `k`'s stack threads finish in a thread of their own; at most one pose is in
+    /// processing while the next is captured (memory stays bounded).
+    fn hand_over(
+        &mut self,
+        k: usize,
+        workers: Vec<JoinHandle<StackResult>>,
+        info: PoseInfo,
+    ) -> Result<(), AppError> {
+        if let Some(h) = self.in_flight.take() {
+            h.join()
+                .map_err(|_| AppError::Thread("a processing thread"))?;
+        }
+        while let Ok(p) = self.done_rx.try_recv() {
+            self.handle(p)?;
+        }
+        let tx = self.done_tx.clone();
+        let thread = std::thread::Builder::new()
+            .name(format!("pose {k}"))
+            .spawn(move || {
+                let stacks: Result<Vec<StackResult>, AppError> = workers
+                    .into_iter()
+                    .map(|w| w.join().map_err(|_| AppError::Thread("a stack thread")))
+                    .collect();
+                let _ = tx.send(stacks.map(|stacks| Processed {
+                    views: PoseViews { pose: k, stacks },
+                    info,
+                }));
+            })
+            .map_err(AppError::Spawn)?;
+        self.in_flight = Some(thread);
+        Ok(())
+    }
+
+    /// Wait for the pose still in processing and take in every processed pose.
+    fn drain(&mut self) -> Result<(), AppError> {
+        if let Some(h) = self.in_flight.take() {
+            h.join()
+                .map_err(|_| AppError::Thread("a processing thread"))?;
+        }
+        while let Ok(p) = self.done_rx.try_recv() {
+            self.handle(p)?;
+        }
+        Ok(())
+    }
+
+    /// A processed pose: its failures reported, its views written (then the pose marked
+    /// complete) and kept.
+    fn handle(&mut self, p: Result<Processed, AppError>) -> Result<(), AppError> {
+        let p = p?;
+        let k = p.views.pose;
+        for s in &p.views.stacks {
+            if let Some(reason) = &s.error {
+                self.warnings
+                    .push(format!("pose {k}, camera {}: {reason}", s.camera));
+                (self.events)(&Event::StackFailed {
+                    pose: k,
+                    camera: s.camera.clone(),
+                    reason: reason.clone(),
+                });
+            }
+        }
+        (self.events)(&self.coverage.add(&p.views, k >= self.held_from));
+        if p.views.stacks.iter().all(|s| s.view.is_none()) {
+            let reason = "no camera found the board".to_string();
+            self.warnings.push(format!("pose {k}: {reason}"));
+            (self.events)(&Event::PoseSkipped { pose: k, reason });
+        }
+        self.data
+            .write_pose_file(k, "views.json", &p.views)
+            .and_then(|()| self.data.complete(&p.info))?;
+        self.all[k] = Some(p.views);
+        Ok(())
+    }
+}

@@ -1,0 +1,4 @@
+//! Benchmark harnesses behind the `bench` feature (`hexcal bench …`): they render their own
+//! inputs, time the stages and print figures; nothing a calibration needs.
+
+pub mod detect_grid;

@@ -1,0 +1,278 @@
+//! `hexcal bench …`: the speed benchmarks, each printing its figures.
+
+use crate::cli;
+use clap::Subcommand;
+use std::path::PathBuf;
+
+#[derive(Subcommand)]
+pub enum Bench {
+    /// Bundle adjustment of a synthetic rig from a perturbed start (6 cameras and 3
+    /// projectors: the paper-like rig; otherwise cameras and projectors on a ring).
+    Calib {
+        /// Cameras.
+        #[arg(long, default_value_t = 6)]
+        cameras: usize,
+        /// Projectors.
+        #[arg(long, default_value_t = 3)]
+        projectors: usize,
+        /// Board poses.
+        #[arg(long, default_value_t = 10)]
+        poses: usize,
+        /// Observation noise σ (px).
+        #[arg(long, default_value_t = 0.1)]
+        sigma: f64,
+    },
+    /// Frames per second through the capture engine on a simulated rig (one pose, frames
+    /// discarded), with one camera's stack rendering broken down.
+    Capture {
+        /// The rig file.
+        #[arg(long, default_value = "rigs/sim-paper.toml")]
+        rig: PathBuf,
+    },
+    /// Frames per second through a GigE Vision camera on loopback (the in-process Aravis
+    /// fake camera serving known frames, each checked); needs `--features aravis`.
+    Aravis {
+        /// Frame width.
+        #[arg(long, default_value_t = 1920)]
+        width: u32,
+        /// Frame height.
+        #[arg(long, default_value_t = 1200)]
+        height: u32,
+        /// Bits per sample (8 or 16).
+        #[arg(long, default_value_t = 8)]
+        bits: u8,
+        /// Frames.
+        #[arg(long, default_value_t = 100)]
+        frames: usize,
+    },
+    /// Time from a window projector's `show` to the slide drawn by the X server (pattern
+    /// slides at the monitor's size on `$DISPLAY`); needs `--features window`.
+    Window {
+        /// Monitor (the first one when absent; `hexcal devices` lists them).
+        #[arg(long)]
+        monitor: Option<String>,
+        /// Slides.
+        #[arg(long, default_value_t = 100)]
+        slides: usize,
+    },
+    /// Render the built-in 1920×1200 scene (or --scene): ray grid, geometry, one frame.
+    Render {
+        /// Scene file (TOML); the built-in scene when absent.
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Repetitions (the median is printed).
+        #[arg(long, default_value_t = 5)]
+        repeat: usize,
+    },
+    /// Circle detection on the given images, or on built-in synthetic boards
+    /// (1920×1200 and 4096×3000) when none are given.
+    Detect {
+        /// Images to detect in.
+        images: Vec<PathBuf>,
+        /// Timed runs per image (after one warm-up run); the median is printed.
+        #[arg(long, default_value_t = 7)]
+        runs: usize,
+    },
+    /// Detection + grid building on rendered 1920×1200 and 4096×3000 board views, with
+    /// recall and centre error against the truth.
+    DetectGrid {
+        /// Timed runs per image (after one warm-up run); medians are printed.
+        #[arg(long, default_value_t = 7)]
+        runs: usize,
+        /// Keep the views, their truth and the figures here (else a temporary directory,
+        /// removed afterwards); OpenCV's SimpleBlobDetector runs on them
+        /// (scripts/bench_opencv_blobs.py) when /usr/bin/python3 has cv2.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Decode one camera's default phase-shift stack (synthetic scene, gamma 2.2).
+    Decode {
+        /// Camera width (px).
+        #[arg(long, default_value_t = 1920)]
+        width: u32,
+        /// Camera height (px).
+        #[arg(long, default_value_t = 1200)]
+        height: u32,
+        /// Number of projectors.
+        #[arg(long, default_value_t = 3)]
+        projectors: usize,
+        /// Timed decodes of the same stack.
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+    },
+}
+
+/// Run one benchmark and print its figures.
+pub fn run(what: Bench) -> anyhow::Result<()> {
+    match what {
+        Bench::Capture { rig } => cli::bench_capture(&rig)?,
+        Bench::Aravis {
+            width,
+            height,
+            bits,
+            frames,
+        } => cli::bench_aravis(width, height, bits, frames)?,
+        Bench::Window { monitor, slides } => cli::bench_window(monitor.as_deref(), slides)?,
+        Bench::Calib {
+            cameras,
+            projectors,
+            poses,
+            sigma,
+        } => {
+            let b = hexcal::calib::synthetic::bench_adjust(cameras, projectors, poses, sigma)?;
+            println!(
+                "bundle adjustment: {} devices, {} poses, {} observations, n = {}, p = {}, {} threads",
+                b.devices,
+                b.poses,
+                b.observations,
+                b.dof.0,
+                b.dof.1,
+                rayon::current_num_threads()
+            );
+            println!(
+                "{:.3} s, {} LM iterations; posterior σ {:.4} px (simulated {sigma}), worst focal error {:.4} %",
+                b.seconds,
+                b.iterations,
+                b.posterior_sigma,
+                100.0 * b.worst_focal_error
+            );
+        }
+        Bench::Render { scene, repeat } => {
+            let scene = crate::load_scene(scene.as_ref())?;
+            println!("{}", hexcal::sim::bench_render(&scene, repeat)?);
+        }
+        Bench::Detect { images, runs } => bench_detect(&images, runs)?,
+        Bench::DetectGrid { runs, out } => {
+            use hexcal::bench::detect_grid as bench;
+            // The views go to --out, else to a temporary directory, for OpenCV's run.
+            let dir = out.clone().unwrap_or_else(|| {
+                std::env::temp_dir().join(format!("hexcal-bench-{}", std::process::id()))
+            });
+            std::fs::create_dir_all(&dir)?;
+            let report = bench::bench_detect_grid(&bench::scenes(), runs, Some(&dir));
+            let side_by_side = report
+                .is_ok()
+                .then(|| bench::opencv_side_by_side(&dir, runs));
+            if out.is_none() {
+                std::fs::remove_dir_all(&dir)?;
+            }
+            print!("{}", report?);
+            match side_by_side {
+                Some(Ok(table)) => {
+                    print!("\nOpenCV SimpleBlobDetector on the same views:\n{table}")
+                }
+                Some(Err(why)) => println!("\nOpenCV SimpleBlobDetector not run: {why}"),
+                None => {}
+            }
+        }
+        Bench::Decode {
+            width,
+            height,
+            projectors,
+            repeats,
+        } => {
+            let r = hexcal::phase::synthetic::bench_decode(width, height, projectors, repeats);
+            let mib = |b: usize| b as f64 / (1024.0 * 1024.0);
+            println!(
+                "decode {}×{}, {} frames, P = {projectors}, {} threads (stack rendered in {:.1} s)",
+                r.size.0,
+                r.size.1,
+                r.frames,
+                rayon::current_num_threads(),
+                r.render_seconds
+            );
+            for run in &r.runs {
+                let cpu = |s: Option<f64>| s.map_or("n/a".into(), |s| format!("{s:.2} s"));
+                println!(
+                    "decode {:.3} s wall; CPU {} in frame pushes + {} in finish",
+                    run.wall_seconds,
+                    cpu(run.push_cpu_seconds),
+                    cpu(run.finish_cpu_seconds)
+                );
+            }
+            println!(
+                "load average: {}",
+                std::fs::read_to_string("/proc/loadavg")
+                    .unwrap_or_default()
+                    .trim()
+            );
+            println!(
+                "decoder buffers {:.0} MiB, decoded maps {:.0} MiB, peak RSS growth {}",
+                mib(r.decoder_bytes),
+                mib(r.output_bytes),
+                r.peak_growth_bytes
+                    .map_or("n/a".into(), |b| format!("{:.0} MiB", mib(b)))
+            );
+            for (p, a) in r.accuracy.iter().enumerate() {
+                println!(
+                    "projector {p}: valid {} (compared {}), rms u {:.3} v {:.3} px, predicted σ_u {:.3} σ_v {:.3}, gross {}",
+                    a.valid, a.compared, a.rms_u, a.rms_v, a.predicted_u, a.predicted_v, a.gross
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `hexcal bench detect`: per image, the median and fastest time of `detect` and the
+/// throughput.
+fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
+    use {
+        hexcal::detect::{detect, synth, DetectParams},
+        hexcal::images::GrayImage,
+    };
+    let inputs: Vec<(String, GrayImage)> = if images.is_empty() {
+        vec![
+            (
+                "synthetic board, r=10 px, tilt 40°".into(),
+                synth::lattice_image(1920, 1200, 10.0, 40.0, 1),
+            ),
+            (
+                "synthetic board, r=4 px, frontal".into(),
+                synth::lattice_image(1920, 1200, 4.0, 0.0, 2),
+            ),
+            (
+                "synthetic board, r=24 px, tilt 40°".into(),
+                synth::lattice_image(4096, 3000, 24.0, 40.0, 3),
+            ),
+            (
+                "synthetic board, r=10 px, frontal".into(),
+                synth::lattice_image(4096, 3000, 10.0, 0.0, 4),
+            ),
+        ]
+    } else {
+        images
+            .iter()
+            .map(|p| Ok((p.display().to_string(), hexcal::images::load_gray(p)?)))
+            .collect::<anyhow::Result<_>>()?
+    };
+    let params = DetectParams::default();
+    println!("threads: {}", rayon::current_num_threads());
+    println!(
+        "{:>11} {:>6} {:>8} {:>10} {:>10} {:>8}  image",
+        "size", "MP", "circles", "median ms", "min ms", "MP/s"
+    );
+    for (name, img) in &inputs {
+        let n = detect(img, &params).len();
+        let mut ms: Vec<f64> = (0..runs.max(1))
+            .map(|_| {
+                let t = std::time::Instant::now();
+                std::hint::black_box(detect(img, &params));
+                t.elapsed().as_secs_f64() * 1e3
+            })
+            .collect();
+        ms.sort_by(f64::total_cmp);
+        let mp = img.width() as f64 * img.height() as f64 / 1e6;
+        let med = ms[ms.len() / 2];
+        println!(
+            "{:>11} {:>6.2} {:>8} {:>10.1} {:>10.1} {:>8.1}  {name}",
+            format!("{}x{}", img.width(), img.height()),
+            mp,
+            n,
+            med,
+            ms[0],
+            mp / (med / 1e3)
+        );
+    }
+    Ok(())
+}
