@@ -22,13 +22,14 @@ rustup component add rustfmt clippy >/dev/null 2>&1 || true
 cargo fmt --all --check
 cargo clippy --workspace --all-targets -- -D warnings
 cargo test --workspace
-# The hardware drivers (features `aravis`, `v4l2`, `window`), built once together: lints,
+# The hardware drivers (features `aravis`, `v4l2`, `window`) and the benchmark harnesses
+# (`bench`), built once together: lints,
 # then only their tests (no second full-workspace test run): the Aravis driver through the
 # GigE Vision loopback camera; the V4L2 driver on a simulated node behind its device trait
 # (no /dev/video in CI); the window projector, each test on its own Xvfb; and the hardware
 # loop — loopback camera, trigger controller on a pty and window projector through the
 # capture engine to decoded stacks.
-hw=aravis,v4l2,window
+hw=aravis,v4l2,window,bench
 cargo clippy --features $hw --all-targets -- -D warnings
 cargo test --features $hw --test aravis_loopback --test window_projector --test hardware_loop
 cargo test --features $hw --lib rig::v4l2

@@ -1,8 +1,8 @@
 //! `hexcal bench …`: the speed benchmarks, each printing its figures.
 
-use crate::cli;
+use anyhow::Context;
 use clap::Subcommand;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Subcommand)]
 pub enum Bench {
@@ -105,14 +105,14 @@ pub enum Bench {
 /// Run one benchmark and print its figures.
 pub fn run(what: Bench) -> anyhow::Result<()> {
     match what {
-        Bench::Capture { rig } => cli::bench_capture(&rig)?,
+        Bench::Capture { rig } => bench_capture(&rig)?,
         Bench::Aravis {
             width,
             height,
             bits,
             frames,
-        } => cli::bench_aravis(width, height, bits, frames)?,
-        Bench::Window { monitor, slides } => cli::bench_window(monitor.as_deref(), slides)?,
+        } => bench_aravis(width, height, bits, frames)?,
+        Bench::Window { monitor, slides } => bench_window(monitor.as_deref(), slides)?,
         Bench::Calib {
             cameras,
             projectors,
@@ -275,4 +275,76 @@ fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// `hexcal bench capture`: one simulated pose through the engine, frames discarded.
+pub fn bench_capture(rig_path: &Path) -> anyhow::Result<()> {
+    use hexcal::capture::Session;
+    let rig = hexcal::rig::file::RigFile::load(rig_path)?;
+    let opened = hexcal::rig::open(&rig)?;
+    let world = opened
+        .world
+        .clone()
+        .context("bench capture needs a simulated rig")?;
+    let cameras = opened.devices.cameras.len();
+    let mut session = Session::start(opened.devices, &opened.sequence)?;
+    println!(
+        "rig {}: {cameras} cameras, {} projectors, {} frames per pose, {} threads",
+        rig.name,
+        opened.sequence.projectors().len(),
+        opened.sequence.frame_count(),
+        rayon::current_num_threads()
+    );
+    world.place(0);
+    let timeline = session.capture_pose(0, &mut |f| {
+        std::hint::black_box(f);
+        Ok(())
+    })?;
+    session.finish()?;
+    println!("pose 0: {}", timeline.summary(cameras));
+    let frames: Vec<String> = timeline
+        .frames
+        .iter()
+        .take(3)
+        .map(|t| {
+            format!(
+                "frame {}: shown {:.1} ms, triggered {:.1} ms, collected {:.1} ms",
+                t.index,
+                1e3 * t.shown.as_secs_f64(),
+                1e3 * t.triggered.as_secs_f64(),
+                1e3 * t.collected.as_secs_f64()
+            )
+        })
+        .collect();
+    println!("timeline (first frames): {}", frames.join("; "));
+    Ok(())
+}
+
+/// `hexcal bench aravis`: the loopback GigE Vision camera's frame rate.
+pub fn bench_aravis(width: u32, height: u32, bits: u8, frames: usize) -> anyhow::Result<()> {
+    #[cfg(feature = "aravis")]
+    {
+        let b = hexcal::rig::aravis::loopback::bench_loopback(width, height, bits, frames)?;
+        println!("{b}");
+        Ok(())
+    }
+    #[cfg(not(feature = "aravis"))]
+    {
+        let _ = (width, height, bits, frames);
+        anyhow::bail!("built without the aravis feature: cargo run --release --features aravis -- bench aravis")
+    }
+}
+
+/// `hexcal bench window`: time from `show` to the slide drawn, on a monitor of `$DISPLAY`.
+pub fn bench_window(monitor: Option<&str>, slides: usize) -> anyhow::Result<()> {
+    #[cfg(feature = "window")]
+    {
+        println!("{}", hexcal::rig::window::bench_show(monitor, slides)?);
+        Ok(())
+    }
+    #[cfg(not(feature = "window"))]
+    {
+        let _ = (monitor, slides);
+        anyhow::bail!("built without the window feature: cargo run --release --features window -- bench window")
+    }
 }

@@ -1,13 +1,15 @@
 //! hexcal: joint geometric calibration of structured-light rigs with many cameras and many
 //! projectors, from a double-sided hexagonal circle board.
 //!
-//! The stages, in the order data flows through them: [`board`] and [`camera`] (the models
-//! every stage shares) → [`rig`] (rig files, device traits, drivers, the simulated rig) →
-//! [`capture`] (lockstep capture, datasets) → [`phase`] (decoding) → [`detect`] (circles) →
-//! [`grid`] (labelled lattice points), both run on image files by [`detection`] →
-//! [`correspond`] (camera and projector observations) → [`calib`] → [`report`];
-//! [`pipeline`] streams them all in one process (`hexcal run`). [`sim`] renders board views
-//! and capture stacks with ground truth.
+//! Layers, bottom first (docs/design.md §1b; `tests/layers.rs` checks that a module uses only
+//! lower layers or earlier modules of its own):
+//! - foundation: [`atomic`] file writes, `tomlspan`;
+//! - vocabulary: [`board`], [`camera`], [`pattern`] (the phase-shift sequence), [`images`],
+//!   [`dataset`];
+//! - [`sim`]: the simulated world with ground truth;
+//! - stages in data order: [`rig`] → [`capture`] → [`phase`] → [`detect`] → [`grid`] →
+//!   [`correspond`] → [`calib`] → [`report`];
+//! - application: [`app`] (run, capture, calibrate, detect), and `bench` (feature `bench`).
 #![warn(missing_docs)]
 
 pub mod app;

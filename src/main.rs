@@ -194,7 +194,7 @@ fn calibrate(
     let cal = &done.calibration;
     print!(
         "{}",
-        hexcal::report::format_table(&hexcal::report::residual_table(cal))
+        hexcal::report::format_table(&hexcal::calib::diagnostics::residual_table(cal))
     );
     println!(
         "σ {:.4} px; {} of {} unanchored views registered",

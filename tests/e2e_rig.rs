@@ -136,7 +136,7 @@ fn rendered_views_calibrate_the_rig() {
     )
     .unwrap();
     assert_eq!(cal.devices.len(), rig.devices.len(), "{:?}", cal.excluded);
-    let table = hexcal::report::residual_table(&cal);
+    let table = hexcal::calib::diagnostics::residual_table(&cal);
     eprint!("{}", hexcal::report::format_table(&table));
     for row in &table {
         // Issue 5's limits apply to the table's RMS column (RMS of 2D residual norms), the

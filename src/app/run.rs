@@ -150,6 +150,9 @@ pub fn run(
     Ok(outcome)
 }
 
+/// One pose's decoding threads: the frame senders (camera order) and the threads.
+type StackWorkers = (Vec<Sender<CameraFrame>>, Vec<JoinHandle<StackResult>>);
+
 /// A run between poses: the dataset, every pose's views so far, and the one pose whose
 /// stacks are still being processed while the next is captured.
 struct Stream<'e> {
@@ -263,7 +266,7 @@ impl<'e> Stream<'e> {
     fn spawn_stack_workers(
         &self,
         k: usize,
-    ) -> Result<(Vec<Sender<CameraFrame>>, Vec<JoinHandle<StackResult>>), AppError> {
+    ) -> Result<StackWorkers, AppError> {
         let mut senders = Vec::new();
         let mut workers = Vec::new();
         let finishing = std::sync::Arc::new(std::sync::Mutex::new(()));

@@ -28,13 +28,8 @@ pub fn check_truth(cal: &Calibration, world: &crate::rig::sim::SimWorld) -> Vec<
             .chain(&world.projectors)
             .find(|d| d.name == name)
     };
-    // T_ref_rig of the reference: the device whose calibrated pose is the identity.
-    let Some(reference) = cal
-        .devices
-        .iter()
-        .find(|d| d.pose.translation.vector.norm() == 0.0 && d.pose.rotation.angle() == 0.0)
-        .and_then(|d| truth(&d.name))
-    else {
+    // T_ref_rig of the calibration's reference device.
+    let Some(reference) = truth(&cal.devices[cal.reference].name) else {
         return Vec::new();
     };
     cal.devices

@@ -8,6 +8,7 @@
 
 pub mod bundle;
 pub mod circle;
+pub mod diagnostics;
 pub mod posegraph;
 pub mod solve;
 pub mod synthetic;

@@ -82,6 +82,9 @@ pub struct Calibration {
     pub board: Board,
     /// Calibrated devices, in input order among those kept.
     pub devices: Vec<Device>,
+    /// The reference device (index into `devices`): its frame is the rig's, its pose the
+    /// identity.
+    pub reference: usize,
     /// Input index of each calibrated device.
     pub device_index: Vec<usize>,
     /// Input index of each adjusted board pose.
@@ -255,6 +258,7 @@ pub fn calibrate(
     Ok(Calibration {
         board: board.clone(),
         devices: solution.devices.clone(),
+        reference: bundle_options.reference,
         device_index,
         pose_index,
         excluded,

@@ -75,11 +75,11 @@ fn session(faults: Faults) -> (Session, Arc<SimWorld>, Sequence) {
     };
     let s = Session::start(
         RigDevices {
-            cameras: cameras,
+            cameras,
             configs: opened.devices.configs,
-            projectors: projectors,
+            projectors,
             trigger: None,
-            timing: timing,
+            timing,
         },
         &opened.sequence,
     )

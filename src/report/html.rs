@@ -7,8 +7,9 @@
 //! vectors over the image, a histogram of residual norms and a coverage heatmap, every
 //! parameter with its standard deviation, and the verification table.
 
-use super::{residual_table, ReportError, ResidualRow};
+use super::ReportError;
 use crate::calib::bundle::{Device, DeviceKind};
+use crate::calib::diagnostics::{kind_name, residual_table, ResidualRow};
 use crate::calib::solve::Calibration;
 use crate::calib::verify::PairCheck;
 use crate::camera::{LensParam, LensParams};
@@ -30,14 +31,6 @@ pub struct ReportInput<'a> {
     /// shown with the report's own.
     pub warnings: Vec<String>,
 }
-
-/// Devices seen in fewer board poses than this are warned about.
-const MIN_POSES: usize = 3;
-/// A device's RMS above this multiple of its kind's median, or of the RMS the joint fit
-/// expects, is warned about.
-const RMS_RATIO: f64 = 1.5;
-/// More than this fraction of a device's observations rejected is warned about.
-const OUTLIER_FRACTION: f64 = 0.05;
 
 const CAMERA_COLOUR: &str = "#1f77b4";
 const PROJECTOR_COLOUR: &str = "#e8710a";
@@ -80,7 +73,7 @@ pub fn html_report(input: &ReportInput) -> String {
     );
     summary(&mut h, cal);
     h.push_str("<h2 id=\"warnings\">Warnings</h2>\n");
-    let warnings: Vec<String> = report_warnings(cal, &rows)
+    let warnings: Vec<String> = crate::calib::diagnostics::warnings(cal, &rows)
         .into_iter()
         .chain(input.warnings.iter().cloned())
         .collect();
@@ -136,13 +129,6 @@ fn esc(s: &str) -> String {
     o
 }
 
-fn kind_name(k: DeviceKind) -> &'static str {
-    match k {
-        DeviceKind::Camera => "camera",
-        DeviceKind::Projector => "projector",
-    }
-}
-
 fn kind_class(k: DeviceKind) -> &'static str {
     match k {
         DeviceKind::Camera => "cam",
@@ -157,25 +143,10 @@ fn kind_colour(k: DeviceKind) -> &'static str {
     }
 }
 
-/// RMS of 2D residual norms the joint fit expects: √2·σ̂·√(1 − p/n) (docs/design.md §8).
-fn expected_rms(cal: &Calibration) -> f64 {
-    let (n, p) = cal.solution.dof;
-    let keep = if n > 0 {
-        (1.0 - p as f64 / n as f64).max(0.0)
-    } else {
-        1.0
-    };
-    std::f64::consts::SQRT_2 * cal.solution.sigma * keep.sqrt()
-}
-
 /// The key figures under the title: board, reference, counts, σ̂.
 fn summary(h: &mut String, cal: &Calibration) {
     let sol = &cal.solution;
-    let reference = cal
-        .devices
-        .iter()
-        .find(|d| d.pose == nalgebra::Isometry3::identity())
-        .map_or("—", |d| d.name.as_str());
+    let reference = cal.devices[cal.reference].name.as_str();
     let count = |k: DeviceKind| cal.devices.iter().filter(|d| d.kind == k).count();
     let outliers = sol.residuals.iter().filter(|r| r.outlier).count();
     let stats = [
@@ -197,7 +168,7 @@ fn summary(h: &mut String, cal: &Calibration) {
         ("σ̂ per coordinate", format!("{:.4} px", sol.sigma)),
         (
             "expected RMS √2·σ̂·√(1−p/n)",
-            format!("{:.4} px", expected_rms(cal)),
+            format!("{:.4} px", crate::calib::diagnostics::expected_rms(cal)),
         ),
         ("n, p", format!("{}, {}", sol.dof.0, sol.dof.1)),
         ("LM iterations", sol.iterations.to_string()),
@@ -212,89 +183,6 @@ fn summary(h: &mut String, cal: &Calibration) {
         );
     }
     h.push_str("</div>\n");
-}
-
-/// The report's own warnings: few poses, high RMS, many outliers, excluded devices,
-/// unregistered views.
-fn report_warnings(cal: &Calibration, rows: &[ResidualRow]) -> Vec<String> {
-    let mut w = Vec::new();
-    let expected = expected_rms(cal);
-    for (d, (dev, row)) in cal.devices.iter().zip(rows).enumerate() {
-        let poses: BTreeSet<usize> = cal
-            .observations
-            .iter()
-            .filter(|o| o.device == d)
-            .map(|o| o.pose)
-            .collect();
-        if poses.len() < MIN_POSES {
-            w.push(format!(
-                "{} ({}) is seen in only {} board pose{} (at least {MIN_POSES} wanted): its \
-                 model rests on few views; capture more poses that it sees.",
-                dev.name,
-                kind_name(dev.kind),
-                poses.len(),
-                if poses.len() == 1 { "" } else { "s" }
-            ));
-        }
-        let mut same: Vec<f64> = rows
-            .iter()
-            .filter(|r| r.kind == dev.kind && r.points > 0)
-            .map(|r| r.rms)
-            .collect();
-        if same.len() >= 3 && row.points > 0 {
-            same.sort_by(f64::total_cmp);
-            let median = same[same.len() / 2];
-            if row.rms > RMS_RATIO * median {
-                w.push(format!(
-                    "{}: RMS {:.4} px is {:.1}× the median {:.4} px of the {}s.",
-                    dev.name,
-                    row.rms,
-                    row.rms / median,
-                    median,
-                    kind_name(dev.kind)
-                ));
-            }
-        }
-        if row.points > 0 && expected > 0.0 && row.rms > RMS_RATIO * expected {
-            w.push(format!(
-                "{}: RMS {:.4} px is {:.1}× the {:.4} px the joint fit expects \
-                 (√2·σ̂·√(1 − p/n)): its noise is above the rig's, or its model does not fit.",
-                dev.name,
-                row.rms,
-                row.rms / expected,
-                expected
-            ));
-        }
-        let total = row.points + row.outliers;
-        if total > 0 && row.outliers as f64 > OUTLIER_FRACTION * total as f64 {
-            w.push(format!(
-                "{}: {} of {} observations ({:.1} %) rejected as outliers.",
-                dev.name,
-                row.outliers,
-                total,
-                100.0 * row.outliers as f64 / total as f64
-            ));
-        }
-    }
-    for e in &cal.excluded {
-        w.push(format!("{} was not calibrated: {}.", e.name, e.reason));
-    }
-    for u in &cal.registration.unregistered {
-        let camera = cal
-            .device_index
-            .iter()
-            .position(|&i| i == u.camera)
-            .map_or_else(
-                || format!("camera #{}", u.camera),
-                |d| cal.devices[d].name.clone(),
-            );
-        w.push(format!(
-            "The unanchored view of {camera} in board pose {} was not registered and is not \
-             used: {}.",
-            u.pose, u.reason
-        ));
-    }
-    w
 }
 
 /// The paper's Table I.

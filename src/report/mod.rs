@@ -9,6 +9,7 @@
 pub mod html;
 
 use crate::calib::bundle::DeviceKind;
+use crate::calib::diagnostics::{residual_table, ResidualRow};
 use crate::calib::solve::Calibration;
 use crate::camera::{CameraModel, Distortion, Intrinsics};
 use nalgebra::{Isometry3, Matrix3, Vector3};
@@ -150,11 +151,7 @@ impl CalibrationFile {
     /// The file of a calibration.
     pub fn new(cal: &Calibration) -> CalibrationFile {
         let sol = &cal.solution;
-        let reference = cal
-            .devices
-            .iter()
-            .position(|d| d.pose == Isometry3::identity())
-            .unwrap_or(0);
+        let reference = cal.reference;
         CalibrationFile {
             version: FORMAT_VERSION,
             units: Units {
@@ -316,58 +313,6 @@ pub fn kalibr_camchain(file: &CalibrationFile) -> String {
         previous = Some(pose);
     }
     s
-}
-
-/// One row of the paper's Table I: a device's residual statistics.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ResidualRow {
-    /// Device name.
-    pub name: String,
-    /// Camera or projector.
-    pub kind: DeviceKind,
-    /// Observations used (inliers).
-    pub points: usize,
-    /// Observations rejected as outliers.
-    pub outliers: usize,
-    /// Mean of the inliers' residual norms (px).
-    pub mean: f64,
-    /// Standard deviation of the inliers' residual norms (px).
-    pub std: f64,
-    /// RMS of the inliers' residual norms (px).
-    pub rms: f64,
-}
-
-/// The per-device residual table of a calibration.
-pub fn residual_table(cal: &Calibration) -> Vec<ResidualRow> {
-    cal.devices
-        .iter()
-        .enumerate()
-        .map(|(d, dev)| {
-            let (mut norms, mut outliers) = (Vec::new(), 0);
-            for (o, r) in cal.observations.iter().zip(&cal.solution.residuals) {
-                if o.device == d {
-                    if r.outlier {
-                        outliers += 1;
-                    } else {
-                        norms.push(r.error.norm());
-                    }
-                }
-            }
-            let n = norms.len().max(1) as f64;
-            let mean = norms.iter().sum::<f64>() / n;
-            let var = norms.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
-            let rms = (norms.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
-            ResidualRow {
-                name: dev.name.clone(),
-                kind: dev.kind,
-                points: norms.len(),
-                outliers,
-                mean,
-                std: var.sqrt(),
-                rms,
-            }
-        })
-        .collect()
 }
 
 /// The table as aligned text.

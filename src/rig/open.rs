@@ -118,11 +118,14 @@ pub fn open(rig: &RigFile) -> Result<OpenedRig, OpenError> {
     })
 }
 
+/// Cameras and their settings, in rig-file order.
+type OpenedCameras = (Vec<Box<dyn Camera>>, Vec<CameraConfig>);
+
 /// The cameras of `rig` and their settings; simulated ones come from `simulated`, in order.
 fn open_cameras(
     rig: &RigFile,
     simulated: Vec<super::sim::SimCamera>,
-) -> Result<(Vec<Box<dyn Camera>>, Vec<CameraConfig>), OpenError> {
+) -> Result<OpenedCameras, OpenError> {
     let mut simulated = simulated.into_iter();
     let mut cameras: Vec<Box<dyn Camera>> = Vec::new();
     let mut configs = Vec::new();
