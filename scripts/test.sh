@@ -29,7 +29,7 @@ cargo test --workspace
 # (no /dev/video in CI); the window projector, each test on its own Xvfb; and the hardware
 # loop — loopback camera, trigger controller on a pty and window projector through the
 # capture engine to decoded stacks.
-hw=aravis,v4l2,window,bench
+hw=aravis,loopback,v4l2,window,bench
 cargo clippy --features $hw --all-targets -- -D warnings
 cargo test --features $hw --test aravis_loopback --test window_projector --test hardware_loop
 cargo test --features $hw --lib rig::v4l2

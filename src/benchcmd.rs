@@ -30,7 +30,7 @@ pub enum Bench {
         rig: PathBuf,
     },
     /// Frames per second through a GigE Vision camera on loopback (the in-process Aravis
-    /// fake camera serving known frames, each checked); needs `--features aravis`.
+    /// fake camera serving known frames, each checked); needs `--features loopback`.
     Aravis {
         /// Frame width.
         #[arg(long, default_value_t = 1920)]
@@ -139,7 +139,7 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
         }
         Bench::Render { scene, repeat } => {
             let scene = crate::load_scene(scene.as_ref())?;
-            println!("{}", hexcal::sim::bench_render(&scene, repeat)?);
+            println!("{}", hexcal::bench::render::bench_render(&scene, repeat)?);
         }
         Bench::Detect { images, runs } => bench_detect(&images, runs)?,
         Bench::DetectGrid { runs, out } => {
@@ -171,7 +171,7 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
             projectors,
             repeats,
         } => {
-            let r = hexcal::phase::synthetic::bench_decode(width, height, projectors, repeats);
+            let r = hexcal::bench::decode::bench_decode(width, height, projectors, repeats);
             let mib = |b: usize| b as f64 / (1024.0 * 1024.0);
             println!(
                 "decode {}×{}, {} frames, P = {projectors}, {} threads (stack rendered in {:.1} s)",
@@ -322,16 +322,16 @@ pub fn bench_capture(rig_path: &Path) -> anyhow::Result<()> {
 
 /// `hexcal bench aravis`: the loopback GigE Vision camera's frame rate.
 pub fn bench_aravis(width: u32, height: u32, bits: u8, frames: usize) -> anyhow::Result<()> {
-    #[cfg(feature = "aravis")]
+    #[cfg(feature = "loopback")]
     {
         let b = hexcal::rig::aravis::loopback::bench_loopback(width, height, bits, frames)?;
         println!("{b}");
         Ok(())
     }
-    #[cfg(not(feature = "aravis"))]
+    #[cfg(not(feature = "loopback"))]
     {
         let _ = (width, height, bits, frames);
-        anyhow::bail!("built without the aravis feature: cargo run --release --features aravis -- bench aravis")
+        anyhow::bail!("built without the loopback feature: cargo run --release --features bench,loopback -- bench aravis")
     }
 }
 

@@ -2,7 +2,7 @@
 //! this process serves frames we give it (rendered board views, synthetic patterns), the
 //! driver opens it by address, configures it, triggers it in software and must hand back
 //! exactly those frames in order — or say clearly, naming the device, why it cannot.
-#![cfg(feature = "aravis")]
+#![cfg(feature = "loopback")]
 
 use hexcal::rig::aravis::loopback::synthetic_frame;
 use hexcal::rig::aravis::{list_cameras, AravisCamera, LoopbackCamera, LOOPBACK_ADDRESS};

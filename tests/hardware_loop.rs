@@ -11,7 +11,7 @@
 //!
 //! Fault: a controller that starts answering garbage mid-sequence stops the capture with an
 //! error naming the port, pose and frame; the pose written before reads back intact.
-#![cfg(feature = "aravis")]
+#![cfg(feature = "loopback")]
 
 use hexcal::dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry, StackReader};
 use hexcal::pattern::Sequence;

@@ -263,10 +263,7 @@ impl<'e> Stream<'e> {
     }
 
     /// One decoding thread per camera for pose `k`, fed frame by frame.
-    fn spawn_stack_workers(
-        &self,
-        k: usize,
-    ) -> Result<StackWorkers, AppError> {
+    fn spawn_stack_workers(&self, k: usize) -> Result<StackWorkers, AppError> {
         let mut senders = Vec::new();
         let mut workers = Vec::new();
         let finishing = std::sync::Arc::new(std::sync::Mutex::new(()));

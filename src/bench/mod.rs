@@ -1,4 +1,6 @@
 //! Benchmark harnesses behind the `bench` feature (`hexcal bench …`): they render their own
 //! inputs, time the stages and print figures; nothing a calibration needs.
 
+pub mod decode;
 pub mod detect_grid;
+pub mod render;

@@ -11,6 +11,7 @@ pub mod circle;
 pub mod diagnostics;
 pub mod posegraph;
 pub mod solve;
+#[cfg(any(test, feature = "testkit"))]
 pub mod synthetic;
 pub mod verify;
 pub mod views;

@@ -136,6 +136,7 @@ pub(crate) fn horizontal_row(padded: &[f32], k: &Kernel, out: &mut [f32]) {
 const BAND: usize = 16;
 
 /// Separable Gaussian blur of a whole plane (edges replicated), parallel over row bands.
+#[cfg(any(test, feature = "testkit"))]
 pub(crate) fn blur(src: View<'_>, sigma: f64, truncate: f64) -> Plane {
     let k = Kernel::gaussian(sigma, truncate);
     let (w, h, r) = (src.width, src.height, k.radius());

@@ -10,6 +10,7 @@ mod circleness;
 mod filter;
 mod fit;
 mod refine;
+#[cfg(any(test, feature = "testkit"))]
 pub mod synth;
 
 use crate::images::{Ellipse, GrayImage};

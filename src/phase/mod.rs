@@ -3,9 +3,10 @@
 //!
 //! Takes the [`Sequence`] and the camera frames in order; gives a [`DecodedStack`] per camera.
 
+#[cfg(any(test, feature = "bench"))]
+pub mod accuracy;
 mod decode;
 pub mod files;
-pub mod synthetic;
 mod unwrap;
 
 pub use decode::*;

@@ -2,9 +2,10 @@
 //! docs/design.md §9 (8 bit, read noise 2 DN, shot variance 0.1·I, PSF σ 0.8 px, ambient 40 DN on
 //! white, P projectors sharing 195 DN, projector gamma 2.2), against ground truth.
 
-use super::synthetic::{accuracy, Renderer, Scene, Truth};
+use super::accuracy::accuracy;
 use super::*;
 use crate::pattern::*;
+use crate::sim::fringe::{Renderer, Scene, Truth};
 
 const GAMMA: ProjectorResponse = ProjectorResponse::Gamma { gamma: 2.2 };
 const LINEARISED: ProjectorResponse = ProjectorResponse::Linearised { gamma: 2.2 };

@@ -9,8 +9,10 @@
 //! GenICam cameras this machine sees; [`loopback`] runs a real GigE Vision camera on
 //! 127.0.0.1 inside the process, for tests and `hexcal bench`.
 
+#[cfg(feature = "loopback")]
 pub mod loopback;
 
+#[cfg(feature = "loopback")]
 pub use loopback::{bench_loopback, LoopbackBench, LoopbackCamera, LOOPBACK_ADDRESS};
 
 use super::device::{Camera, CameraConfig, DeviceError, TriggerSource};
