@@ -386,7 +386,7 @@ impl Loop {
         let mut writer = self.data.pose_writer(pose).unwrap();
         let timeline = self
             .session
-            .capture_pose(pose, &mut |f| writer.write(&f).map_err(|e| e.to_string()))?;
+            .capture_pose(pose, &mut |f| Ok(writer.write(&f)?))?;
         self.data
             .complete(&writer.finish(&timeline).unwrap())
             .unwrap();

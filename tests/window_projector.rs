@@ -465,7 +465,7 @@ fn a_capture_whose_projector_window_is_killed_keeps_the_poses_written() {
                     if f.camera == 0 {
                         front.push(pixels(&f.frame.pixels));
                     }
-                    w.write(&f).map_err(|e| e.to_string())
+                    Ok(w.write(&f)?)
                 })
                 .unwrap();
             data.complete(&w.finish(&t).unwrap()).unwrap();

@@ -78,8 +78,7 @@ pub fn capture_dataset(
             break;
         }
         let mut writer = data.pose_writer(k)?;
-        let timeline =
-            session.capture_pose(k, &mut |f| writer.write(&f).map_err(|e| e.to_string()))?;
+        let timeline = session.capture_pose(k, &mut |f| Ok(writer.write(&f)?))?;
         let info = writer.finish(&timeline)?;
         data.complete(&info)?;
         log(&format!("pose {k}: {}", timeline.summary(cameras)));

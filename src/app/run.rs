@@ -237,7 +237,7 @@ impl<'e> Stream<'e> {
         let events = &mut *self.events;
         let timeline = session.capture_pose(k, &mut |f| {
             if keep_stacks {
-                writer.write(&f).map_err(|e| e.to_string())?;
+                writer.write(&f)?;
             }
             if f.camera == cameras - 1 && (f.index + 1) * 10 / frames > last {
                 last = (f.index + 1) * 10 / frames;
@@ -249,7 +249,7 @@ impl<'e> Stream<'e> {
             }
             senders[f.camera]
                 .send(f.frame)
-                .map_err(|_| "its decoding thread ended".to_string())
+                .map_err(|_| "its decoding thread ended".into())
         })?;
         drop(senders);
         let info = writer.finish(&timeline)?;

@@ -229,29 +229,39 @@ pub const OPENCV_PYTHON: &str = "/usr/bin/python3";
 /// figures that [`bench_detect_grid`] wrote to `dir`: OpenCV's SimpleBlobDetector timed
 /// `runs` times per image, its recall and centre error side by side with hexcal's. Its
 /// printed table, or why it could not run (no such Python, no `cv2`, the script failed).
-pub fn opencv_side_by_side(dir: &Path, runs: usize) -> Result<String, String> {
+pub fn opencv_side_by_side(dir: &Path, runs: usize) -> Result<String, OpenCvError> {
     let python = Path::new(OPENCV_PYTHON);
     let probe = std::process::Command::new(python)
         .args(["-c", "import cv2"])
         .output()
-        .map_err(|e| format!("{OPENCV_PYTHON} not runnable ({e})"))?;
+        .map_err(OpenCvError::NoPython)?;
     if !probe.status.success() {
-        return Err(format!(
-            "{OPENCV_PYTHON} has no cv2 (apt-get install python3-opencv)"
-        ));
+        return Err(OpenCvError::NoCv2);
     }
     let out = std::process::Command::new(python)
         .args(["-c", include_str!("../../scripts/bench_opencv_blobs.py")])
         .arg(dir)
         .args(["--runs", &runs.to_string()])
         .output()
-        .map_err(|e| format!("{OPENCV_PYTHON} failed to start ({e})"))?;
+        .map_err(OpenCvError::NoPython)?;
     if out.status.success() {
         Ok(String::from_utf8_lossy(&out.stdout).into_owned())
     } else {
-        Err(format!(
-            "scripts/bench_opencv_blobs.py failed: {}",
-            String::from_utf8_lossy(&out.stderr).trim()
-        ))
+        let stderr = String::from_utf8_lossy(&out.stderr).trim().to_string();
+        Err(OpenCvError::Script(stderr))
     }
+}
+
+/// Why OpenCV's side of the benchmark did not run.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenCvError {
+    /// The Python interpreter could not be started.
+    #[error("{OPENCV_PYTHON} not runnable ({0})")]
+    NoPython(std::io::Error),
+    /// It has no OpenCV.
+    #[error("{OPENCV_PYTHON} has no cv2 (apt-get install python3-opencv)")]
+    NoCv2,
+    /// The script failed (its standard error).
+    #[error("scripts/bench_opencv_blobs.py failed: {0}")]
+    Script(String),
 }

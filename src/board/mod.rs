@@ -148,9 +148,9 @@ pub struct Code(pub u8);
 
 impl Code {
     /// Parse a code written bit 0 first, e.g. `"011111"`.
-    pub fn parse(s: &str) -> Result<Code, String> {
+    pub fn parse(s: &str) -> Result<Code, CodeError> {
         if s.len() != 6 || !s.bytes().all(|b| b == b'0' || b == b'1') {
-            return Err(format!("ring code {s:?} must be six characters 0 or 1"));
+            return Err(CodeError(s.to_string()));
         }
         Ok(Code(
             s.bytes()
@@ -187,9 +187,14 @@ impl std::fmt::Display for Code {
     }
 }
 
+/// A ring code that is not six characters 0 or 1.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("ring code {0:?} must be six characters 0 or 1")]
+pub struct CodeError(pub String);
+
 impl TryFrom<String> for Code {
-    type Error = String;
-    fn try_from(s: String) -> Result<Self, String> {
+    type Error = CodeError;
+    fn try_from(s: String) -> Result<Self, CodeError> {
         Code::parse(&s)
     }
 }

@@ -111,7 +111,7 @@ fn initialise(
     device: usize,
     obs: &[Observation],
     min_points: usize,
-) -> Result<Start, String> {
+) -> Result<Start, CalibError> {
     // Group by (pose, side); a projector sees each circle through several cameras: keep one
     // correspondence per circle (the first) for the start.
     let mut groups: BTreeMap<(usize, u8), BTreeMap<crate::board::Hex, PlaneCorrespondence>> =
@@ -141,8 +141,11 @@ fn initialise(
             points: groups[k].values().copied().collect(),
         })
         .collect();
-    let (model, poses) = zhang::initialise(&views, info.width, info.height)
-        .map_err(|e| format!("Zhang initialisation from {} views: {e}", views.len()))?;
+    let (model, poses) =
+        zhang::initialise(&views, info.width, info.height).map_err(|e| CalibError::Start {
+            views: views.len(),
+            reason: Box::new(e),
+        })?;
     let pairs = keys
         .iter()
         .zip(&poses)
@@ -179,9 +182,9 @@ pub fn calibrate(
                 models[d] = Some(start.model);
                 pairs.extend(start.pairs);
             }
-            Err(reason) => excluded.push(Excluded {
+            Err(e) => excluded.push(Excluded {
                 name: info.name.clone(),
-                reason,
+                reason: e.to_string(),
             }),
         }
     }

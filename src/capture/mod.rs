@@ -26,6 +26,9 @@ use {
     },
 };
 
+/// Why a caller's sink refused a frame (e.g. a full disk): any error.
+pub type SinkError = Box<dyn std::error::Error + Send + Sync>;
+
 /// Why a capture failed.
 #[derive(Debug, thiserror::Error)]
 pub enum CaptureError {
@@ -180,7 +183,7 @@ impl Session {
     pub fn capture_pose(
         &mut self,
         pose: usize,
-        sink: &mut dyn FnMut(StackFrame) -> Result<(), String>,
+        sink: &mut dyn FnMut(StackFrame) -> Result<(), SinkError>,
     ) -> Result<Timeline, CaptureError> {
         let start = Instant::now();
         let frames = self.sequence.frame_count();
@@ -225,12 +228,12 @@ impl Session {
                 for (i, (s, f)) in sums.iter_mut().zip(got).enumerate() {
                     match s {
                         None => *s = Some(Accumulator::new(f)),
-                        Some(a) => a.add(&f).map_err(|reason| CaptureError::Frame {
+                        Some(a) => a.add(&f).map_err(|e| CaptureError::Frame {
                             pose,
                             frame: k,
                             source: DeviceError::Incomplete {
                                 device: self.workers[i].name.clone(),
-                                reason,
+                                reason: e.to_string(),
                             },
                         })?,
                     }
@@ -243,11 +246,11 @@ impl Session {
                     index: k,
                     frame,
                 })
-                .map_err(|reason| CaptureError::Sink {
+                .map_err(|e| CaptureError::Sink {
                     pose,
                     frame: k,
                     camera: self.workers[camera].name.clone(),
-                    reason,
+                    reason: e.to_string(),
                 })?;
             }
             timeline.frames.push(FrameTiming {
@@ -467,6 +470,11 @@ struct Accumulator {
     count: u32,
 }
 
+/// Repeats of a frame that differ in size or depth.
+#[derive(Debug, thiserror::Error)]
+#[error("repeats of different sizes")]
+struct RepeatMismatch;
+
 impl Accumulator {
     fn new(first: CameraFrame) -> Accumulator {
         Accumulator {
@@ -476,9 +484,10 @@ impl Accumulator {
         }
     }
 
-    fn add(&mut self, f: &CameraFrame) -> Result<(), String> {
+    /// Add a repeat; `Err` when its size or depth differs from the first.
+    fn add(&mut self, f: &CameraFrame) -> Result<(), RepeatMismatch> {
         if (f.width, f.height, f.bits) != (self.first.width, self.first.height, self.first.bits) {
-            return Err("repeats of different sizes".into());
+            return Err(RepeatMismatch);
         }
         if self.sum.is_empty() {
             self.sum = samples(&self.first.pixels);

@@ -266,7 +266,7 @@ fn datasets_keep_complete_poses_and_read_back_exactly() {
             if pose == 0 && f.camera == 0 {
                 first.push(pixels8(&f.frame).to_vec());
             }
-            w.write(&f).map_err(|e| e.to_string())
+            Ok(w.write(&f)?)
         });
         if let Ok(t) = r {
             let info = w.finish(&t).unwrap();
@@ -338,9 +338,7 @@ fn decoded_stack_folders_match_the_projector_truth() {
     let data = Dataset::create_or_resume(&dir, info(&seq)).unwrap();
     world.place(0);
     let mut w = data.pose_writer(0).unwrap();
-    let t = s
-        .capture_pose(0, &mut |f| w.write(&f).map_err(|e| e.to_string()))
-        .unwrap();
+    let t = s.capture_pose(0, &mut |f| Ok(w.write(&f)?)).unwrap();
     data.complete(&w.finish(&t).unwrap()).unwrap();
     s.finish().unwrap();
     let out = dir.join("decoded");
