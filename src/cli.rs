@@ -1,18 +1,54 @@
 //! The capture-side commands: `capture` and `decode`.
 
 use anyhow::Context;
+use crossbeam_channel::{Receiver, RecvTimeoutError};
 use hexcal::app::AppError;
 use hexcal::rig::sim::SimWorld;
 use std::io::BufRead;
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// A flag that Ctrl-C (or SIGTERM) sets: the run stops capturing, finishes every pose
+/// already captured and ends. A second one exits at once (code 130); every file written so
+/// far is whole, since every write is atomic.
+pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [SIGINT, SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(signal, 130, Arc::clone(&stop))?;
+        signal_hook::flag::register(signal, Arc::clone(&stop))?;
+    }
+    Ok(stop)
+}
+
+/// The operator's lines (`true` per line, `false` at the end of input), read in a thread of
+/// their own so that a wait for Enter still sees Ctrl-C.
+fn operator_lines() -> Receiver<bool> {
+    let (tx, rx) = crossbeam_channel::bounded(1);
+    std::thread::spawn(move || loop {
+        let mut line = String::new();
+        let more = std::io::stdin()
+            .lock()
+            .read_line(&mut line)
+            .is_ok_and(|n| n > 0);
+        if tx.send(more).is_err() || !more {
+            break;
+        }
+    });
+    rx
+}
 
 /// Puts the board at pose k: a simulated world's pose when the rig is simulated; then, unless
 /// `auto` (or a simulated world placed it and `sim_places` says that is enough), waits for
-/// the operator's Enter (end of input stops the capture).
+/// the operator's Enter (end of input, or `stop` set, ends the capture).
 fn placer(
     auto: bool,
     sim_places: bool,
+    stop: Option<Arc<AtomicBool>>,
 ) -> impl FnMut(usize, Option<&SimWorld>) -> Result<bool, AppError> {
+    let mut lines = None;
     move |k, world| {
         if let Some(w) = world {
             if k >= w.board_poses.len() {
@@ -27,9 +63,18 @@ fn placer(
             return Ok(true);
         }
         eprintln!("pose {k}: place the board, then press Enter (end of input stops)");
-        let mut line = String::new();
-        let read = std::io::stdin().lock().read_line(&mut line);
-        Ok(read.map_err(AppError::io(Path::new("stdin")))? > 0)
+        let lines = lines.get_or_insert_with(operator_lines);
+        loop {
+            match lines.recv_timeout(Duration::from_millis(100)) {
+                Ok(more) => return Ok(more),
+                Err(RecvTimeoutError::Disconnected) => return Ok(false),
+                Err(RecvTimeoutError::Timeout) => {
+                    if stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst)) {
+                        return Ok(false);
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -39,7 +84,7 @@ pub fn capture(rig: &Path, out: &Path, poses: Option<usize>, auto: bool) -> anyh
     let poses = poses
         .or(file.poses.map(|p| p.count))
         .context("say how many poses with --poses (the rig file has no [poses] table)")?;
-    let mut place = placer(auto, true);
+    let mut place = placer(auto, true, None);
     let mut log = |line: &str| eprintln!("{line}");
     let summary = hexcal::app::capture::capture_dataset(rig, out, poses, &mut place, &mut log)
         .map_err(anyhow::Error::msg)?;
@@ -130,10 +175,9 @@ pub fn run(
     auto: bool,
     progress: Progress,
 ) -> anyhow::Result<()> {
-    let mut place = placer(auto, false);
+    let mut place = placer(auto, false, options.stop.clone());
     let t = std::time::Instant::now();
-    let outcome = hexcal::app::run::run(rig, out, options, &mut place, &mut printer(progress))
-        .map_err(anyhow::Error::msg)?;
+    let outcome = hexcal::app::run::run(rig, out, options, &mut place, &mut printer(progress))?;
     summarise(&outcome, progress);
     if progress != Progress::Json {
         match peak_memory_mib() {

@@ -296,10 +296,18 @@ impl Dataset {
         read_json(&path).map(Some)
     }
 
-    /// A writer of pose `pose` (its folder is created; frames of an earlier, interrupted
-    /// attempt are overwritten).
+    /// A writer of pose `pose` (its folder is created). A folder that already holds files
+    /// is refused: an earlier attempt is moved aside first ([`Dataset::leftover`]), never
+    /// overwritten.
     pub fn pose_writer(&self, pose: usize) -> Result<PoseWriter, DatasetError> {
         let dir = self.pose_dir(pose);
+        if dir.exists() {
+            return Err(DatasetError::Invalid {
+                path: dir,
+                reason: "the pose folder is not empty: an earlier attempt would be overwritten"
+                    .into(),
+            });
+        }
         let stacks = self
             .info
             .cameras
@@ -563,5 +571,89 @@ impl Timeline {
             self.frames_per_second(cameras),
             self.dropped
         )
+    }
+}
+
+/// `captured.json` of a pose: written as soon as its capture ended (the pose record), before
+/// it is processed; `pose.json` follows when everything of the pose is on disk.
+const CAPTURED: &str = "captured.json";
+
+/// What an interrupted run left of a pose that is not complete.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Leftover {
+    /// Nothing: the pose was never started.
+    Nothing,
+    /// Captured and processed (`views.json` written), only not marked complete: complete it.
+    Processed(PoseInfo),
+    /// Every camera's stack is on disk and the capture ended: process it, don't recapture.
+    Stacks(PoseInfo),
+    /// Captured (or partly), but its frames were in memory only or are incomplete on disk:
+    /// the pose must be captured again. Whatever was on disk was moved to `kept`.
+    Unsaved {
+        /// Where the pose's files went (`pose-KKK.interrupted-N`), if it had any.
+        kept: Option<PathBuf>,
+    },
+}
+
+impl Dataset {
+    /// Write-ahead: pose `info.pose` was captured (its record, before processing).
+    pub fn mark_captured(&self, info: &PoseInfo) -> Result<(), DatasetError> {
+        self.write_pose_file(info.pose, CAPTURED, info)
+    }
+
+    /// What is left of the incomplete pose `pose`. Partial or unsaved poses are moved aside
+    /// whole to `pose-KKK.interrupted-N` (never overwritten, never deleted), so the pose can
+    /// be captured again into an empty folder.
+    pub fn leftover(&self, pose: usize) -> Result<Leftover, DatasetError> {
+        let dir = self.pose_dir(pose);
+        if !dir.exists() {
+            return Ok(Leftover::Nothing);
+        }
+        let captured: Option<PoseInfo> = self.read_pose_file(pose, CAPTURED)?;
+        let stacks_whole = self
+            .info
+            .cameras
+            .iter()
+            .all(|c| self.stack_dir(pose, &c.name).join("stack.json").exists());
+        match (captured, stacks_whole) {
+            (Some(info), _) if dir.join("views.json").exists() => {
+                return Ok(Leftover::Processed(info))
+            }
+            (Some(info), true) => return Ok(Leftover::Stacks(info)),
+            _ => {}
+        }
+        let empty = std::fs::read_dir(&dir).map_err(io(&dir))?.next().is_none();
+        if empty {
+            std::fs::remove_dir(&dir).map_err(io(&dir))?;
+            return Ok(Leftover::Unsaved { kept: None });
+        }
+        let kept = (1..)
+            .map(|n| dir.with_file_name(format!("pose-{pose:03}.interrupted-{n}")))
+            .find(|p| !p.exists())
+            .expect("a free name");
+        std::fs::rename(&dir, &kept).map_err(io(&dir))?;
+        Ok(Leftover::Unsaved { kept: Some(kept) })
+    }
+
+    /// Remove temporary files a killed writer left (`.NAME.tmpPID` of another process) in
+    /// the pose folders; they never held a finished file. Gives how many were removed.
+    pub fn remove_stale_temporaries(&self) -> Result<usize, DatasetError> {
+        let own = format!(".tmp{}", std::process::id());
+        let mut removed = 0;
+        let mut dirs = vec![self.root.clone()];
+        while let Some(dir) = dirs.pop() {
+            for entry in std::fs::read_dir(&dir).map_err(io(&dir))? {
+                let path = entry.map_err(io(&dir))?.path();
+                let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+                let name = name.unwrap_or_default();
+                if path.is_dir() {
+                    dirs.push(path);
+                } else if name.starts_with('.') && name.contains(".tmp") && !name.ends_with(&own) {
+                    std::fs::remove_file(&path).map_err(io(&path))?;
+                    removed += 1;
+                }
+            }
+        }
+        Ok(removed)
     }
 }

@@ -2,6 +2,7 @@
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
+use hexcal::app::AppError;
 use hexcal::board::{Board, Side};
 use hexcal::calib::solve::CalibrateOptions;
 use std::path::{Path, PathBuf};
@@ -271,10 +272,24 @@ fn keep_freed_blocks() {
     }
 }
 
-fn main() -> anyhow::Result<()> {
+/// Exit code of a run stopped by Ctrl-C (128 + SIGINT, as shells report it).
+const INTERRUPTED: i32 = 130;
+
+fn main() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     keep_freed_blocks();
-    let cli = Cli::parse();
+    if let Err(e) = command(Cli::parse()) {
+        eprintln!("error: {e:#}");
+        let interrupted = matches!(
+            e.downcast_ref::<AppError>(),
+            Some(AppError::Interrupted { .. })
+        );
+        std::process::exit(if interrupted { INTERRUPTED } else { 1 });
+    }
+}
+
+/// Run one command.
+fn command(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Capture {
             rig,
@@ -300,6 +315,7 @@ fn main() -> anyhow::Result<()> {
                 poses,
                 held_out,
                 keep_stacks,
+                stop: Some(cli::stop_flag()?),
             },
             auto,
             if json {

@@ -87,9 +87,8 @@ fn run_calibrates_a_simulated_rig_to_its_ground_truth() {
         &rig,
         &out,
         &RunOptions {
-            poses: None,
             held_out: 1,
-            keep_stacks: false,
+            ..RunOptions::default()
         },
         &mut |k, world| {
             world.expect("a simulated rig").place(k);

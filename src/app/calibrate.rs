@@ -1,7 +1,7 @@
 //! `hexcal calibrate`: a dataset folder's views (or its stacks, decoded) or a
 //! correspondences file to a calibration, verified on held-out poses, with every output file.
 
-use super::process::{process_decoded, PoseViews, StackResult};
+use super::process::{process_stored, PoseViews};
 use super::progress::{Event, Outcome};
 use super::AppError;
 use crate::board::Board;
@@ -146,7 +146,6 @@ pub fn calibrate_dataset(
     let data = Dataset::open(root)?;
     let board = Board::resolve(&data.info.board)?;
     let devices = devices_of(&data.info);
-    let cameras = data.info.cameras.len();
     let poses = data.completed()?;
     if poses.is_empty() {
         return Err(AppError::Input(format!(
@@ -160,30 +159,7 @@ pub fn calibrate_dataset(
     for (i, &k) in poses.iter().enumerate() {
         let views = match data.read_pose_file::<PoseViews>(k, "views.json")? {
             Some(v) => v,
-            None => {
-                let stacks = data
-                    .info
-                    .cameras
-                    .iter()
-                    .enumerate()
-                    .map(|(c, entry)| {
-                        let dir = data.stack_dir(k, &entry.name);
-                        match crate::phase::files::decode_dir(&dir) {
-                            Ok(d) => process_decoded(&d, &board, c, k, cameras),
-                            Err(e) => StackResult {
-                                camera: entry.name.clone(),
-                                circles: 0,
-                                points: 0,
-                                anchored: false,
-                                projector_points: vec![0; data.info.projectors.len()],
-                                error: Some(e.to_string()),
-                                view: None,
-                            },
-                        }
-                    })
-                    .collect();
-                PoseViews { pose: k, stacks }
-            }
+            None => process_stored(&data, &board, k),
         };
         for s in &views.stacks {
             if let Some(e) = &s.error {

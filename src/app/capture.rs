@@ -5,7 +5,7 @@
 
 use super::AppError;
 use crate::capture::Session;
-use crate::dataset::{Dataset, Timeline};
+use crate::dataset::{Dataset, Leftover, Timeline};
 use crate::rig::file::RigFile;
 use crate::rig::OpenedRig;
 use std::path::Path;
@@ -64,6 +64,8 @@ pub fn capture_dataset(
     log: &mut dyn FnMut(&str),
 ) -> Result<CaptureSummary, AppError> {
     let Prepared { opened, data, .. } = prepare(rig_path, out)?;
+    data.remove_stale_temporaries()?;
+    finish_leftovers(&data, poses, log)?;
     let done = data.completed()?;
     let world = opened.world.clone();
     let cameras = opened.devices.cameras.len();
@@ -80,6 +82,7 @@ pub fn capture_dataset(
         let mut writer = data.pose_writer(k)?;
         let timeline = session.capture_pose(k, &mut |f| Ok(writer.write(&f)?))?;
         let info = writer.finish(&timeline)?;
+        data.mark_captured(&info)?;
         data.complete(&info)?;
         log(&format!("pose {k}: {}", timeline.summary(cameras)));
         summary.captured.push(k);
@@ -87,4 +90,32 @@ pub fn capture_dataset(
     }
     session.finish()?;
     Ok(summary)
+}
+
+/// The poses an interrupted capture left incomplete: complete the ones whose stacks are
+/// whole on disk; move aside (never overwrite) the others, which are captured again.
+fn finish_leftovers(
+    data: &Dataset,
+    poses: usize,
+    log: &mut dyn FnMut(&str),
+) -> Result<(), AppError> {
+    let done = data.completed()?;
+    for k in (0..poses).filter(|k| !done.contains(k)) {
+        match data.leftover(k)? {
+            Leftover::Nothing => {}
+            Leftover::Processed(info) | Leftover::Stacks(info) => {
+                data.complete(&info)?;
+                log(&format!("pose {k}: its stacks were whole on disk: kept"));
+            }
+            Leftover::Unsaved { kept } => log(&match kept {
+                Some(p) => format!(
+                    "pose {k} was not saved: place the board again (its partial files are \
+                     kept in {})",
+                    p.display()
+                ),
+                None => format!("pose {k} was not saved: place the board again"),
+            }),
+        }
+    }
+    Ok(())
 }

@@ -64,6 +64,17 @@ pub enum AppError {
     /// The input cannot give what the job needs (the message names the file or setting).
     #[error("{0}")]
     Input(String),
+    /// Ctrl-C: the capture stopped after finishing every pose already captured.
+    #[error(
+        "interrupted: complete poses {kept:?} are kept; pose {place_again} was not finished: \
+         place the board again and run the same command to resume"
+    )]
+    Interrupted {
+        /// Complete poses in the dataset.
+        kept: Vec<usize>,
+        /// The pose to place again.
+        place_again: usize,
+    },
     /// A worker thread could not be started.
     #[error("cannot start a thread: {0}")]
     Spawn(std::io::Error),

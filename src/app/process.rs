@@ -6,11 +6,12 @@
 
 use crate::board::Board;
 use crate::correspond::{camera_view, CameraView, FitParams, ProjectorMap};
-use crate::dataset::CameraEntry;
+use crate::dataset::{CameraEntry, Dataset};
 use crate::detect::{detect, DetectParams};
 use crate::grid::{build, GridParams};
 use crate::images::{CameraFrame, Pixels};
 use crate::pattern::Sequence;
+use crate::phase::files::decode_dir;
 use crate::phase::{DecodedStack, Decoder, FrameRef};
 use crossbeam_channel::Receiver;
 use serde::{Deserialize, Serialize};
@@ -177,4 +178,30 @@ pub(crate) fn stack_worker(frames: Receiver<CameraFrame>, job: StackJob) -> Stac
         Ok(d) => process_decoded(&d, &board, camera, pose, first_projector),
         Err(e) => failed(e.to_string()),
     }
+}
+
+/// Every camera's stack of pose `k` stored in `data`, decoded and processed.
+pub fn process_stored(data: &Dataset, board: &Board, k: usize) -> PoseViews {
+    let cameras = data.info.cameras.len();
+    let stacks = data
+        .info
+        .cameras
+        .iter()
+        .enumerate()
+        .map(
+            |(c, entry)| match decode_dir(&data.stack_dir(k, &entry.name)) {
+                Ok(d) => process_decoded(&d, board, c, k, cameras),
+                Err(e) => StackResult {
+                    camera: entry.name.clone(),
+                    circles: 0,
+                    points: 0,
+                    anchored: false,
+                    projector_points: vec![0; data.info.projectors.len()],
+                    error: Some(e.to_string()),
+                    view: None,
+                },
+            },
+        )
+        .collect();
+    PoseViews { pose: k, stacks }
 }

@@ -63,6 +63,26 @@ pub enum Event {
         /// Why.
         reason: String,
     },
+    /// A captured pose whose stacks were on disk but not yet processed: processed now.
+    Recovered {
+        /// Pose index.
+        pose: usize,
+    },
+    /// A pose captured (or partly) when the last run stopped, whose frames were not saved:
+    /// the board must be placed again; its partial files are kept aside.
+    NotSaved {
+        /// Pose index.
+        pose: usize,
+        /// Where its partial files were moved, if it had any.
+        kept: Option<String>,
+    },
+    /// Ctrl-C: the capture stopped; every pose already captured was finished.
+    Interrupted {
+        /// Complete poses in the dataset.
+        kept: Vec<usize>,
+        /// The pose being captured when it came, to be placed again.
+        place_again: Option<usize>,
+    },
     /// Poses already complete in the dataset, reused.
     Resumed {
         /// Their indices.
@@ -130,6 +150,27 @@ impl std::fmt::Display for Event {
                 camera,
                 reason,
             } => write!(f, "pose {pose}, camera {camera}: {reason}"),
+            Event::Recovered { pose } => {
+                write!(
+                    f,
+                    "pose {pose}: its stacks were on disk unprocessed: processed now"
+                )
+            }
+            Event::NotSaved { pose, kept } => {
+                write!(f, "pose {pose} was not saved: place the board again")?;
+                match kept {
+                    Some(k) => write!(f, " (its partial files are kept in {k})"),
+                    None => Ok(()),
+                }
+            }
+            Event::Interrupted { kept, place_again } => {
+                write!(f, "interrupted: complete poses {kept:?} are kept")?;
+                match place_again {
+                    Some(k) => write!(f, "; pose {k} was not finished: place the board again"),
+                    None => Ok(()),
+                }?;
+                write!(f, "; run the same command to resume")
+            }
             Event::Resumed { poses } => write!(f, "resuming: poses {poses:?} already complete"),
             Event::Calibrating { views } => write!(f, "calibrating from {views} camera views"),
             Event::Finished {

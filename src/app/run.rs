@@ -10,23 +10,25 @@
 
 use super::calibrate::{devices_of, finish, Collected};
 use super::capture::{prepare, PlaceBoard, Prepared};
-use super::process::{stack_worker, PoseViews, StackJob, StackResult};
+use super::process::{process_stored, stack_worker, PoseViews, StackJob, StackResult};
 use super::progress::{Event, Outcome};
 use super::truth::{check_truth, format_truth};
 use super::AppError;
 use crate::board::Board;
 use crate::calib::solve::CalibrateOptions;
 use crate::capture::Session;
-use crate::dataset::{Dataset, PoseInfo, Timeline};
+use crate::dataset::{Dataset, Leftover, PoseInfo, Timeline};
 use crate::images::CameraFrame;
 use crate::pattern::Sequence;
 use crate::rig::OpenedRig;
 use crossbeam_channel::{bounded, unbounded, Receiver, Sender};
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 
 /// Settings of [`run`].
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, Default)]
 pub struct RunOptions {
     /// Board poses to capture (default: the rig file's `[poses] count`).
     pub poses: Option<usize>,
@@ -34,6 +36,15 @@ pub struct RunOptions {
     pub held_out: usize,
     /// Write every frame to the dataset as well (PNG; gigabytes per pose).
     pub keep_stacks: bool,
+    /// Set (e.g. by Ctrl-C) to stop capturing: the pose being captured is dropped, every
+    /// pose already captured is finished, and the run ends with [`AppError::Interrupted`].
+    pub stop: Option<Arc<AtomicBool>>,
+}
+
+impl RunOptions {
+    fn stopped(&self) -> bool {
+        self.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst))
+    }
 }
 /// Per-device coverage as poses come in.
 struct Coverage {
@@ -103,21 +114,33 @@ pub fn run(
     stream.resume()?;
     let mut session = Session::start(opened.devices, &opened.sequence)?;
     let mut timelines = Vec::new();
-    for k in 0..poses {
-        if stream.all[k].is_some() {
-            continue;
-        }
+    let mut interrupted = None;
+    let todo: Vec<usize> = (0..poses).filter(|&k| stream.all[k].is_none()).collect();
+    for k in todo {
         (stream.events)(&Event::PoseStarted { pose: k, of: poses });
-        if !place(k, world.as_deref())? {
+        if options.stopped() || !place(k, world.as_deref())? || options.stopped() {
+            interrupted = options.stopped().then_some(k);
             break;
         }
-        timelines.push((
-            k,
-            stream.capture_pose(&mut session, k, options.keep_stacks)?,
-        ));
+        match stream.capture_pose(&mut session, k, options) {
+            Ok(timeline) => timelines.push((k, timeline)),
+            Err(_) if options.stopped() => {
+                interrupted = Some(k);
+                break;
+            }
+            Err(e) => return Err(e),
+        }
     }
     stream.drain()?;
     session.finish()?;
+    if let Some(place_again) = interrupted {
+        let kept = stream.data.completed()?;
+        (stream.events)(&Event::Interrupted {
+            kept: kept.clone(),
+            place_again: Some(place_again),
+        });
+        return Err(AppError::Interrupted { kept, place_again });
+    }
     let Stream {
         all,
         warnings,
@@ -199,12 +222,38 @@ impl<'e> Stream<'e> {
         }
     }
 
+    /// The incomplete poses left by an interrupted run.
+    fn recover(&mut self) -> Result<(), AppError> {
+        let done = self.data.completed()?;
+        for k in (0..self.all.len()).filter(|k| !done.contains(k)) {
+            match self.data.leftover(k)? {
+                Leftover::Nothing => {}
+                Leftover::Processed(info) => self.data.complete(&info)?,
+                Leftover::Stacks(info) => {
+                    let views = process_stored(&self.data, &self.board, k);
+                    self.data.write_pose_file(k, "views.json", &views)?;
+                    self.data.complete(&info)?;
+                    (self.events)(&Event::Recovered { pose: k });
+                }
+                Leftover::Unsaved { kept } => (self.events)(&Event::NotSaved {
+                    pose: k,
+                    kept: kept.map(|p| p.display().to_string()),
+                }),
+            }
+        }
+        Ok(())
+    }
+
     fn cameras(&self) -> usize {
         self.data.info.cameras.len()
     }
 
-    /// Take in the views of every pose already complete in the dataset.
+    /// Take in the views of every pose already complete in the dataset; finish the poses an
+    /// interrupted run captured but did not complete (their stacks or views on disk); move
+    /// aside what is left of the others, to be captured again.
     fn resume(&mut self) -> Result<(), AppError> {
+        self.data.remove_stale_temporaries()?;
+        self.recover()?;
         let done = self.data.completed()?;
         let mut resumed = Vec::new();
         let poses = self.all.len();
@@ -228,14 +277,18 @@ impl<'e> Stream<'e> {
         &mut self,
         session: &mut Session,
         k: usize,
-        keep_stacks: bool,
+        options: &RunOptions,
     ) -> Result<Timeline, AppError> {
+        let keep_stacks = options.keep_stacks;
         let (senders, workers) = self.spawn_stack_workers(k)?;
         let (cameras, frames) = (self.cameras(), self.sequence.frame_count());
         let mut writer = self.data.pose_writer(k)?;
         let mut last = 0;
         let events = &mut *self.events;
         let timeline = session.capture_pose(k, &mut |f| {
+            if options.stopped() {
+                return Err("interrupted".into());
+            }
             if keep_stacks {
                 writer.write(&f)?;
             }
@@ -253,6 +306,7 @@ impl<'e> Stream<'e> {
         })?;
         drop(senders);
         let info = writer.finish(&timeline)?;
+        self.data.mark_captured(&info)?;
         (self.events)(&Event::PoseCaptured {
             pose: k,
             seconds: timeline.total.as_secs_f64(),
