@@ -1,6 +1,6 @@
 //! The printable target of one side: an SVG document in millimetres at exact physical size.
 
-use super::{Board, Side};
+use super::{Board, BoardCircle, Side};
 use std::fmt::Write;
 
 /// Height of the strip holding the scale bar and the label (mm).
@@ -23,6 +23,19 @@ fn xml(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
+/// Where the scale bar and label go: in the board's margin below the circles, white on
+/// black, or in a white strip added below a board whose margin is too narrow.
+struct Strip {
+    /// Whether the strip lies inside the board.
+    inside: bool,
+    /// Document height (mm).
+    page_h: f64,
+    /// Top of the 12 mm strip (mm, SVG y down).
+    top: f64,
+    /// Colour of the bar and the text.
+    ink: &'static str,
+}
+
 impl Board {
     /// The printable target of one side as an SVG document, 1 user unit = 1 mm and the
     /// document `size[0]` mm × `size[1]` mm: the black board, a white circle of radius R at
@@ -38,28 +51,16 @@ impl Board {
     pub fn svg(&self, side: Side) -> String {
         let [w, h] = self.size;
         let circles = self.circles(side);
-        let (ro, ri) = (self.ring[1] * self.radius, self.ring[0] * self.radius);
-        // Lowest circle edge, in SVG coordinates (y down).
-        let circle_bottom = circles
-            .iter()
-            .map(|c| h / 2.0 - c.center_2d.y + self.radius)
-            .fold(h / 2.0, f64::max);
-        let inside = h - circle_bottom >= STRIP;
-        let (page_h, strip_top, ink) = if inside {
-            (h, circle_bottom + (h - circle_bottom - STRIP) / 2.0, "#fff")
-        } else {
-            (h + STRIP, h, "#000")
-        };
-
+        let strip = self.strip(&circles);
+        let title = format!("{} — {} side", xml(&self.name), side);
         let mut s = String::new();
         let _ = writeln!(s, r#"<?xml version="1.0" encoding="UTF-8"?>"#);
         let _ = writeln!(
             s,
             r#"<svg xmlns="http://www.w3.org/2000/svg" width="{0}mm" height="{1}mm" viewBox="0 0 {0} {1}">"#,
             mm(w),
-            mm(page_h)
+            mm(strip.page_h)
         );
-        let title = format!("{} — {} side", xml(&self.name), side);
         let _ = writeln!(s, "<title>hexcal board {title}</title>");
         let _ = writeln!(
             s,
@@ -67,9 +68,49 @@ impl Board {
             mm(w),
             mm(h)
         );
+        self.write_circles(&mut s, &circles);
+        self.write_rings(&mut s, &circles);
+        if !strip.inside {
+            let _ = writeln!(
+                s,
+                r##"<rect x="0" y="{}" width="{}" height="{}" fill="#fff"/>"##,
+                mm(h),
+                mm(w),
+                mm(STRIP)
+            );
+        }
+        write_scale_bar(&mut s, w, &strip, &title);
+        let _ = writeln!(s, "</svg>");
+        s
+    }
 
+    /// The strip for the scale bar and label below the lowest of `circles`.
+    fn strip(&self, circles: &[BoardCircle]) -> Strip {
+        let [_, h] = self.size;
+        // Lowest circle edge, in SVG coordinates (y down).
+        let circle_bottom = circles
+            .iter()
+            .map(|c| h / 2.0 - c.center_2d.y + self.radius)
+            .fold(h / 2.0, f64::max);
+        let inside = h - circle_bottom >= STRIP;
+        let (page_h, top, ink) = if inside {
+            (h, circle_bottom + (h - circle_bottom - STRIP) / 2.0, "#fff")
+        } else {
+            (h + STRIP, h, "#000")
+        };
+        Strip {
+            inside,
+            page_h,
+            top,
+            ink,
+        }
+    }
+
+    /// The white circles, one `<circle>` each, as group "circles" into `s`.
+    fn write_circles(&self, s: &mut String, circles: &[BoardCircle]) {
+        let [w, h] = self.size;
         let _ = writeln!(s, r##"<g id="circles" fill="#fff">"##);
-        for c in &circles {
+        for c in circles {
             let (x, y) = (w / 2.0 + c.center_2d.x, h / 2.0 - c.center_2d.y);
             let _ = writeln!(
                 s,
@@ -80,7 +121,12 @@ impl Board {
             );
         }
         let _ = writeln!(s, "</g>");
+    }
 
+    /// The dark annuli of the ringed `circles`, as group "rings" into `s`.
+    fn write_rings(&self, s: &mut String, circles: &[BoardCircle]) {
+        let [w, h] = self.size;
+        let (ro, ri) = (self.ring[1] * self.radius, self.ring[0] * self.radius);
         // One annulus per ringed circle: outer and inner circle as one even-odd path, so the
         // dark area is exactly ri ≤ ρ ≤ ro whatever the renderer's painting order.
         let _ = writeln!(s, r##"<g id="rings" fill="#000" fill-rule="evenodd">"##);
@@ -97,68 +143,61 @@ impl Board {
             let _ = writeln!(s, r#"<path d="{d}"/>"#);
         }
         let _ = writeln!(s, "</g>");
-
-        if !inside {
-            let _ = writeln!(
-                s,
-                r##"<rect x="0" y="{}" width="{}" height="{}" fill="#fff"/>"##,
-                mm(h),
-                mm(w),
-                mm(STRIP)
-            );
-        }
-        // Scale bar: numbers (baseline +3), ticks (+4…+6, minor +5…+6), bar (+6…+7.5),
-        // a hint (baseline +11), all within [strip_top, strip_top + 12].
-        let x0 = (w / 2.0 - BAR) / 2.0;
-        let t = strip_top;
-        let _ = writeln!(
-            s,
-            r#"<g id="scale-bar" fill="{ink}" font-family="sans-serif" font-size="3" text-anchor="middle">"#
-        );
-        let _ = writeln!(
-            s,
-            r#"<rect id="bar" x="{}" y="{}" width="{}" height="1.5"/>"#,
-            mm(x0),
-            mm(t + 6.0),
-            mm(BAR)
-        );
-        for i in 0..=10 {
-            let x = x0 + 10.0 * f64::from(i);
-            let top = if i % 5 == 0 { t + 4.0 } else { t + 5.0 };
-            let _ = writeln!(
-                s,
-                r#"<rect x="{}" y="{}" width="0.3" height="{}"/>"#,
-                mm(x - 0.15),
-                mm(top),
-                mm(t + 6.0 - top)
-            );
-            if i % 5 == 0 {
-                let unit = if i == 10 { " mm" } else { "" };
-                let _ = writeln!(
-                    s,
-                    r#"<text x="{}" y="{}">{}{unit}</text>"#,
-                    mm(x),
-                    mm(t + 3.0),
-                    10 * i
-                );
-            }
-        }
-        let _ = writeln!(
-            s,
-            r#"<text x="{}" y="{}" font-size="2.5" text-anchor="start">print at 100 %: this bar must measure 100 mm</text>"#,
-            mm(x0),
-            mm(t + 11.0)
-        );
-        let _ = writeln!(s, "</g>");
-        let _ = writeln!(
-            s,
-            r#"<text id="label" x="{}" y="{}" fill="{ink}" font-family="sans-serif" font-size="5" text-anchor="end">{title}</text>"#,
-            mm(w - x0),
-            mm(t + 8.0)
-        );
-        let _ = writeln!(s, "</svg>");
-        s
     }
+}
+
+/// The scale bar of a board `w` mm wide and the label `title`, in `strip`, into `s`.
+fn write_scale_bar(s: &mut String, w: f64, strip: &Strip, title: &str) {
+    let ink = strip.ink;
+    // Scale bar: numbers (baseline +3), ticks (+4…+6, minor +5…+6), bar (+6…+7.5),
+    // a hint (baseline +11), all within [strip_top, strip_top + 12].
+    let x0 = (w / 2.0 - BAR) / 2.0;
+    let t = strip.top;
+    let _ = writeln!(
+        s,
+        r#"<g id="scale-bar" fill="{ink}" font-family="sans-serif" font-size="3" text-anchor="middle">"#
+    );
+    let _ = writeln!(
+        s,
+        r#"<rect id="bar" x="{}" y="{}" width="{}" height="1.5"/>"#,
+        mm(x0),
+        mm(t + 6.0),
+        mm(BAR)
+    );
+    for i in 0..=10 {
+        let x = x0 + 10.0 * f64::from(i);
+        let top = if i % 5 == 0 { t + 4.0 } else { t + 5.0 };
+        let _ = writeln!(
+            s,
+            r#"<rect x="{}" y="{}" width="0.3" height="{}"/>"#,
+            mm(x - 0.15),
+            mm(top),
+            mm(t + 6.0 - top)
+        );
+        if i % 5 == 0 {
+            let unit = if i == 10 { " mm" } else { "" };
+            let _ = writeln!(
+                s,
+                r#"<text x="{}" y="{}">{}{unit}</text>"#,
+                mm(x),
+                mm(t + 3.0),
+                10 * i
+            );
+        }
+    }
+    let _ = writeln!(
+        s,
+        r#"<text x="{}" y="{}" font-size="2.5" text-anchor="start">print at 100 %: this bar must measure 100 mm</text>"#,
+        mm(x0),
+        mm(t + 11.0)
+    );
+    let _ = writeln!(s, "</g>");
+    let _ = writeln!(
+        s,
+        r#"<text id="label" x="{}" y="{}" fill="{ink}" font-family="sans-serif" font-size="5" text-anchor="end">{title}</text>"#,
+        mm(w - x0),
+        mm(t + 8.0)
+    );
 }
 
 #[cfg(test)]

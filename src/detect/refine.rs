@@ -173,24 +173,41 @@ pub(crate) fn refine(
     let n = set.rays;
     s.directions(n);
     let min_points = (n * 3 / 5).max(6);
+    let guess = first_guess(img, c0, r_hat, set.min_contrast, s)?;
 
+    // 3. Levels around the guess.
+    let (bg, fg) = levels(img, &guess, set.min_contrast, s)?;
+    let mid = 0.5 * (fg + bg);
+
+    let fit = inward_fit(img, guess, mid, min_points, s)?;
+    let e = fit.ellipse;
+    let ok = accepted(img, &fit, c0, mid, min_points, set, s);
+    ok.then_some(Circle {
+        ellipse: e,
+        score: score as f64,
+        background: bg,
+        foreground: fg,
+        edge_rms: fit.rms as f32,
+    })
+}
+
+/// Steps 1 and 2 from the peak at `c0` with radius estimate `r_hat`: the outward passes and
+/// the ring test give the first guess of the outline; `None` below `min_contrast` or
+/// without a first fit.
+fn first_guess(
+    img: View<'_>,
+    c0: Point2<f64>,
+    r_hat: f64,
+    min_contrast: f32,
+    s: &mut Scratch,
+) -> Option<Ellipse> {
     // 1. Outward pass to the first falling crossing, within 3 r̂; the background is the
     //    median over a few rays of their lowest value within 2 r̂ (in the gap).
     let f0 = foreground(img, c0, r_hat)?;
     let step = (r_hat / 10.0).clamp(0.25, 1.0);
     let m = (3.0 * r_hat / step).ceil() as usize + 1;
-    s.values.clear();
-    for i in 0..BACKGROUND_RAYS {
-        let (dx, dy) = s.dirs[i * n / BACKGROUND_RAYS];
-        let lo = (0..(2 * m) / 3)
-            .filter_map(|j| img.bilinear(c0.x + j as f64 * step * dx, c0.y + j as f64 * step * dy))
-            .fold(f32::INFINITY, f32::min);
-        if lo.is_finite() {
-            s.values.push(lo);
-        }
-    }
-    let b0 = median(&mut s.values)?;
-    if f0 - b0 < set.min_contrast {
+    let b0 = outward_background(img, c0, step, m, s)?;
+    if f0 - b0 < min_contrast {
         return None;
     }
     let mid0 = 0.5 * (f0 + b0);
@@ -214,20 +231,51 @@ pub(crate) fn refine(
         guess.a *= scale;
         guess.b *= scale;
     }
+    Some(guess)
+}
 
-    // 3. Levels around the guess.
-    let (bg, fg) = levels(img, &guess, set.min_contrast, s)?;
-    let mid = 0.5 * (fg + bg);
+/// The background seen from `c0`: the median over [`BACKGROUND_RAYS`] rays of their lowest
+/// value within the first two thirds of `m` steps of `step` px.
+fn outward_background(
+    img: View<'_>,
+    c0: Point2<f64>,
+    step: f64,
+    m: usize,
+    s: &mut Scratch,
+) -> Option<f32> {
+    let n = s.dirs.len();
+    s.values.clear();
+    for i in 0..BACKGROUND_RAYS {
+        let (dx, dy) = s.dirs[i * n / BACKGROUND_RAYS];
+        let lo = (0..(2 * m) / 3)
+            .filter_map(|j| img.bilinear(c0.x + j as f64 * step * dx, c0.y + j as f64 * step * dy))
+            .fold(f32::INFINITY, f32::min);
+        if lo.is_finite() {
+            s.values.push(lo);
+        }
+    }
+    median(&mut s.values)
+}
 
-    // 4. Inward passes to the crossings of the mean level: from 1.6× the guess, then from
-    //    2.5 px outside the previous fit, until the centre moves less than
-    //    CONVERGED_PX (at most MAX_PASSES). A guess found from one end of a steeply tilted
-    //    marker's annulus is short at that end; each pass reaches further out there.
-    //    A ray leaving the image starts at its last point inside instead; where the circle
-    //    is still brighter than the mean level there, its outline runs off the frame. A
-    //    circle cut on more than MAX_CUT_RAYS of its rays is dropped: the fit to the rest
-    //    has a biased centre (a sliver past the border, as for circles whose rim just
-    //    touches it, leaves the fit to the remaining outline accurate).
+/// Step 4 from the first `guess`: inward passes to the crossings of the mean level `mid`
+/// until the centre settles; the last pass's fit, or `None` when a pass finds fewer than
+/// `min_points` edge points, is cut by the image border or fails to fit.
+///
+/// The first pass starts from 1.6× the guess, later ones from 2.5 px outside the previous
+/// fit, until the centre moves less than [`CONVERGED_PX`] (at most [`MAX_PASSES`]). A
+/// guess found from one end of a steeply tilted marker's annulus is short at that end;
+/// each pass reaches further out there. A ray leaving the image starts at its last point
+/// inside instead; where the circle is still brighter than the mean level there, its
+/// outline runs off the frame. A circle cut on more than [`MAX_CUT_RAYS`] of its rays is
+/// dropped: the fit to the rest has a biased centre (a sliver past the border, as for
+/// circles whose rim just touches it, leaves the fit to the remaining outline accurate).
+fn inward_fit(
+    img: View<'_>,
+    guess: Ellipse,
+    mid: f32,
+    min_points: usize,
+    s: &mut Scratch,
+) -> Option<Fit> {
     let mut fit: Option<Fit> = None;
     // How far the last pass moved the centre (px).
     let mut moved = f64::INFINITY;
@@ -236,28 +284,7 @@ pub(crate) fn refine(
             break;
         }
         let g = fit.as_ref().map_or(guess, |f| f.ellipse);
-        let c = g.center;
-        s.points.clear();
-        let mut cut = 0;
-        for &d in &s.dirs {
-            let o = ellipse_offset(&g, d);
-            let rho = o.norm();
-            let u = o / rho;
-            let nominal = if pass == 0 { 1.6 * rho } else { rho + 2.5 };
-            let exit = exit_distance(img, c, u);
-            let start = outside(img, c, u, nominal.min(exit), (2.2 * rho).min(exit), mid);
-            match inward_crossing(img, c, u, start, 0.6 * rho, rho / 16.0, mid) {
-                Some(t) => s.points.push(c + t * u),
-                None if start >= exit
-                    && img
-                        .bilinear(c.x + start * u.x, c.y + start * u.y)
-                        .is_some_and(|v| v >= mid) =>
-                {
-                    cut += 1;
-                }
-                None => {}
-            }
-        }
+        let cut = inward_points(img, &g, pass, mid, s);
         if cut as f64 > MAX_CUT_RAYS * s.dirs.len() as f64 {
             return None;
         }
@@ -267,12 +294,54 @@ pub(crate) fn refine(
         let points = std::mem::take(&mut s.points);
         fit = robust_fit(&points, s);
         s.points = points;
-        moved = (fit.as_ref()?.ellipse.center - c).norm();
+        moved = (fit.as_ref()?.ellipse.center - g.center).norm();
     }
-    let fit = fit?;
+    fit
+}
+
+/// One inward pass around the ellipse `g` (pass number `pass`): the edge points, into
+/// `s.points`, where each ray first rises through `mid`; gives the number of rays cut by
+/// the image border with the circle still bright there.
+fn inward_points(img: View<'_>, g: &Ellipse, pass: usize, mid: f32, s: &mut Scratch) -> usize {
+    let c = g.center;
+    s.points.clear();
+    let mut cut = 0;
+    for &d in &s.dirs {
+        let o = ellipse_offset(g, d);
+        let rho = o.norm();
+        let u = o / rho;
+        let nominal = if pass == 0 { 1.6 * rho } else { rho + 2.5 };
+        let exit = exit_distance(img, c, u);
+        let start = outside(img, c, u, nominal.min(exit), (2.2 * rho).min(exit), mid);
+        match inward_crossing(img, c, u, start, 0.6 * rho, rho / 16.0, mid) {
+            Some(t) => s.points.push(c + t * u),
+            None if start >= exit
+                && img
+                    .bilinear(c.x + start * u.x, c.y + start * u.y)
+                    .is_some_and(|v| v >= mid) =>
+            {
+                cut += 1;
+            }
+            None => {}
+        }
+    }
+    cut
+}
+
+/// Step 5, the checks of the final `fit` of the peak at `c0` (mean level `mid`): enough
+/// inliers, a closed outline, b/a, the radius range, the peak near the fit, the edge RMS.
+fn accepted(
+    img: View<'_>,
+    fit: &Fit,
+    c0: Point2<f64>,
+    mid: f32,
+    min_points: usize,
+    set: &Settings,
+    s: &Scratch,
+) -> bool {
     let e = fit.ellipse;
     let radius = e.radius();
-    let ok = fit.inliers >= min_points
+    fit.inliers >= min_points
         && closed(img, &e, mid, s)
         && e.b >= MIN_AXIS_RATIO * e.a
         && radius >= set.radius_range.0
@@ -284,14 +353,7 @@ pub(crate) fn refine(
         })
         .value(c0)
             < 0.0
-        && fit.rms <= (set.max_rms.0 + set.max_rms.1 * radius) * (e.a / e.b).sqrt();
-    ok.then_some(Circle {
-        ellipse: e,
-        score: score as f64,
-        background: bg,
-        foreground: fg,
-        edge_rms: fit.rms as f32,
-    })
+        && fit.rms <= (set.max_rms.0 + set.max_rms.1 * radius) * (e.a / e.b).sqrt()
 }
 
 /// Whether the fitted outline closes the circle: just outside it, max(1.5 px, 0.2 ρ) past

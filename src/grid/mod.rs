@@ -190,43 +190,13 @@ pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &Grid
     stats.cells = cells.len();
     stats.full_cells = cells.iter().filter(|c| c.is_full()).count();
 
-    // A ring dims a small circle's own foreground level (blur darkens the white left around
-    // it), which would hide the ring: read each ring against the brightest foreground of
-    // the cells it belongs to. Every ringed circle neighbours its marker's plain centre.
-    let mut white: Vec<f32> = circles.iter().map(|c| c.foreground).collect();
-    for cell in &cells {
-        let top = cell
-            .members()
-            .map(|(_, i)| circles[i as usize].foreground)
-            .fold(f32::MIN, f32::max);
-        for (_, i) in cell.members() {
-            white[i as usize] = white[i as usize].max(top);
-        }
-    }
-    let readings: Vec<Ring> = circles
-        .iter()
-        .zip(&white)
-        .map(|(c, &white)| {
-            let contrast = ring::ring_contrast(image, c, white, board.ring);
-            ring::classify(contrast, params.ring_plain_below, params.ring_ringed_above)
-        })
-        .collect();
+    let readings = read_rings(image, circles, &cells, board, params);
     stats.ringed = readings.iter().filter(|&&r| r == Ring::Ringed).count();
     stats.unsure_rings = readings.iter().filter(|&&r| r == Ring::Unsure).count();
     let decoded: Vec<Option<(MarkerKind, usize)>> =
         cells.iter().map(|c| decode(c, &readings, board)).collect();
 
-    // Pass 2: seeds are centre cells first, then the best cells.
-    let mut assembler = assemble::Assembler::new(&cells, circles.len());
-    let mut seeds = assembler.by_quality();
-    seeds.sort_by_key(|&k| !decoded[k].is_some_and(|(kind, _)| kind.is_center()));
-    let mut components = Vec::new();
-    for k in seeds {
-        if assembler.can_seed(k) {
-            let id = components.len() as u32;
-            components.push(assembler.grow(id, k));
-        }
-    }
+    let components = assemble_components(&cells, &decoded, circles.len());
     stats.conflicts = components.iter().map(|c| c.rejected).sum();
 
     let rings = BoardRings::new(board);
@@ -239,15 +209,7 @@ pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &Grid
         .zip(&markers)
         .map(|(comp, markers)| anchor::frame(board, &rings, comp, markers, &readings, params))
         .collect();
-    // The anchored component if any (most agreeing markers), else the largest.
-    let Some(best) = (0..components.len()).max_by_key(|&i| {
-        let f = &frames[i];
-        (
-            f.anchored,
-            f.anchored.then_some(f.evidence.markers_agree),
-            components[i].points.len(),
-        )
-    }) else {
+    let Some(best) = best_component(&components, &frames) else {
         stats.markers = marker_readings(&cells, &decoded, &[]);
         return Grid {
             stats,
@@ -264,6 +226,99 @@ pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &Grid
                 .map(|(_, c)| c.points.len()),
         )
         .collect();
+    let points = labelled_points(comp, &frame, circles, board, &mut stats);
+    if frame.anchored {
+        stats.ring_disagreements = frame.evidence.rings_disagree;
+    }
+    let confirmed: Vec<PlacedMarker> = markers[best]
+        .iter()
+        .filter(|m| frame.confirms(m, &rings, board.marker_spacing))
+        .copied()
+        .collect();
+    stats.markers = marker_readings(&cells, &decoded, &confirmed);
+    Grid {
+        points,
+        anchored: frame.anchored,
+        side: frame.side,
+        stats,
+    }
+}
+
+/// Every circle's ring reading, against the brightest foreground of the cells it belongs
+/// to.
+///
+/// A ring dims a small circle's own foreground level (blur darkens the white left around
+/// it), which would hide the ring: read each ring against the brightest foreground of
+/// the cells it belongs to. Every ringed circle neighbours its marker's plain centre.
+fn read_rings(
+    image: &GrayImage,
+    circles: &[Circle],
+    cells: &[cell::Cell],
+    board: &Board,
+    params: &GridParams,
+) -> Vec<Ring> {
+    let mut white: Vec<f32> = circles.iter().map(|c| c.foreground).collect();
+    for cell in cells {
+        let top = cell
+            .members()
+            .map(|(_, i)| circles[i as usize].foreground)
+            .fold(f32::MIN, f32::max);
+        for (_, i) in cell.members() {
+            white[i as usize] = white[i as usize].max(top);
+        }
+    }
+    circles
+        .iter()
+        .zip(&white)
+        .map(|(c, &white)| {
+            let contrast = ring::ring_contrast(image, c, white, board.ring);
+            ring::classify(contrast, params.ring_plain_below, params.ring_ringed_above)
+        })
+        .collect()
+}
+
+/// Pass 2 over `cells` (their markers `decoded`, of `n_circles` circles): the connected
+/// components, grown from seeds that are centre cells first, then the best cells.
+fn assemble_components(
+    cells: &[cell::Cell],
+    decoded: &[Option<(MarkerKind, usize)>],
+    n_circles: usize,
+) -> Vec<assemble::Component> {
+    let mut assembler = assemble::Assembler::new(cells, n_circles);
+    let mut seeds = assembler.by_quality();
+    seeds.sort_by_key(|&k| !decoded[k].is_some_and(|(kind, _)| kind.is_center()));
+    let mut components = Vec::new();
+    for k in seeds {
+        if assembler.can_seed(k) {
+            let id = components.len() as u32;
+            components.push(assembler.grow(id, k));
+        }
+    }
+    components
+}
+
+/// The chosen component: the anchored one if any (most agreeing markers), else the
+/// largest; `None` without components.
+fn best_component(components: &[assemble::Component], frames: &[Frame]) -> Option<usize> {
+    (0..components.len()).max_by_key(|&i| {
+        let f = &frames[i];
+        (
+            f.anchored,
+            f.anchored.then_some(f.evidence.markers_agree),
+            components[i].points.len(),
+        )
+    })
+}
+
+/// The points of component `comp` labelled in its `frame`, in circle order; anchored
+/// labels off the board are dropped and counted in `stats`.
+fn labelled_points(
+    comp: &assemble::Component,
+    frame: &Frame,
+    circles: &[Circle],
+    board: &Board,
+    stats: &mut GridStats,
+) -> Vec<LabelledPoint> {
     let mut points = Vec::with_capacity(comp.points.len());
     for &(circle, h) in &comp.points {
         let hex = frame.map.apply(h);
@@ -280,21 +335,7 @@ pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &Grid
         });
     }
     points.sort_by_key(|p| p.circle);
-    if frame.anchored {
-        stats.ring_disagreements = frame.evidence.rings_disagree;
-    }
-    let confirmed: Vec<PlacedMarker> = markers[best]
-        .iter()
-        .filter(|m| frame.confirms(m, &rings, board.marker_spacing))
-        .copied()
-        .collect();
-    stats.markers = marker_readings(&cells, &decoded, &confirmed);
-    Grid {
-        points,
-        anchored: frame.anchored,
-        side: frame.side,
-        stats,
-    }
+    points
 }
 
 /// Decode a full cell whose centre is not ringed and whose six neighbours read confidently.

@@ -19,7 +19,7 @@
 
 use super::unwrap::Constellation;
 use crate::pattern::MAX_COUNTS;
-use crate::pattern::{pattern_harmonic, Direction, Sequence};
+use crate::pattern::{pattern_harmonic, Direction, ProjectorCode, Sequence};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
@@ -449,166 +449,11 @@ impl<T: Sample> Decoder<T> {
 
     /// Take the DFT of the completed group g, row by row on all cores.
     fn close_group(&mut self, g: usize) {
-        let w = self.width as usize;
-        let npx = w * self.height as usize;
-        let n = self.seq.steps() as usize;
         let np = self.seq.projectors().len();
-        let fs = self.full_scale;
-        let b_scale = B_STEPS / fs;
-        let frames = &self.frames;
-        let twiddles = &self.twiddles;
-        let mut out = vec![0u16; npx * np * 2];
-        let inv_n = 1.0 / n as f32;
-        out.par_chunks_mut(w * np * 2)
-            .zip(self.pixels.par_chunks_mut(w))
-            .enumerate()
-            .for_each_init(
-                || vec![0f32; (4 + 2 * np) * CHUNK],
-                |scratch, (y, (out_row, stats_row))| {
-                    // Strips of CHUNK pixels: the sums stay in L1 over the N frames.
-                    for x0 in (0..w).step_by(CHUNK) {
-                        let len = CHUNK.min(w - x0);
-                        let (sum, rest) = scratch.split_at_mut(CHUNK);
-                        let (diff, rest) = rest.split_at_mut(CHUNK);
-                        let (peak, rest) = rest.split_at_mut(CHUNK);
-                        let (dc, reim) = rest.split_at_mut(CHUNK);
-                        let sum: &mut [f32; CHUNK] = sum.try_into().expect("CHUNK");
-                        let diff: &mut [f32; CHUNK] = diff.try_into().expect("CHUNK");
-                        let peak: &mut [f32; CHUNK] = peak.try_into().expect("CHUNK");
-                        let dc: &mut [f32; CHUNK] = dc.try_into().expect("CHUNK");
-                        let row = |s: usize| &frames[s * npx + y * w + x0..][..len];
-                        // Step 0 starts every sum (its twiddle is 1).
-                        sum.fill(0.0);
-                        for (v, &x) in sum.iter_mut().zip(row(0)) {
-                            *v = x.value();
-                        }
-                        dc.copy_from_slice(sum);
-                        peak.copy_from_slice(sum);
-                        for sums in reim.chunks_exact_mut(2 * CHUNK) {
-                            let (re, im) = sums.split_at_mut(CHUNK);
-                            re.copy_from_slice(dc);
-                            im.fill(0.0);
-                        }
-                        // Steps s and N − s share |twiddle|: e^{±i2πfs/N}, so
-                        // X_f += (I_s + I_{N−s})·cos + i·(I_s − I_{N−s})·sin.
-                        for s in 1..n.div_ceil(2) {
-                            diff.fill(0.0);
-                            for (v, &x) in diff.iter_mut().zip(row(n - s)) {
-                                *v = x.value();
-                            }
-                            sum.fill(0.0);
-                            for (v, &x) in sum.iter_mut().zip(row(s)) {
-                                *v = x.value();
-                            }
-                            for i in 0..CHUNK {
-                                let (a, b) = (sum[i], diff[i]);
-                                peak[i] = if a > peak[i] { a } else { peak[i] };
-                                peak[i] = if b > peak[i] { b } else { peak[i] };
-                                sum[i] = a + b;
-                                diff[i] = a - b;
-                                dc[i] += a + b;
-                            }
-                            for (p, sums) in reim.chunks_exact_mut(2 * CHUNK).enumerate() {
-                                let [c, sn] = twiddles[p * n + s];
-                                let (re, im) = sums.split_at_mut(CHUNK);
-                                let re: &mut [f32; CHUNK] = re.try_into().expect("CHUNK");
-                                let im: &mut [f32; CHUNK] = im.try_into().expect("CHUNK");
-                                for i in 0..CHUNK {
-                                    re[i] += sum[i] * c;
-                                    im[i] += diff[i] * sn;
-                                }
-                            }
-                        }
-                        if n % 2 == 0 {
-                            // The middle step's twiddle is (−1)^f.
-                            let s = n / 2;
-                            sum.fill(0.0);
-                            for (v, &x) in sum.iter_mut().zip(row(s)) {
-                                *v = x.value();
-                            }
-                            for i in 0..CHUNK {
-                                peak[i] = if sum[i] > peak[i] { sum[i] } else { peak[i] };
-                                dc[i] += sum[i];
-                            }
-                            for (p, sums) in reim.chunks_exact_mut(2 * CHUNK).enumerate() {
-                                let c = twiddles[p * n + s][0];
-                                for (r, &v) in sums[..CHUNK].iter_mut().zip(sum.iter()) {
-                                    *r += v * c;
-                                }
-                            }
-                        }
-                        // Saturation is rare: look per pixel only when the strip reached it.
-                        if peak.iter().any(|&m| m >= fs) {
-                            for s in 0..n {
-                                for (st, &v) in stats_row[x0..x0 + len].iter_mut().zip(row(s)) {
-                                    st.saturated |= v.value() >= fs;
-                                }
-                            }
-                        }
-                        for (st, &d) in stats_row[x0..x0 + len].iter_mut().zip(dc.iter()) {
-                            // A = X_0/N (docs/design.md §6).
-                            let a = d * inv_n;
-                            if g == 0 {
-                                st.first_mean = a;
-                            } else {
-                                let dev = a - st.first_mean;
-                                st.sum_dev += dev;
-                                st.sum_dev2 += dev * dev;
-                            }
-                        }
-                        for (p, sums) in reim.chunks_exact(2 * CHUNK).enumerate() {
-                            let (re, im) = sums.split_at(CHUNK);
-                            let re: &[f32; CHUNK] = re.try_into().expect("CHUNK");
-                            let im: &[f32; CHUNK] = im.try_into().expect("CHUNK");
-                            // φ_p = arg X_{f_p}, B_p = 2|X_{f_p}|/N (docs/design.md §6), as 16-bit
-                            // fractions of a cycle and of full scale (rounded: both ≥ 0; a
-                            // phase of 1 cycle wraps to 0).
-                            let mut psi = [0u16; CHUNK];
-                            let mut bq = [0u16; CHUNK];
-                            for i in 0..CHUNK {
-                                let ph = phase_cycles(im[i], re[i]);
-                                let b = 2.0 * (re[i] * re[i] + im[i] * im[i]).sqrt() * inv_n;
-                                // Rounded to 16 bits by adding 1.5·2^23: the integer lands in
-                                // the low mantissa bits (a phase of 1 cycle wraps to 0).
-                                psi[i] = (ph * 65536.0 + ROUNDER).to_bits() as u16;
-                                bq[i] = ((b * b_scale).min(65535.0) + ROUNDER).to_bits() as u16;
-                            }
-                            let o = &mut out_row[x0 * np * 2..(x0 + len) * np * 2];
-                            for ((pair, &ph), &b) in o.chunks_exact_mut(np * 2).zip(&psi).zip(&bq) {
-                                pair[p * 2] = ph;
-                                pair[p * 2 + 1] = b;
-                            }
-                        }
-                    }
-                },
-            );
-        // Σ B² of every pixel; then keep (ψ, B) of the candidates only (docs/design.md §6: a pixel
-        // needs B ≥ 3 % of full scale to be valid, so one below half that in the first group
-        // cannot be).
-        let inv_b_scale = fs / B_STEPS;
-        self.bsq
-            .par_chunks_mut(w * np)
-            .zip(out.par_chunks(w * np * 2))
-            .for_each(|(acc, o)| {
-                for (a, pair) in acc.iter_mut().zip(o.chunks_exact(2)) {
-                    let b = f32::from(pair[1]) * inv_b_scale;
-                    *a += b * b;
-                }
-            });
+        let out = self.group_dft(g);
+        self.add_modulation_squares(&out);
         if g == 0 {
-            let floor = (CANDIDATE * B_STEPS).round() as u16;
-            let mut next = 0u32;
-            self.slots = out
-                .chunks_exact(np * 2)
-                .map(|px| {
-                    if px.chunks_exact(2).any(|pair| pair[1] >= floor) {
-                        next += 1;
-                        next - 1
-                    } else {
-                        u32::MAX
-                    }
-                })
-                .collect();
+            self.slots = candidate_slots(&out, np);
         }
         let kept: Vec<u16> = out
             .chunks_exact(np * 2)
@@ -619,8 +464,58 @@ impl<T: Sample> Decoder<T> {
         self.groups.push(kept);
     }
 
+    /// Group g's DFT over the frame buffer, row by row on all cores: per pixel and projector
+    /// the 16-bit (ψ, B) pair; updates every pixel's level statistics and saturation flag.
+    fn group_dft(&mut self, g: usize) -> Vec<u16> {
+        let w = self.width as usize;
+        let npx = w * self.height as usize;
+        let n = self.seq.steps() as usize;
+        let np = self.seq.projectors().len();
+        let fs = self.full_scale;
+        let kernel = GroupKernel {
+            frames: &self.frames,
+            twiddles: &self.twiddles,
+            w,
+            npx,
+            n,
+            np,
+            g,
+            fs,
+            b_scale: B_STEPS / fs,
+            inv_n: 1.0 / n as f32,
+        };
+        let mut out = vec![0u16; npx * np * 2];
+        out.par_chunks_mut(w * np * 2)
+            .zip(self.pixels.par_chunks_mut(w))
+            .enumerate()
+            .for_each_init(
+                || Strip::new(np),
+                |strip, (y, (out_row, stats_row))| kernel.row(y, strip, out_row, stats_row),
+            );
+        out
+    }
+
+    /// Adds every pixel's B² of the group (16-bit `out` pairs) to its per-projector Σ B².
+    fn add_modulation_squares(&mut self, out: &[u16]) {
+        let w = self.width as usize;
+        let np = self.seq.projectors().len();
+        // Σ B² of every pixel; then keep (ψ, B) of the candidates only (docs/design.md §6: a
+        // pixel needs B ≥ 3 % of full scale to be valid, so one below half that in the first
+        // group cannot be).
+        let inv_b_scale = self.full_scale / B_STEPS;
+        self.bsq
+            .par_chunks_mut(w * np)
+            .zip(out.par_chunks(w * np * 2))
+            .for_each(|(acc, o)| {
+                for (a, pair) in acc.iter_mut().zip(o.chunks_exact(2)) {
+                    let b = f32::from(pair[1]) * inv_b_scale;
+                    *a += b * b;
+                }
+            });
+    }
+
     /// Unwrap, fuse and judge every pixel; fails when frames are missing.
-    pub fn finish(self) -> Result<DecodedStack, DecodeError> {
+    pub fn finish(mut self) -> Result<DecodedStack, DecodeError> {
         let count = self.seq.frame_count();
         if self.next != count {
             return Err(DecodeError::Incomplete {
@@ -629,97 +524,359 @@ impl<T: Sample> Decoder<T> {
                 count,
             });
         }
-        let Decoder {
-            seq,
-            camera,
-            width,
-            height,
-            full_scale,
-            frames,
-            groups,
-            slots,
-            bsq: bsq_all,
-            pixels,
-            columns,
-            rows,
-            ..
-        } = self;
-        drop(frames);
-        let w = width as usize;
-        let n = seq.steps() as f64;
-        let ng = seq.groups();
-        let np = seq.projectors().len();
+        drop(std::mem::take(&mut self.frames));
+        let n = self.seq.steps() as f64;
+        let noise = fit_noise(&noise_sums(&self.pixels, n, self.seq.groups()));
+        let (fundamental, mean_ratio) = harmonics(self.seq.projectors());
+        let w = self.width as usize;
+        let mut maps = Maps::new(w * self.height as usize, self.seq.projectors().len());
+        let stats = Judge::new(&self, noise, mean_ratio).rows(maps.rows(w));
+        let camera = std::mem::take(&mut self.camera);
+        let size = (self.width, self.height);
+        // The groups' phases, the slots and the B² sums are not needed any more.
+        drop(self);
+        Ok(maps.into_stack(camera, size, noise, &stats, &fundamental))
+    }
+}
 
-        let mean_and_var = |st: &PixelStats| {
-            // Ā = A_0 + Σd/G; Σ_g (A_g − Ā)² = Σd² − (Σd)²/G; σ_I² ≈ N·that/(G − 1).
-            let g = ng as f64;
-            let (sd, sd2) = (f64::from(st.sum_dev), f64::from(st.sum_dev2));
-            let mean = f64::from(st.first_mean) + sd / g;
-            let var = n * (sd2 - sd * sd / g).max(0.0) / (g - 1.0);
-            (mean, var)
-        };
-        // Least-squares line σ_I² = a + b·A over unsaturated pixels.
-        let sums = pixels
-            .par_chunks(4096)
-            .map(|chunk| {
-                let mut s = [0f64; 5];
-                for st in chunk.iter().filter(|st| !st.saturated) {
-                    let (a, v) = mean_and_var(st);
-                    s[0] += 1.0;
-                    s[1] += a;
-                    s[2] += a * a;
-                    s[3] += v;
-                    s[4] += a * v;
-                }
-                s
-            })
-            .reduce(|| [0f64; 5], |a, b| std::array::from_fn(|i| a[i] + b[i]));
-        let noise = fit_noise(&sums);
+/// Candidate slots from the first group's (ψ, B) pairs (P per pixel): a pixel's index among
+/// those where some projector's B reached [`CANDIDATE`] of full scale, else `u32::MAX`.
+fn candidate_slots(out: &[u16], np: usize) -> Vec<u32> {
+    let floor = (CANDIDATE * B_STEPS).round() as u16;
+    let mut next = 0u32;
+    out.chunks_exact(np * 2)
+        .map(|px| {
+            if px.chunks_exact(2).any(|pair| pair[1] >= floor) {
+                next += 1;
+                next - 1
+            } else {
+                u32::MAX
+            }
+        })
+        .collect()
+}
 
-        let codes = seq.projectors();
-        let gammas: Vec<f64> = codes.iter().map(|c| c.response.effective_gamma()).collect();
-        let fundamental: Vec<f32> = gammas
-            .iter()
-            .map(|&g| pattern_harmonic(g, 1) as f32)
-            .collect();
-        // Mean over fundamental: (γ+1)/(2γ) (docs/design.md §6).
-        let mean_ratio: Vec<f32> = gammas
-            .iter()
-            .map(|&g| (pattern_harmonic(g, 0) / pattern_harmonic(g, 1)) as f32)
-            .collect();
-        let col_counts = seq.counts(Direction::Columns);
-        let row_counts = seq.counts(Direction::Rows);
-        let mc = col_counts.len();
-        let half_spacing = [0.5 * columns.spacing() as f32, 0.5 * rows.spacing() as f32];
-        let inv_b_scale = full_scale / B_STEPS;
-        let min_b = 0.03 * full_scale;
-        let n32 = n as f32;
-        // σ_u = W/(2π)·√(2/N)·σ_I/√(Σ n_i² B_i²) for the weighted fusion (docs/design.md §6).
-        let noise_gain = (2.0 / n32).sqrt();
+/// One worker's sums for a strip of [`CHUNK`] pixels over a group's N steps.
+struct Strip {
+    /// A step's samples (of the paired steps: I_s, then I_s + I_{N−s}).
+    sum: [f32; CHUNK],
+    /// Of the paired steps: I_{N−s}, then I_s − I_{N−s}.
+    diff: [f32; CHUNK],
+    /// Largest sample.
+    peak: [f32; CHUNK],
+    /// X_0 = Σ_s I_s.
+    dc: [f32; CHUNK],
+    /// Per projector: Re X_{f_p}, then Im X_{f_p} ([`CHUNK`] values each).
+    reim: Vec<f32>,
+}
 
-        let npx = w * height as usize;
-        let image = || vec![0f32; npx];
-        let mut ambient = image();
-        let mut saturated = vec![false; npx];
-        let mut u_maps: Vec<Vec<f32>> = (0..np).map(|_| image()).collect();
-        let mut v_maps: Vec<Vec<f32>> = (0..np).map(|_| image()).collect();
-        let mut b_maps: Vec<Vec<f32>> = (0..np).map(|_| image()).collect();
-        let mut r_maps: Vec<Vec<f32>> = (0..np).map(|_| image()).collect();
-        let mut valid: Vec<Vec<bool>> = (0..np).map(|_| vec![false; npx]).collect();
-
-        struct Row<'a> {
-            ambient: &'a mut [f32],
-            saturated: &'a mut [bool],
-            u: Vec<&'a mut [f32]>,
-            v: Vec<&'a mut [f32]>,
-            b: Vec<&'a mut [f32]>,
-            r: Vec<&'a mut [f32]>,
-            valid: Vec<&'a mut [bool]>,
+impl Strip {
+    /// Zeroed sums for `np` projectors.
+    fn new(np: usize) -> Self {
+        Strip {
+            sum: [0.0; CHUNK],
+            diff: [0.0; CHUNK],
+            peak: [0.0; CHUNK],
+            dc: [0.0; CHUNK],
+            reim: vec![0.0; 2 * np * CHUNK],
         }
-        let mut out_rows: Vec<Row> = ambient
+    }
+}
+
+/// Copies a step's samples `src` into `dst` as f32, zeros past their end.
+#[inline(always)]
+fn load<T: Sample>(dst: &mut [f32; CHUNK], src: &[T]) {
+    dst.fill(0.0);
+    for (v, &x) in dst.iter_mut().zip(src) {
+        *v = x.value();
+    }
+}
+
+/// What every row of one group's DFT shares: the frames, the twiddles and the sizes.
+struct GroupKernel<'a, T> {
+    /// The group's frames, N × pixels.
+    frames: &'a [T],
+    /// (cos, sin) of 2π·f_p·s/N at [p·N + s].
+    twiddles: &'a [[f32; 2]],
+    /// Image width (px).
+    w: usize,
+    /// Pixels per frame.
+    npx: usize,
+    /// Steps N.
+    n: usize,
+    /// Projectors P.
+    np: usize,
+    /// The group's index.
+    g: usize,
+    /// Saturation level (DN).
+    fs: f32,
+    /// Quantisation steps of B per DN.
+    b_scale: f32,
+    /// 1/N.
+    inv_n: f32,
+}
+
+impl<T: Sample> GroupKernel<'_, T> {
+    /// Row y, strip by strip of [`CHUNK`] pixels (the sums stay in L1 over the N frames):
+    /// the DFT into `strip`, then the pixels' saturation flags and level statistics
+    /// (`stats_row`) and their 16-bit (ψ, B) pairs (`out_row`).
+    fn row(&self, y: usize, strip: &mut Strip, out_row: &mut [u16], stats_row: &mut [PixelStats]) {
+        let np = self.np;
+        for x0 in (0..self.w).step_by(CHUNK) {
+            let len = CHUNK.min(self.w - x0);
+            let at = y * self.w + x0;
+            self.dft(at, len, strip);
+            let stats = &mut stats_row[x0..x0 + len];
+            // Saturation is rare: look per pixel only when the strip reached it.
+            if strip.peak.iter().any(|&m| m >= self.fs) {
+                self.mark_saturated(at, stats);
+            }
+            self.add_level(&strip.dc, stats);
+            self.quantise(strip, &mut out_row[x0 * np * 2..(x0 + len) * np * 2]);
+        }
+    }
+
+    /// Step s's samples of the `len` pixels from pixel `at` on.
+    #[inline(always)]
+    fn samples(&self, s: usize, at: usize, len: usize) -> &[T] {
+        &self.frames[s * self.npx + at..][..len]
+    }
+
+    /// The DFT of the `len` pixels from pixel `at` over the N steps: X_0 into `dc`, Re and
+    /// Im X_{f_p} into `reim`, the largest sample into `peak`.
+    fn dft(&self, at: usize, len: usize, strip: &mut Strip) {
+        self.first_step(at, len, strip);
+        for s in 1..self.n.div_ceil(2) {
+            self.paired_steps(s, at, len, strip);
+        }
+        if self.n % 2 == 0 {
+            self.middle_step(at, len, strip);
+        }
+    }
+
+    /// Step 0 starts every sum (its twiddle is 1).
+    fn first_step(&self, at: usize, len: usize, strip: &mut Strip) {
+        let Strip {
+            sum,
+            peak,
+            dc,
+            reim,
+            ..
+        } = strip;
+        load(sum, self.samples(0, at, len));
+        dc.copy_from_slice(sum);
+        peak.copy_from_slice(sum);
+        for sums in reim.chunks_exact_mut(2 * CHUNK) {
+            let (re, im) = sums.split_at_mut(CHUNK);
+            re.copy_from_slice(dc);
+            im.fill(0.0);
+        }
+    }
+
+    /// Steps s and N − s share |twiddle|: e^{±i2πfs/N}, so
+    /// X_f += (I_s + I_{N−s})·cos + i·(I_s − I_{N−s})·sin.
+    fn paired_steps(&self, s: usize, at: usize, len: usize, strip: &mut Strip) {
+        let n = self.n;
+        let Strip {
+            sum,
+            diff,
+            peak,
+            dc,
+            reim,
+        } = strip;
+        load(diff, self.samples(n - s, at, len));
+        load(sum, self.samples(s, at, len));
+        for i in 0..CHUNK {
+            let (a, b) = (sum[i], diff[i]);
+            peak[i] = if a > peak[i] { a } else { peak[i] };
+            peak[i] = if b > peak[i] { b } else { peak[i] };
+            sum[i] = a + b;
+            diff[i] = a - b;
+            dc[i] += a + b;
+        }
+        for (p, sums) in reim.chunks_exact_mut(2 * CHUNK).enumerate() {
+            let [c, sn] = self.twiddles[p * n + s];
+            let (re, im) = sums.split_at_mut(CHUNK);
+            let re: &mut [f32; CHUNK] = re.try_into().expect("CHUNK");
+            let im: &mut [f32; CHUNK] = im.try_into().expect("CHUNK");
+            for i in 0..CHUNK {
+                re[i] += sum[i] * c;
+                im[i] += diff[i] * sn;
+            }
+        }
+    }
+
+    /// The middle step of an even N: its twiddle is (−1)^f.
+    fn middle_step(&self, at: usize, len: usize, strip: &mut Strip) {
+        let s = self.n / 2;
+        let Strip {
+            sum,
+            peak,
+            dc,
+            reim,
+            ..
+        } = strip;
+        load(sum, self.samples(s, at, len));
+        for i in 0..CHUNK {
+            peak[i] = if sum[i] > peak[i] { sum[i] } else { peak[i] };
+            dc[i] += sum[i];
+        }
+        for (p, sums) in reim.chunks_exact_mut(2 * CHUNK).enumerate() {
+            let c = self.twiddles[p * self.n + s][0];
+            for (r, &v) in sums[..CHUNK].iter_mut().zip(sum.iter()) {
+                *r += v * c;
+            }
+        }
+    }
+
+    /// Flags the pixels from `at` (one per entry of `stats`) that reach full scale in any
+    /// step.
+    fn mark_saturated(&self, at: usize, stats: &mut [PixelStats]) {
+        let len = stats.len();
+        for s in 0..self.n {
+            for (st, &v) in stats.iter_mut().zip(self.samples(s, at, len)) {
+                st.saturated |= v.value() >= self.fs;
+            }
+        }
+    }
+
+    /// Adds the group's mean level of each pixel (from its X_0 in `dc`) to its statistics.
+    fn add_level(&self, dc: &[f32; CHUNK], stats: &mut [PixelStats]) {
+        for (st, &d) in stats.iter_mut().zip(dc.iter()) {
+            // A = X_0/N (docs/design.md §6).
+            let a = d * self.inv_n;
+            if self.g == 0 {
+                st.first_mean = a;
+            } else {
+                let dev = a - st.first_mean;
+                st.sum_dev += dev;
+                st.sum_dev2 += dev * dev;
+            }
+        }
+    }
+
+    /// The strip's sums as 16-bit (ψ, B) pairs per pixel and projector, into `out`.
+    fn quantise(&self, strip: &Strip, out: &mut [u16]) {
+        let np = self.np;
+        for (p, sums) in strip.reim.chunks_exact(2 * CHUNK).enumerate() {
+            let (re, im) = sums.split_at(CHUNK);
+            let re: &[f32; CHUNK] = re.try_into().expect("CHUNK");
+            let im: &[f32; CHUNK] = im.try_into().expect("CHUNK");
+            // φ_p = arg X_{f_p}, B_p = 2|X_{f_p}|/N (docs/design.md §6), as 16-bit
+            // fractions of a cycle and of full scale (rounded: both ≥ 0; a
+            // phase of 1 cycle wraps to 0).
+            let mut psi = [0u16; CHUNK];
+            let mut bq = [0u16; CHUNK];
+            for i in 0..CHUNK {
+                let ph = phase_cycles(im[i], re[i]);
+                let b = 2.0 * (re[i] * re[i] + im[i] * im[i]).sqrt() * self.inv_n;
+                // Rounded to 16 bits by adding 1.5·2^23: the integer lands in
+                // the low mantissa bits (a phase of 1 cycle wraps to 0).
+                psi[i] = (ph * 65536.0 + ROUNDER).to_bits() as u16;
+                bq[i] = ((b * self.b_scale).min(65535.0) + ROUNDER).to_bits() as u16;
+            }
+            for ((pair, &ph), &b) in out.chunks_exact_mut(np * 2).zip(&psi).zip(&bq) {
+                pair[p * 2] = ph;
+                pair[p * 2 + 1] = b;
+            }
+        }
+    }
+}
+
+impl PixelStats {
+    /// The mean level Ā over the `groups` groups and the per-frame variance σ_I² from the
+    /// spread of the group means (N `steps`).
+    fn mean_and_var(&self, steps: f64, groups: usize) -> (f64, f64) {
+        // Ā = A_0 + Σd/G; Σ_g (A_g − Ā)² = Σd² − (Σd)²/G; σ_I² ≈ N·that/(G − 1).
+        let g = groups as f64;
+        let (sd, sd2) = (f64::from(self.sum_dev), f64::from(self.sum_dev2));
+        let mean = f64::from(self.first_mean) + sd / g;
+        let var = steps * (sd2 - sd * sd / g).max(0.0) / (g - 1.0);
+        (mean, var)
+    }
+}
+
+/// The sums [count, ΣA, ΣA², Σσ_I², ΣA·σ_I²] over the unsaturated pixels (N `steps`, G
+/// `groups`), on all cores, for the least-squares line σ_I² = a + b·A.
+fn noise_sums(pixels: &[PixelStats], steps: f64, groups: usize) -> [f64; 5] {
+    pixels
+        .par_chunks(4096)
+        .map(|chunk| {
+            let mut s = [0f64; 5];
+            for st in chunk.iter().filter(|st| !st.saturated) {
+                let (a, v) = st.mean_and_var(steps, groups);
+                s[0] += 1.0;
+                s[1] += a;
+                s[2] += a * a;
+                s[3] += v;
+                s[4] += a * v;
+            }
+            s
+        })
+        .reduce(|| [0f64; 5], |a, b| std::array::from_fn(|i| a[i] + b[i]))
+}
+
+/// Per projector, from its effective γ: the fundamental amplitude a_1(γ) of a full-swing
+/// pattern, and the mean over the fundamental a_0/a_1 = (γ+1)/(2γ) (docs/design.md §6).
+fn harmonics(codes: &[ProjectorCode]) -> (Vec<f32>, Vec<f32>) {
+    let gammas: Vec<f64> = codes.iter().map(|c| c.response.effective_gamma()).collect();
+    let fundamental = gammas
+        .iter()
+        .map(|&g| pattern_harmonic(g, 1) as f32)
+        .collect();
+    let mean_ratio = gammas
+        .iter()
+        .map(|&g| (pattern_harmonic(g, 0) / pattern_harmonic(g, 1)) as f32)
+        .collect();
+    (fundamental, mean_ratio)
+}
+
+/// The images [`Decoder::finish`] fills, row-major: the ambient and saturation, and per
+/// projector u, v, modulation B, reliability and validity.
+struct Maps {
+    ambient: Vec<f32>,
+    saturated: Vec<bool>,
+    u: Vec<Vec<f32>>,
+    v: Vec<Vec<f32>>,
+    b: Vec<Vec<f32>>,
+    r: Vec<Vec<f32>>,
+    valid: Vec<Vec<bool>>,
+}
+
+/// One image row of every map of [`Maps`].
+struct RowMaps<'a> {
+    ambient: &'a mut [f32],
+    saturated: &'a mut [bool],
+    u: Vec<&'a mut [f32]>,
+    v: Vec<&'a mut [f32]>,
+    b: Vec<&'a mut [f32]>,
+    r: Vec<&'a mut [f32]>,
+    valid: Vec<&'a mut [bool]>,
+}
+
+impl Maps {
+    /// Zeroed maps of `npx` pixels for `np` projectors.
+    fn new(npx: usize, np: usize) -> Self {
+        let image = || vec![0f32; npx];
+        Maps {
+            ambient: image(),
+            saturated: vec![false; npx],
+            u: (0..np).map(|_| image()).collect(),
+            v: (0..np).map(|_| image()).collect(),
+            b: (0..np).map(|_| image()).collect(),
+            r: (0..np).map(|_| image()).collect(),
+            valid: (0..np).map(|_| vec![false; npx]).collect(),
+        }
+    }
+
+    /// Every map cut into rows of `w` pixels: one [`RowMaps`] per image row.
+    fn rows(&mut self, w: usize) -> Vec<RowMaps<'_>> {
+        let np = self.u.len();
+        let mut out_rows: Vec<RowMaps> = self
+            .ambient
             .chunks_mut(w)
-            .zip(saturated.chunks_mut(w))
-            .map(|(a, s)| Row {
+            .zip(self.saturated.chunks_mut(w))
+            .map(|(a, s)| RowMaps {
                 ambient: a,
                 saturated: s,
                 u: Vec::with_capacity(np),
@@ -729,12 +886,13 @@ impl<T: Sample> Decoder<T> {
                 valid: Vec::with_capacity(np),
             })
             .collect();
-        for ((((um, vm), bm), rm), okm) in u_maps
+        for ((((um, vm), bm), rm), okm) in self
+            .u
             .iter_mut()
-            .zip(v_maps.iter_mut())
-            .zip(b_maps.iter_mut())
-            .zip(r_maps.iter_mut())
-            .zip(valid.iter_mut())
+            .zip(self.v.iter_mut())
+            .zip(self.b.iter_mut())
+            .zip(self.r.iter_mut())
+            .zip(self.valid.iter_mut())
         {
             for (row, ((((u, v), b), r), ok)) in out_rows.iter_mut().zip(
                 um.chunks_mut(w)
@@ -750,108 +908,20 @@ impl<T: Sample> Decoder<T> {
                 row.valid.push(ok);
             }
         }
+        out_rows
+    }
 
-        // Per projector: valid count, Σ B, Σ σ_I², Σ σ_φ², Σ σ_u², Σ σ_v².
-        let stats = out_rows
-            .into_par_iter()
-            .enumerate()
-            .map(|(y, mut row)| {
-                let mut acc = vec![[0f64; 6]; np];
-                for x in 0..w {
-                    let px = y * w + x;
-                    let st = &pixels[px];
-                    let (mean, _) = mean_and_var(st);
-                    let sigma = noise.sigma(mean) as f32;
-                    let var4 = 4.0 * sigma * sigma / n32;
-                    row.saturated[x] = st.saturated;
-                    let mut amb = mean as f32;
-                    for p in 0..np {
-                        let code = &codes[p];
-                        // This pixel's (ψ, B) of projector p in every group.
-                        let mut psi_g = [0f32; 2 * MAX_COUNTS];
-                        let mut bsq_g = [0f32; 2 * MAX_COUNTS];
-                        let bsq = bsq_all[px * np + p];
-                        let slot = slots[px];
-                        if slot != u32::MAX {
-                            for (g, data) in groups.iter().enumerate() {
-                                let o = &data[(slot as usize * np + p) * 2..][..2];
-                                psi_g[g] = f32::from(o[0]) * (1.0 / 65536.0);
-                                let b = f32::from(o[1]) * inv_b_scale;
-                                bsq_g[g] = b * b;
-                            }
-                        }
-                        let bmod = (bsq / ng as f32 - var4).max(0.0).sqrt();
-                        amb -= mean_ratio[p] * bmod;
-                        row.b[p][x] = bmod;
-                        if st.saturated || slot == u32::MAX || bmod < min_b.max(5.0 * sigma) {
-                            // Invalid whatever the phases say: not unwrapped.
-                            row.u[p][x] = f32::NAN;
-                            row.v[p][x] = f32::NAN;
-                            row.r[p][x] = f32::NAN;
-                            row.valid[p][x] = false;
-                            continue;
-                        }
-                        let mut fused = [0f32; 2];
-                        let mut dist = [0f32; 2];
-                        let mut sigma_pos = [0f32; 2];
-                        let mut clear_of_wrap = true;
-                        for (d, (cons, counts, offset, size)) in [
-                            (&columns, col_counts, 0, code.width),
-                            (&rows, row_counts, mc, code.height),
-                        ]
-                        .into_iter()
-                        .enumerate()
-                        {
-                            let m = counts.len();
-                            let (ps, wt) = (&psi_g[offset..offset + m], &bsq_g[offset..offset + m]);
-                            let info: f32 = counts
-                                .iter()
-                                .zip(wt)
-                                .map(|(&ni, &w)| (ni * ni) as f32 * w)
-                                .sum();
-                            let un = cons.unwrap(ps, wt);
-                            let size = size as f32;
-                            fused[d] = un.position * size - 0.5;
-                            dist[d] = un.distance;
-                            let s_pos = size / TAU * noise_gain * sigma / info.sqrt();
-                            sigma_pos[d] = s_pos;
-                            // Distance to the wrap point t = 0 ≡ 1, in projector px.
-                            let edge = un.position.min(1.0 - un.position) * size;
-                            clear_of_wrap &= edge >= 6.0 * s_pos;
-                        }
-                        let ok =
-                            dist[0] < half_spacing[0] && dist[1] < half_spacing[1] && clear_of_wrap;
-                        row.u[p][x] = fused[0];
-                        row.v[p][x] = fused[1];
-                        row.r[p][x] = dist[0].max(dist[1]);
-                        row.valid[p][x] = ok;
-                        if ok {
-                            let sphi = noise_gain * sigma / bmod;
-                            let a = &mut acc[p];
-                            a[0] += 1.0;
-                            a[1] += f64::from(bmod);
-                            a[2] += f64::from(sigma * sigma);
-                            a[3] += f64::from(sphi * sphi);
-                            a[4] += f64::from(sigma_pos[0] * sigma_pos[0]);
-                            a[5] += f64::from(sigma_pos[1] * sigma_pos[1]);
-                        }
-                    }
-                    row.ambient[x] = amb;
-                }
-                acc
-            })
-            .reduce(
-                || vec![[0f64; 6]; np],
-                |a, b| {
-                    a.iter()
-                        .zip(&b)
-                        .map(|(x, y)| std::array::from_fn(|i| x[i] + y[i]))
-                        .collect()
-                },
-            );
-        drop(groups);
-        drop(slots);
-        drop(bsq_all);
+    /// The decoded stack of `camera`: the maps as images of `size` (width, height), with
+    /// the noise model, each projector's noise from its sums in `stats` and its pattern
+    /// fundamental.
+    fn into_stack(
+        self,
+        camera: String,
+        (width, height): (u32, u32),
+        noise: NoiseModel,
+        stats: &[[f64; 6]],
+        fundamental: &[f32],
+    ) -> DecodedStack {
         let to_image = |data: Vec<f32>| {
             FloatImage::from_raw(width, height, data).expect("map has width × height values")
         };
@@ -860,41 +930,250 @@ impl<T: Sample> Decoder<T> {
             height,
             bits,
         };
-        let projectors = u_maps
+        let Maps {
+            ambient,
+            saturated,
+            u,
+            v,
+            b,
+            r,
+            valid,
+        } = self;
+        let projectors = u
             .into_iter()
-            .zip(v_maps)
-            .zip(b_maps)
-            .zip(r_maps)
+            .zip(v)
+            .zip(b)
+            .zip(r)
             .zip(valid)
             .enumerate()
-            .map(|(p, ((((u, v), b), r), ok))| {
-                let a = stats[p];
-                let c = a[0].max(1.0);
-                ProjectorMaps {
-                    u: to_image(u),
-                    v: to_image(v),
-                    modulation: to_image(b),
-                    reliability: to_image(r),
-                    valid: mask(ok),
-                    noise: PhaseNoise {
-                        valid_pixels: a[0] as usize,
-                        modulation: a[1] / c,
-                        sigma_i: (a[2] / c).sqrt(),
-                        sigma_phi: (a[3] / c).sqrt(),
-                        sigma_u: (a[4] / c).sqrt(),
-                        sigma_v: (a[5] / c).sqrt(),
-                    },
-                    fundamental: fundamental[p],
-                }
+            .map(|(p, ((((u, v), b), r), ok))| ProjectorMaps {
+                u: to_image(u),
+                v: to_image(v),
+                modulation: to_image(b),
+                reliability: to_image(r),
+                valid: mask(ok),
+                noise: PhaseNoise::from_sums(&stats[p]),
+                fundamental: fundamental[p],
             })
             .collect();
-        Ok(DecodedStack {
+        DecodedStack {
             camera,
             ambient: to_image(ambient),
             saturated: mask(saturated),
             noise,
             projectors,
-        })
+        }
+    }
+}
+
+impl PhaseNoise {
+    /// From a projector's sums over its valid pixels: [count, Σ B, Σ σ_I², Σ σ_φ², Σ σ_u²,
+    /// Σ σ_v²].
+    fn from_sums(a: &[f64; 6]) -> Self {
+        let c = a[0].max(1.0);
+        PhaseNoise {
+            valid_pixels: a[0] as usize,
+            modulation: a[1] / c,
+            sigma_i: (a[2] / c).sqrt(),
+            sigma_phi: (a[3] / c).sqrt(),
+            sigma_u: (a[4] / c).sqrt(),
+            sigma_v: (a[5] / c).sqrt(),
+        }
+    }
+}
+
+/// Projector p's position at one pixel, per direction (columns, rows).
+struct Position {
+    /// Unwrapped and fused u, v (projector px).
+    fused: [f32; 2],
+    /// Unwrapping distance (rad).
+    distance: [f32; 2],
+    /// Predicted σ_u, σ_v (projector px).
+    sigma: [f32; 2],
+    /// Whether both lie farther than 6σ from the wrap point t = 0 ≡ 1.
+    clear_of_wrap: bool,
+}
+
+/// The final pass of [`Decoder::finish`]: a complete decoder's measurements, its noise
+/// model and the constants of the per-pixel tests.
+struct Judge<'a, T: Sample> {
+    dec: &'a Decoder<T>,
+    noise: NoiseModel,
+    /// Fringe counts of the columns and of the rows.
+    counts: [&'a [u32]; 2],
+    /// Per projector: mean over fundamental a_0/a_1.
+    mean_ratio: Vec<f32>,
+    /// Half the constellation spacing of columns and rows.
+    half_spacing: [f32; 2],
+    /// DN per quantisation step of B.
+    inv_b_scale: f32,
+    /// The validity floor on B: 3 % of full scale (DN).
+    min_b: f32,
+    /// Steps N.
+    steps: f64,
+    /// Groups G.
+    groups: usize,
+    /// N as f32.
+    n32: f32,
+    /// √(2/N).
+    noise_gain: f32,
+}
+
+impl<'a, T: Sample> Judge<'a, T> {
+    /// The final pass over the complete decoder `dec` with its fitted `noise` and the
+    /// projectors' a_0/a_1 ratios.
+    fn new(dec: &'a Decoder<T>, noise: NoiseModel, mean_ratio: Vec<f32>) -> Self {
+        let n = dec.seq.steps() as f64;
+        let n32 = n as f32;
+        Judge {
+            dec,
+            noise,
+            counts: [
+                dec.seq.counts(Direction::Columns),
+                dec.seq.counts(Direction::Rows),
+            ],
+            mean_ratio,
+            half_spacing: [
+                0.5 * dec.columns.spacing() as f32,
+                0.5 * dec.rows.spacing() as f32,
+            ],
+            inv_b_scale: dec.full_scale / B_STEPS,
+            min_b: 0.03 * dec.full_scale,
+            steps: n,
+            groups: dec.seq.groups(),
+            n32,
+            // σ_u = W/(2π)·√(2/N)·σ_I/√(Σ n_i² B_i²) for the weighted fusion (docs/design.md §6).
+            noise_gain: (2.0 / n32).sqrt(),
+        }
+    }
+
+    /// Every row into `rows`, on all cores; per projector, over its valid pixels: count,
+    /// Σ B, Σ σ_I², Σ σ_φ², Σ σ_u², Σ σ_v².
+    fn rows(&self, rows: Vec<RowMaps<'_>>) -> Vec<[f64; 6]> {
+        let np = self.mean_ratio.len();
+        rows.into_par_iter()
+            .enumerate()
+            .map(|(y, mut row)| self.row(y, &mut row))
+            .reduce(
+                || vec![[0f64; 6]; np],
+                |a, b| {
+                    a.iter()
+                        .zip(&b)
+                        .map(|(x, y)| std::array::from_fn(|i| x[i] + y[i]))
+                        .collect()
+                },
+            )
+    }
+
+    /// Row y into `row`: each pixel's ambient, saturation and per projector modulation,
+    /// and u, v, reliability and validity; gives the row's sums as [`Self::rows`].
+    fn row(&self, y: usize, row: &mut RowMaps<'_>) -> Vec<[f64; 6]> {
+        let dec = self.dec;
+        let (w, np) = (dec.width as usize, self.mean_ratio.len());
+        let mut acc = vec![[0f64; 6]; np];
+        for x in 0..w {
+            let px = y * w + x;
+            let st = &dec.pixels[px];
+            let (mean, _) = st.mean_and_var(self.steps, self.groups);
+            let sigma = self.noise.sigma(mean) as f32;
+            let var4 = 4.0 * sigma * sigma / self.n32;
+            row.saturated[x] = st.saturated;
+            let mut amb = mean as f32;
+            for (p, acc) in acc.iter_mut().enumerate() {
+                let bsq = dec.bsq[px * np + p];
+                let slot = dec.slots[px];
+                let bmod = (bsq / self.groups as f32 - var4).max(0.0).sqrt();
+                amb -= self.mean_ratio[p] * bmod;
+                row.b[p][x] = bmod;
+                if st.saturated || slot == u32::MAX || bmod < self.min_b.max(5.0 * sigma) {
+                    // Invalid whatever the phases say: not unwrapped.
+                    row.u[p][x] = f32::NAN;
+                    row.v[p][x] = f32::NAN;
+                    row.r[p][x] = f32::NAN;
+                    row.valid[p][x] = false;
+                    continue;
+                }
+                let pos = self.position(slot, p, sigma);
+                let ok = pos.distance[0] < self.half_spacing[0]
+                    && pos.distance[1] < self.half_spacing[1]
+                    && pos.clear_of_wrap;
+                row.u[p][x] = pos.fused[0];
+                row.v[p][x] = pos.fused[1];
+                row.r[p][x] = pos.distance[0].max(pos.distance[1]);
+                row.valid[p][x] = ok;
+                if ok {
+                    self.add_valid(acc, bmod, sigma, pos.sigma);
+                }
+            }
+            row.ambient[x] = amb;
+        }
+        acc
+    }
+
+    /// Projector p's wrapped phase ψ (cycles) and B² (DN²) in every group at candidate
+    /// `slot`.
+    fn group_phases(&self, slot: u32, p: usize) -> ([f32; 2 * MAX_COUNTS], [f32; 2 * MAX_COUNTS]) {
+        let np = self.mean_ratio.len();
+        let mut psi_g = [0f32; 2 * MAX_COUNTS];
+        let mut bsq_g = [0f32; 2 * MAX_COUNTS];
+        for (g, data) in self.dec.groups.iter().enumerate() {
+            let o = &data[(slot as usize * np + p) * 2..][..2];
+            psi_g[g] = f32::from(o[0]) * (1.0 / 65536.0);
+            let b = f32::from(o[1]) * self.inv_b_scale;
+            bsq_g[g] = b * b;
+        }
+        (psi_g, bsq_g)
+    }
+
+    /// Projector p's phases at candidate `slot` unwrapped and fused per direction, with
+    /// their σ at per-frame noise `sigma` (DN).
+    fn position(&self, slot: u32, p: usize, sigma: f32) -> Position {
+        let (psi_g, bsq_g) = self.group_phases(slot, p);
+        let code = &self.dec.seq.projectors()[p];
+        let mc = self.counts[0].len();
+        let mut pos = Position {
+            fused: [0.0; 2],
+            distance: [0.0; 2],
+            sigma: [0.0; 2],
+            clear_of_wrap: true,
+        };
+        for (d, (cons, counts, offset, size)) in [
+            (&self.dec.columns, self.counts[0], 0, code.width),
+            (&self.dec.rows, self.counts[1], mc, code.height),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let m = counts.len();
+            let (ps, wt) = (&psi_g[offset..offset + m], &bsq_g[offset..offset + m]);
+            let info: f32 = counts
+                .iter()
+                .zip(wt)
+                .map(|(&ni, &w)| (ni * ni) as f32 * w)
+                .sum();
+            let un = cons.unwrap(ps, wt);
+            let size = size as f32;
+            pos.fused[d] = un.position * size - 0.5;
+            pos.distance[d] = un.distance;
+            let s_pos = size / TAU * self.noise_gain * sigma / info.sqrt();
+            pos.sigma[d] = s_pos;
+            // Distance to the wrap point t = 0 ≡ 1, in projector px.
+            let edge = un.position.min(1.0 - un.position) * size;
+            pos.clear_of_wrap &= edge >= 6.0 * s_pos;
+        }
+        pos
+    }
+
+    /// Adds a valid pixel of modulation `bmod`, per-frame noise `sigma` and position σ's
+    /// `sigma_pos` to its projector's sums `a`.
+    fn add_valid(&self, a: &mut [f64; 6], bmod: f32, sigma: f32, sigma_pos: [f32; 2]) {
+        let sphi = self.noise_gain * sigma / bmod;
+        a[0] += 1.0;
+        a[1] += f64::from(bmod);
+        a[2] += f64::from(sigma * sigma);
+        a[3] += f64::from(sphi * sphi);
+        a[4] += f64::from(sigma_pos[0] * sigma_pos[0]);
+        a[5] += f64::from(sigma_pos[1] * sigma_pos[1]);
     }
 }
 

@@ -454,13 +454,7 @@ fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
     let (w, h) = f.size();
     let mut svg = f.svg(44.0);
     svg.rect(f.x0, f.y0, w, h, "fill=\"#fafafa\" stroke=\"#888\"");
-    let mut norms: Vec<f64> = data
-        .errors
-        .iter()
-        .zip(&data.outlier)
-        .filter(|(_, o)| !**o)
-        .map(|(e, _)| e.norm())
-        .collect();
+    let mut norms = inlier_norms(data);
     norms.sort_by(f64::total_cmp);
     let p95 = norms
         .get((norms.len() * 95 / 100).min(norms.len().saturating_sub(1)))
@@ -475,6 +469,40 @@ fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
     let mean_scale = 4.0 * scale;
     // Every stride-th inlier (all outliers): the figure stays light and readable.
     let stride = norms.len().div_ceil(MAX_VECTORS).max(1);
+    residual_vectors(&mut svg, &f, data, scale, stride);
+    cell_mean_arrows(&mut svg, &f, data, mean_scale);
+    residual_legend(&mut svg, &f, dev, scale, mean_scale);
+    let (cols, rows, _) = f.grid();
+    let caption = format!(
+        "Residual vectors (observed − predicted){}, magnified ×{}; blue: the mean of each \
+         {}×{} grid cell with {MIN_CELL_POINTS} or more, ×{}; red: outliers. Systematic patterns in the blue arrows point to \
+         an unmodelled error.",
+        if stride > 1 {
+            format!(" of one in {stride} of the {} inliers", norms.len())
+        } else {
+            " at each observation".into()
+        },
+        short(scale),
+        cols,
+        rows,
+        short(mean_scale)
+    );
+    (svg.finish(), caption)
+}
+
+/// The norms of the inliers' residuals (px), in observation order.
+fn inlier_norms(data: &DeviceData) -> Vec<f64> {
+    data.errors
+        .iter()
+        .zip(&data.outlier)
+        .filter(|(_, o)| !**o)
+        .map(|(e, _)| e.norm())
+        .collect()
+}
+
+/// Every `stride`-th inlier's residual (grey) and every outlier's (red, with a dot at its
+/// pixel), magnified by `scale`, into `svg` over the image frame `f`.
+fn residual_vectors(svg: &mut Svg, f: &ImageFrame, data: &DeviceData, scale: f64, stride: usize) {
     let (mut inl, mut out) = (String::new(), String::new());
     let mut inlier = 0;
     for ((p, e), o) in data.pixels.iter().zip(&data.errors).zip(&data.outlier) {
@@ -506,6 +534,11 @@ fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
     for (p, _) in data.pixels.iter().zip(&data.outlier).filter(|(_, o)| **o) {
         svg.circle(f.at(*p), 1.8, &format!("fill=\"{OUTLIER_COLOUR}\""));
     }
+}
+
+/// The mean inlier residual of every grid cell with [`MIN_CELL_POINTS`] or more, as a blue
+/// arrow magnified by `mean_scale`, into `svg` over the image frame `f`.
+fn cell_mean_arrows(svg: &mut Svg, f: &ImageFrame, data: &DeviceData, mean_scale: f64) {
     // Mean residual per cell (inliers; cells with few are left out: their means are noise).
     let (cols, rows, ch) = f.grid();
     let cw = f.w / cols as f64;
@@ -532,6 +565,12 @@ fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
             );
         }
     }
+}
+
+/// Below the image frame `f`: scale bars of the residuals (magnified by `scale`) and of the
+/// cell means (by `mean_scale`), and the image size of `dev`.
+fn residual_legend(svg: &mut Svg, f: &ImageFrame, dev: &Device, scale: f64, mean_scale: f64) {
+    let (w, h) = f.size();
     // Scale bar: the residual length that is 10 % of the width at each magnification.
     let y = f.y0 + h + 16.0;
     let len = nice_below(0.12 * f.w / scale);
@@ -572,21 +611,6 @@ fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
         "fill=\"#444\"",
         &format!("{} × {} px", dev.model.width, dev.model.height),
     );
-    let caption = format!(
-        "Residual vectors (observed − predicted){}, magnified ×{}; blue: the mean of each \
-         {}×{} grid cell with {MIN_CELL_POINTS} or more, ×{}; red: outliers. Systematic patterns in the blue arrows point to \
-         an unmodelled error.",
-        if stride > 1 {
-            format!(" of one in {stride} of the {} inliers", norms.len())
-        } else {
-            " at each observation".into()
-        },
-        short(scale),
-        cols,
-        rows,
-        short(mean_scale)
-    );
-    (svg.finish(), caption)
 }
 
 /// Coverage heatmap: observations per grid cell over the image; empty cells light grey.
@@ -665,16 +689,15 @@ fn coverage_figure(dev: &Device, data: &DeviceData) -> (String, String) {
 
 /// Histogram of the inliers' residual norms with the Rayleigh density of σ̂.
 fn histogram_figure(data: &DeviceData, sigma: f64) -> (String, String) {
-    let norms: Vec<f64> = data
-        .errors
-        .iter()
-        .zip(&data.outlier)
-        .filter(|(_, o)| !**o)
-        .map(|(e, _)| e.norm())
-        .collect();
-    let (w, h) = (300.0, 200.0);
-    let (left, bottom, top) = (44.0, 36.0, 10.0);
-    let mut svg = Svg::new(w + left + 12.0, h + top + bottom);
+    let norms = inlier_norms(data);
+    let plot = Plot {
+        w: 300.0,
+        h: 200.0,
+        left: 44.0,
+        bottom: 36.0,
+        top: 10.0,
+    };
+    let mut svg = Svg::new(plot.w + plot.left + 12.0, plot.h + plot.top + plot.bottom);
     let mut sorted = norms.clone();
     sorted.sort_by(f64::total_cmp);
     let p995 = sorted
@@ -694,75 +717,15 @@ fn histogram_figure(data: &DeviceData, sigma: f64) -> (String, String) {
             beyond += 1;
         }
     }
-    // Expected counts of Rayleigh(σ̂) over the same bins.
-    let n = norms.len() as f64;
-    let expect: Vec<f64> = (0..=(4 * bins))
-        .map(|i| {
-            let r = hi * i as f64 / (4 * bins) as f64;
-            let s2 = (sigma * sigma).max(1e-300);
-            n * bw * r / s2 * (-r * r / (2.0 * s2)).exp()
-        })
-        .collect();
+    let expect = rayleigh_counts(norms.len() as f64, sigma, hi, bins);
     let ymax = count
         .iter()
         .map(|c| *c as f64)
         .chain(expect.iter().copied())
         .fold(1.0, f64::max)
         * 1.08;
-    let (x0, y0) = (left, top + h);
-    let bx = w / bins as f64;
-    for (b, c) in count.iter().enumerate() {
-        let bh = h * *c as f64 / ymax;
-        svg.rect(
-            x0 + b as f64 * bx + 0.5,
-            y0 - bh,
-            bx - 1.0,
-            bh,
-            "fill=\"#7fa7d4\"",
-        );
-    }
-    let curve: Vec<String> = expect
-        .iter()
-        .enumerate()
-        .map(|(i, e)| {
-            format!(
-                "{}{:.1} {:.1}",
-                if i == 0 { "M" } else { "L" },
-                x0 + w * i as f64 / (4 * bins) as f64,
-                y0 - h * e / ymax
-            )
-        })
-        .collect();
-    svg.path(
-        &curve.concat(),
-        "stroke=\"#c0392b\" stroke-width=\"1.6\" fill=\"none\"",
-    );
-    svg.line((x0, y0), (x0 + w, y0), "stroke=\"#555\"");
-    svg.line((x0, y0), (x0, top), "stroke=\"#555\"");
-    let xt = nice_below(hi / 3.0);
-    let mut t = 0.0;
-    while t <= hi + 1e-12 {
-        let x = x0 + w * t / hi;
-        svg.line((x, y0), (x, y0 + 4.0), "stroke=\"#555\"");
-        svg.text(x, y0 + 16.0, 11.0, "middle", "fill=\"#444\"", &short(t));
-        t += xt;
-    }
-    svg.text(
-        x0 + w / 2.0,
-        y0 + 31.0,
-        11.0,
-        "middle",
-        "fill=\"#444\"",
-        "|r| (px)",
-    );
-    let yt = nice_below(ymax / 3.0).max(1.0);
-    let mut c = 0.0;
-    while c <= ymax {
-        let y = y0 - h * c / ymax;
-        svg.line((x0 - 4.0, y), (x0, y), "stroke=\"#555\"");
-        svg.text(x0 - 6.0, y + 4.0, 11.0, "end", "fill=\"#444\"", &short(c));
-        c += yt;
-    }
+    plot.bars_and_curve(&mut svg, &count, &expect, ymax);
+    plot.axes(&mut svg, hi, ymax);
     let caption = format!(
         "Residual norms of the {} inliers{}; red: the Rayleigh distribution of the posterior \
          σ̂ = {:.4} px per coordinate.",
@@ -775,6 +738,102 @@ fn histogram_figure(data: &DeviceData, sigma: f64) -> (String, String) {
         sigma
     );
     (svg.finish(), caption)
+}
+
+/// Expected counts of `n` Rayleigh(`sigma`) norms in histogram bins of width hi/`bins`, at
+/// 4·`bins` + 1 points over [0, `hi`].
+fn rayleigh_counts(n: f64, sigma: f64, hi: f64, bins: usize) -> Vec<f64> {
+    let bw = hi / bins as f64;
+    (0..=(4 * bins))
+        .map(|i| {
+            let r = hi * i as f64 / (4 * bins) as f64;
+            let s2 = (sigma * sigma).max(1e-300);
+            n * bw * r / s2 * (-r * r / (2.0 * s2)).exp()
+        })
+        .collect()
+}
+
+/// A plot area of `w` × `h` px with margins left, below and above it.
+struct Plot {
+    w: f64,
+    h: f64,
+    left: f64,
+    bottom: f64,
+    top: f64,
+}
+
+impl Plot {
+    /// Bottom left corner of the plot area.
+    fn origin(&self) -> (f64, f64) {
+        (self.left, self.top + self.h)
+    }
+
+    /// The histogram bars `count` and the expected density `expect` (4 points per bar), up
+    /// to `ymax`, into `svg`.
+    fn bars_and_curve(&self, svg: &mut Svg, count: &[usize], expect: &[f64], ymax: f64) {
+        let (w, h) = (self.w, self.h);
+        let (x0, y0) = self.origin();
+        let bins = count.len();
+        let bx = w / bins as f64;
+        for (b, c) in count.iter().enumerate() {
+            let bh = h * *c as f64 / ymax;
+            svg.rect(
+                x0 + b as f64 * bx + 0.5,
+                y0 - bh,
+                bx - 1.0,
+                bh,
+                "fill=\"#7fa7d4\"",
+            );
+        }
+        let curve: Vec<String> = expect
+            .iter()
+            .enumerate()
+            .map(|(i, e)| {
+                format!(
+                    "{}{:.1} {:.1}",
+                    if i == 0 { "M" } else { "L" },
+                    x0 + w * i as f64 / (4 * bins) as f64,
+                    y0 - h * e / ymax
+                )
+            })
+            .collect();
+        svg.path(
+            &curve.concat(),
+            "stroke=\"#c0392b\" stroke-width=\"1.6\" fill=\"none\"",
+        );
+    }
+
+    /// Axes with ticks: |r| over [0, `hi`] px, counts over [0, `ymax`], into `svg`.
+    fn axes(&self, svg: &mut Svg, hi: f64, ymax: f64) {
+        let (w, h) = (self.w, self.h);
+        let (x0, y0) = self.origin();
+        svg.line((x0, y0), (x0 + w, y0), "stroke=\"#555\"");
+        svg.line((x0, y0), (x0, self.top), "stroke=\"#555\"");
+        let xt = nice_below(hi / 3.0);
+        let mut t = 0.0;
+        while t <= hi + 1e-12 {
+            let x = x0 + w * t / hi;
+            svg.line((x, y0), (x, y0 + 4.0), "stroke=\"#555\"");
+            svg.text(x, y0 + 16.0, 11.0, "middle", "fill=\"#444\"", &short(t));
+            t += xt;
+        }
+        svg.text(
+            x0 + w / 2.0,
+            y0 + 31.0,
+            11.0,
+            "middle",
+            "fill=\"#444\"",
+            "|r| (px)",
+        );
+        let yt = nice_below(ymax / 3.0).max(1.0);
+        let mut c = 0.0;
+        while c <= ymax {
+            let y = y0 - h * c / ymax;
+            svg.line((x0 - 4.0, y), (x0, y), "stroke=\"#555\"");
+            svg.text(x0 - 6.0, y + 4.0, 11.0, "end", "fill=\"#444\"", &short(c));
+            c += yt;
+        }
+    }
 }
 
 /// Per device: residual vectors, histogram, coverage.
@@ -817,22 +876,7 @@ fn device_sections(h: &mut String, cal: &Calibration, rows: &[ResidualRow]) {
 /// The rig seen from above in the reference frame: devices with their horizontal field of
 /// view and viewing direction, and the board poses as outlines.
 fn rig_section(h: &mut String, cal: &Calibration) {
-    // "Up" is against the mean of the devices' image y axes (y points down in a device).
-    let rot = |d: &Device| d.pose.inverse().rotation;
-    let mut down: Vector3<f64> = cal.devices.iter().map(|d| rot(d) * Vector3::y()).sum();
-    if down.norm() < 1e-6 {
-        down = Vector3::y();
-    }
-    let down = down.normalize();
-    let ref_x = Vector3::x() - down * down.x;
-    let right = if ref_x.norm() > 1e-6 {
-        ref_x.normalize()
-    } else {
-        down.cross(&Vector3::z()).normalize()
-    };
-    // Right-handed view from above: right × forward = up.
-    let forward = right.cross(&down);
-    let plane = |p: &Point3<f64>| (p.coords.dot(&right), -p.coords.dot(&forward));
+    let view = TopView::new(cal);
     let half = (cal.board.size[0] / 2.0, cal.board.size[1] / 2.0);
     let outlines: Vec<Vec<(f64, f64)>> = cal
         .solution
@@ -841,91 +885,26 @@ fn rig_section(h: &mut String, cal: &Calibration) {
         .map(|b| {
             [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
                 .iter()
-                .map(|(sx, sy)| plane(&(b * Point3::new(sx * half.0, sy * half.1, 0.0))))
+                .map(|(sx, sy)| view.plane(&(b * Point3::new(sx * half.0, sy * half.1, 0.0))))
                 .collect()
         })
         .collect();
     let centres: Vec<(f64, f64)> = cal
         .devices
         .iter()
-        .map(|d| plane(&(d.pose.inverse() * Point3::origin())))
+        .map(|d| view.plane(&(d.pose.inverse() * Point3::origin())))
         .collect();
     let all: Vec<(f64, f64)> = outlines.iter().flatten().chain(&centres).copied().collect();
-    let (mut lo, mut hi) = ((f64::MAX, f64::MAX), (f64::MIN, f64::MIN));
-    for p in &all {
-        lo = (lo.0.min(p.0), lo.1.min(p.1));
-        hi = (hi.0.max(p.0), hi.1.max(p.1));
-    }
-    let extent = (hi.0 - lo.0).max(hi.1 - lo.1).max(1.0);
-    let ray = 0.12 * extent;
-    let margin = 0.12 * extent;
-    let (lo, hi) = (
-        (lo.0 - margin, lo.1 - margin),
-        (hi.0 + margin, hi.1 + margin),
-    );
-    let size = 560.0;
-    let k = size / (hi.0 - lo.0).max(hi.1 - lo.1);
-    let (fw, fh) = (k * (hi.0 - lo.0), k * (hi.1 - lo.1));
-    let map = |p: (f64, f64)| (k * (p.0 - lo.0), k * (p.1 - lo.1));
+    let canvas = Canvas::around(&all);
+    let (fw, fh) = canvas.size();
     let mut svg = Svg::new(fw, fh + 30.0);
     svg.rect(0.0, 0.0, fw, fh, "fill=\"#fcfcfc\" stroke=\"#ccc\"");
-    for (i, o) in outlines.iter().enumerate() {
-        let pts: Vec<(f64, f64)> = o.iter().map(|p| map(*p)).collect();
-        svg.polygon(
-            &pts,
-            "fill=\"#88888818\" stroke=\"#8a8a8a\" stroke-width=\"1\"",
-        );
-        let c = pts
-            .iter()
-            .fold((0.0, 0.0), |s, p| (s.0 + p.0 / 4.0, s.1 + p.1 / 4.0));
-        if outlines.len() <= 40 {
-            svg.text(
-                c.0,
-                c.1 + 3.0,
-                9.0,
-                "middle",
-                "fill=\"#999\"",
-                &cal.pose_index[i].to_string(),
-            );
-        }
-    }
+    board_outlines(&mut svg, cal, &outlines, &canvas);
     for (dev, c) in cal.devices.iter().zip(&centres) {
-        let inv = dev.pose.inverse();
-        let k_ = &dev.model.intrinsics;
-        let edge = |x: f64| {
-            let d = inv.rotation * Vector3::new((x - k_.cx) / k_.fx, 0.0, 1.0).normalize();
-            let p = inv * Point3::origin() + d * ray;
-            map(plane(&p))
-        };
-        let o = map(*c);
-        let colour = kind_colour(dev.kind);
-        let l = edge(-0.5);
-        let r = edge(f64::from(dev.model.width) - 0.5);
-        svg.polygon(
-            &[o, l, r],
-            &format!("fill=\"{colour}33\" stroke=\"{colour}\" stroke-width=\"1\""),
-        );
-        let axis = inv * Point3::origin() + inv.rotation * Vector3::z() * (1.3 * ray);
-        svg.arrow(
-            o,
-            map(plane(&axis)),
-            6.0,
-            &format!("stroke=\"{colour}\" stroke-width=\"2\" fill=\"none\""),
-        );
-        svg.circle(o, 4.0, &format!("fill=\"{colour}\""));
-        // Label behind the device, away from its view.
-        let back = inv * Point3::origin() - inv.rotation * Vector3::z() * (0.35 * ray);
-        let b = map(plane(&back));
-        svg.text(
-            b.0,
-            b.1 + 4.0,
-            12.0,
-            "middle",
-            &format!("fill=\"{colour}\" font-weight=\"600\""),
-            &dev.name,
-        );
+        device_from_above(&mut svg, dev, *c, &view, &canvas);
     }
     // Scale bar.
+    let (lo, hi, k) = (canvas.lo, canvas.hi, canvas.k);
     let bar = nice_below(0.25 * (hi.0 - lo.0));
     let y = fh + 18.0;
     svg.line(
@@ -953,6 +932,155 @@ fn rig_section(h: &mut String, cal: &Calibration) {
         cal.solution.boards.len(),
         cal.board.size[0],
         cal.board.size[1]
+    );
+}
+
+/// The horizontal plane of the view from above, in the reference frame.
+struct TopView {
+    /// The view's right axis.
+    right: Vector3<f64>,
+    /// The view's forward axis (up in the figure).
+    forward: Vector3<f64>,
+}
+
+impl TopView {
+    /// "Up" is against the mean of the devices' image y axes (y points down in a device).
+    fn new(cal: &Calibration) -> Self {
+        let rot = |d: &Device| d.pose.inverse().rotation;
+        let mut down: Vector3<f64> = cal.devices.iter().map(|d| rot(d) * Vector3::y()).sum();
+        if down.norm() < 1e-6 {
+            down = Vector3::y();
+        }
+        let down = down.normalize();
+        let ref_x = Vector3::x() - down * down.x;
+        let right = if ref_x.norm() > 1e-6 {
+            ref_x.normalize()
+        } else {
+            down.cross(&Vector3::z()).normalize()
+        };
+        // Right-handed view from above: right × forward = up.
+        let forward = right.cross(&down);
+        TopView { right, forward }
+    }
+
+    /// A point of the reference frame in the view's plane (mm, y down the figure).
+    fn plane(&self, p: &Point3<f64>) -> (f64, f64) {
+        (p.coords.dot(&self.right), -p.coords.dot(&self.forward))
+    }
+}
+
+/// The figure's scale: plane coordinates (mm) to figure px.
+struct Canvas {
+    /// Lower and upper corners of the shown area (mm).
+    lo: (f64, f64),
+    hi: (f64, f64),
+    /// px per mm.
+    k: f64,
+    /// Length of a device's field-of-view wedge (mm).
+    ray: f64,
+}
+
+impl Canvas {
+    /// The canvas around the plane points `all` with a margin of 12 % of their extent, 560 px
+    /// on its longer side.
+    fn around(all: &[(f64, f64)]) -> Self {
+        let (mut lo, mut hi) = ((f64::MAX, f64::MAX), (f64::MIN, f64::MIN));
+        for p in all {
+            lo = (lo.0.min(p.0), lo.1.min(p.1));
+            hi = (hi.0.max(p.0), hi.1.max(p.1));
+        }
+        let extent = (hi.0 - lo.0).max(hi.1 - lo.1).max(1.0);
+        let ray = 0.12 * extent;
+        let margin = 0.12 * extent;
+        let (lo, hi) = (
+            (lo.0 - margin, lo.1 - margin),
+            (hi.0 + margin, hi.1 + margin),
+        );
+        let size = 560.0;
+        let k = size / (hi.0 - lo.0).max(hi.1 - lo.1);
+        Canvas { lo, hi, k, ray }
+    }
+
+    /// Width and height (px).
+    fn size(&self) -> (f64, f64) {
+        let (lo, hi, k) = (self.lo, self.hi, self.k);
+        (k * (hi.0 - lo.0), k * (hi.1 - lo.1))
+    }
+
+    /// A plane point in figure px.
+    fn map(&self, p: (f64, f64)) -> (f64, f64) {
+        (self.k * (p.0 - self.lo.0), self.k * (p.1 - self.lo.1))
+    }
+}
+
+/// The board poses' `outlines` (plane points), numbered when there are at most 40, into
+/// `svg`.
+fn board_outlines(svg: &mut Svg, cal: &Calibration, outlines: &[Vec<(f64, f64)>], canvas: &Canvas) {
+    for (i, o) in outlines.iter().enumerate() {
+        let pts: Vec<(f64, f64)> = o.iter().map(|p| canvas.map(*p)).collect();
+        svg.polygon(
+            &pts,
+            "fill=\"#88888818\" stroke=\"#8a8a8a\" stroke-width=\"1\"",
+        );
+        let c = pts
+            .iter()
+            .fold((0.0, 0.0), |s, p| (s.0 + p.0 / 4.0, s.1 + p.1 / 4.0));
+        if outlines.len() <= 40 {
+            svg.text(
+                c.0,
+                c.1 + 3.0,
+                9.0,
+                "middle",
+                "fill=\"#999\"",
+                &cal.pose_index[i].to_string(),
+            );
+        }
+    }
+}
+
+/// Device `dev` at plane point `centre`: its horizontal field of view (wedge), viewing
+/// direction (arrow), position and name, into `svg`.
+fn device_from_above(
+    svg: &mut Svg,
+    dev: &Device,
+    centre: (f64, f64),
+    view: &TopView,
+    canvas: &Canvas,
+) {
+    let ray = canvas.ray;
+    let inv = dev.pose.inverse();
+    let k_ = &dev.model.intrinsics;
+    let edge = |x: f64| {
+        let d = inv.rotation * Vector3::new((x - k_.cx) / k_.fx, 0.0, 1.0).normalize();
+        let p = inv * Point3::origin() + d * ray;
+        canvas.map(view.plane(&p))
+    };
+    let o = canvas.map(centre);
+    let colour = kind_colour(dev.kind);
+    let l = edge(-0.5);
+    let r = edge(f64::from(dev.model.width) - 0.5);
+    svg.polygon(
+        &[o, l, r],
+        &format!("fill=\"{colour}33\" stroke=\"{colour}\" stroke-width=\"1\""),
+    );
+    let axis = inv * Point3::origin() + inv.rotation * Vector3::z() * (1.3 * ray);
+    svg.arrow(
+        o,
+        canvas.map(view.plane(&axis)),
+        6.0,
+        &format!("stroke=\"{colour}\" stroke-width=\"2\" fill=\"none\""),
+    );
+    svg.circle(o, 4.0, &format!("fill=\"{colour}\""));
+    // Label behind the device, away from its view.
+    let back = inv * Point3::origin() - inv.rotation * Vector3::z() * (0.35 * ray);
+    let b = canvas.map(view.plane(&back));
+    svg.text(
+        b.0,
+        b.1 + 4.0,
+        12.0,
+        "middle",
+        &format!("fill=\"{colour}\" font-weight=\"600\""),
+        &dev.name,
     );
 }
 
