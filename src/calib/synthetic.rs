@@ -6,7 +6,7 @@ use super::bundle::{Bend, Device, DeviceKind, Observation, Problem, Via};
 use super::circle::ellipse_center;
 use super::solve::DeviceInfo;
 use super::views::{CameraView, Frame, ProjectorPixel, ViewPoint};
-use crate::board::{Board, Hex, Side};
+use crate::board::{Board, BoardCircle, Hex, Side};
 use crate::camera::{CameraModel, Distortion, Intrinsics};
 use nalgebra::{
     Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
@@ -47,6 +47,250 @@ fn around(azimuth_deg: f64, elevation_deg: f64, distance: f64) -> Point3<f64> {
         distance * e.sin(),
         distance * e.cos() * a.cos(),
     )
+}
+
+/// A random camera model drawn from `rng`: 1920 × 1200 px, f ≈ 2400 px, barrel distortion.
+fn camera_model(rng: &mut StdRng) -> CameraModel {
+    CameraModel {
+        width: 1920,
+        height: 1200,
+        intrinsics: Intrinsics {
+            fx: 2400.0 * rng.random_range(0.97..1.03),
+            fy: 2400.0 * rng.random_range(0.97..1.03),
+            cx: 960.0 + rng.random_range(-20.0..20.0),
+            cy: 600.0 + rng.random_range(-20.0..20.0),
+        },
+        distortion: Distortion {
+            k1: rng.random_range(-0.2..-0.05),
+            k2: rng.random_range(0.0..0.1),
+            p1: rng.random_range(-1e-3..1e-3),
+            p2: rng.random_range(-1e-3..1e-3),
+            ..Default::default()
+        },
+    }
+}
+
+/// A random projector model drawn from `rng`: 1920 × 1080 px, f ≈ 2200 px, lens shift.
+fn projector_model(rng: &mut StdRng) -> CameraModel {
+    CameraModel {
+        width: 1920,
+        height: 1080,
+        intrinsics: Intrinsics {
+            fx: 2200.0 * rng.random_range(0.98..1.02),
+            fy: 2200.0 * rng.random_range(0.98..1.02),
+            cx: 960.0 + rng.random_range(-10.0..10.0),
+            // Lens shift: principal point near the bottom edge.
+            cy: 1000.0 + rng.random_range(-20.0..20.0),
+        },
+        distortion: Distortion {
+            k1: rng.random_range(-0.05..0.05),
+            ..Default::default()
+        },
+    }
+}
+
+/// The devices of [`SyntheticRig::build`] (cameras at (azimuth, elevation) at 1500 mm, then
+/// projectors at azimuths at 1300 mm, models drawn from `rng` in that order), with poses
+/// relative to device 0; and T_ref_world.
+fn place_devices(
+    cameras: &[(f64, f64)],
+    projectors: &[f64],
+    rng: &mut StdRng,
+) -> (Vec<Device>, Isometry3<f64>) {
+    let target = Point3::origin();
+    let mut world = Vec::new();
+    let mut devices = Vec::new();
+    for (i, &(az, el)) in cameras.iter().enumerate() {
+        world.push(look_at(around(az, el, 1500.0), target));
+        devices.push((format!("cam{i}"), DeviceKind::Camera, camera_model(rng)));
+    }
+    for (i, &az) in projectors.iter().enumerate() {
+        world.push(look_at(around(az, 5.0, 1300.0), target));
+        devices.push((
+            format!("proj{i}"),
+            DeviceKind::Projector,
+            projector_model(rng),
+        ));
+    }
+    let ref_from_world = world[0].inverse();
+    let devices = devices
+        .into_iter()
+        .zip(&world)
+        .map(|((name, kind, model), w)| Device {
+            name,
+            kind,
+            model,
+            pose: w.inverse() * world[0],
+        })
+        .collect();
+    (devices, ref_from_world)
+}
+
+/// `poses` board poses T_ref_board, turned in yaw over ±35° and randomly tilted, rolled and
+/// shifted (from `rng`).
+fn board_poses(
+    poses: usize,
+    ref_from_world: &Isometry3<f64>,
+    rng: &mut StdRng,
+) -> Vec<Isometry3<f64>> {
+    (0..poses)
+        .map(|k| {
+            let yaw = (-35.0 + 70.0 * k as f64 / (poses.max(2) - 1) as f64).to_radians();
+            let tilt = rng.random_range(-25f64..25.0).to_radians();
+            let roll = rng.random_range(-20f64..20.0).to_radians();
+            let r = UnitQuaternion::from_euler_angles(tilt, yaw, roll);
+            let t = Translation3::new(
+                rng.random_range(-60.0..60.0),
+                rng.random_range(-60.0..60.0),
+                rng.random_range(-80.0..80.0),
+            );
+            ref_from_world * Isometry3::from_parts(t, r)
+        })
+        .collect()
+}
+
+/// Whether pixel `p` lies inside the image of `m`, clear of its border.
+fn inside(m: &CameraModel, p: Point2<f64>) -> bool {
+    p.x > 2.0 && p.y > 2.0 && p.x < f64::from(m.width) - 3.0 && p.y < f64::from(m.height) - 3.0
+}
+
+/// One side of board pose `pose` (T_ref_board `ref_board`) facing camera `camera`.
+#[derive(Clone, Copy)]
+struct Shot<'a> {
+    pose: usize,
+    ref_board: &'a Isometry3<f64>,
+    camera: usize,
+    side: Side,
+}
+
+/// What the noisy observations of a synthetic rig are made from.
+struct Observer<'a> {
+    board: &'a Board,
+    bend: &'a Bend,
+    devices: &'a [Device],
+    /// Observation noise per coordinate (px).
+    noise: Normal<f64>,
+}
+
+impl Observer<'_> {
+    /// T_board_side of one circle's side, moved along the board's z by the bend there.
+    fn face(&self, side: Side, hex: Hex) -> Isometry3<f64> {
+        let p = self.board.point(side, hex);
+        Translation3::new(0.0, 0.0, self.bend.displacement(p.x, p.y))
+            * self.board.side_transform(side)
+    }
+
+    /// Every camera's noisy observation of every circle of every side facing it in each of
+    /// the board poses `boards`, each followed by the projectors' (noise from `rng`).
+    fn observations(&self, boards: &[Isometry3<f64>], rng: &mut StdRng) -> Vec<Observation> {
+        let mut observations = Vec::new();
+        for (k, s_k) in boards.iter().enumerate() {
+            for (c, cam) in self
+                .devices
+                .iter()
+                .enumerate()
+                .filter(|(_, d)| d.kind == DeviceKind::Camera)
+            {
+                for side in Side::BOTH {
+                    let dev_side = cam.pose * s_k * self.board.side_transform(side);
+                    // The side faces the device when the device centre lies on its +z side.
+                    if (dev_side.inverse() * Point3::origin()).z <= 0.0 {
+                        continue;
+                    }
+                    let shot = Shot {
+                        pose: k,
+                        ref_board: s_k,
+                        camera: c,
+                        side,
+                    };
+                    for circle in self.board.circles(shot.side) {
+                        self.observe_circle(shot, &circle, rng, &mut observations);
+                    }
+                }
+            }
+        }
+        observations
+    }
+
+    /// The camera's noisy observation of `circle` in `shot`, when inside its image, and the
+    /// projectors' of the board point it sees there, into `out`.
+    fn observe_circle(
+        &self,
+        shot: Shot<'_>,
+        circle: &BoardCircle,
+        rng: &mut StdRng,
+        out: &mut Vec<Observation>,
+    ) {
+        let cam = &self.devices[shot.camera];
+        let dev_side = cam.pose * shot.ref_board * self.face(shot.side, circle.hex);
+        let Some(e) = ellipse_center(&cam.model, &dev_side, circle.center_2d, self.board.radius)
+        else {
+            return;
+        };
+        if !inside(&cam.model, e) {
+            return;
+        }
+        let obs = e + nalgebra::Vector2::new(self.noise.sample(rng), self.noise.sample(rng));
+        out.push(Observation {
+            device: shot.camera,
+            pose: shot.pose,
+            side: shot.side,
+            hex: circle.hex,
+            pixel: obs,
+            via: None,
+        });
+        // Projector observations: the projector pixel of the board point this
+        // camera sees at its observed ellipse centre.
+        let ray = cam.model.ray(obs).expect("inside the image");
+        let t = dev_side.inverse();
+        let (o, d) = (t * Point3::origin(), t * ray);
+        let x = o + d * (-o.z / d.z);
+        self.observe_projectors(shot, circle.hex, obs, x, rng, out);
+    }
+
+    /// Every projector's noisy pixel of the board point `x` (side frame) of circle `hex`,
+    /// which the camera of `shot` observed at `ellipse_center`, when inside its raster,
+    /// into `out`.
+    fn observe_projectors(
+        &self,
+        shot: Shot<'_>,
+        hex: Hex,
+        ellipse_center: Point2<f64>,
+        x: Point3<f64>,
+        rng: &mut StdRng,
+        out: &mut Vec<Observation>,
+    ) {
+        for (p, proj) in self
+            .devices
+            .iter()
+            .enumerate()
+            .filter(|(_, d)| d.kind == DeviceKind::Projector)
+        {
+            let proj_side = proj.pose * shot.ref_board * self.face(shot.side, hex);
+            if (proj_side.inverse() * Point3::origin()).z <= 0.0 {
+                continue;
+            }
+            let Some(u) = proj.model.project(&(proj_side * x)) else {
+                continue;
+            };
+            if inside(&proj.model, u) {
+                out.push(Observation {
+                    device: p,
+                    pose: shot.pose,
+                    side: shot.side,
+                    hex,
+                    pixel: u + nalgebra::Vector2::new(
+                        self.noise.sample(rng),
+                        self.noise.sample(rng),
+                    ),
+                    via: Some(Via {
+                        camera: shot.camera,
+                        ellipse_center,
+                    }),
+                });
+            }
+        }
+    }
 }
 
 impl SyntheticRig {
@@ -130,164 +374,15 @@ impl SyntheticRig {
             coefficients: bend.unwrap_or_default(),
             ..Bend::flat(&board)
         };
-        // T_board_side of one circle's side, moved along the board's z by the bend there.
-        let face = |side: Side, hex: Hex| {
-            let p = board.point(side, hex);
-            Translation3::new(0.0, 0.0, bend.displacement(p.x, p.y)) * board.side_transform(side)
+        let (devices, ref_from_world) = place_devices(cameras, projectors, &mut rng);
+        let boards = board_poses(poses, &ref_from_world, &mut rng);
+        let observer = Observer {
+            board: &board,
+            bend: &bend,
+            devices: &devices,
+            noise: Normal::new(0.0, sigma.max(1e-300)).expect("finite σ"),
         };
-        let cam_model = |rng: &mut StdRng| CameraModel {
-            width: 1920,
-            height: 1200,
-            intrinsics: Intrinsics {
-                fx: 2400.0 * rng.random_range(0.97..1.03),
-                fy: 2400.0 * rng.random_range(0.97..1.03),
-                cx: 960.0 + rng.random_range(-20.0..20.0),
-                cy: 600.0 + rng.random_range(-20.0..20.0),
-            },
-            distortion: Distortion {
-                k1: rng.random_range(-0.2..-0.05),
-                k2: rng.random_range(0.0..0.1),
-                p1: rng.random_range(-1e-3..1e-3),
-                p2: rng.random_range(-1e-3..1e-3),
-                ..Default::default()
-            },
-        };
-        let proj_model = |rng: &mut StdRng| CameraModel {
-            width: 1920,
-            height: 1080,
-            intrinsics: Intrinsics {
-                fx: 2200.0 * rng.random_range(0.98..1.02),
-                fy: 2200.0 * rng.random_range(0.98..1.02),
-                cx: 960.0 + rng.random_range(-10.0..10.0),
-                // Lens shift: principal point near the bottom edge.
-                cy: 1000.0 + rng.random_range(-20.0..20.0),
-            },
-            distortion: Distortion {
-                k1: rng.random_range(-0.05..0.05),
-                ..Default::default()
-            },
-        };
-        let target = Point3::origin();
-        let mut world = Vec::new();
-        let mut devices = Vec::new();
-        for (i, &(az, el)) in cameras.iter().enumerate() {
-            world.push(look_at(around(az, el, 1500.0), target));
-            devices.push((format!("cam{i}"), DeviceKind::Camera, cam_model(&mut rng)));
-        }
-        for (i, &az) in projectors.iter().enumerate() {
-            world.push(look_at(around(az, 5.0, 1300.0), target));
-            devices.push((
-                format!("proj{i}"),
-                DeviceKind::Projector,
-                proj_model(&mut rng),
-            ));
-        }
-        let ref_from_world = world[0].inverse();
-        let devices: Vec<Device> = devices
-            .into_iter()
-            .zip(&world)
-            .map(|((name, kind, model), w)| Device {
-                name,
-                kind,
-                model,
-                pose: w.inverse() * world[0],
-            })
-            .collect();
-        let boards: Vec<Isometry3<f64>> = (0..poses)
-            .map(|k| {
-                let yaw = (-35.0 + 70.0 * k as f64 / (poses.max(2) - 1) as f64).to_radians();
-                let tilt = rng.random_range(-25f64..25.0).to_radians();
-                let roll = rng.random_range(-20f64..20.0).to_radians();
-                let r = UnitQuaternion::from_euler_angles(tilt, yaw, roll);
-                let t = Translation3::new(
-                    rng.random_range(-60.0..60.0),
-                    rng.random_range(-60.0..60.0),
-                    rng.random_range(-80.0..80.0),
-                );
-                ref_from_world * Isometry3::from_parts(t, r)
-            })
-            .collect();
-        let noise = Normal::new(0.0, sigma.max(1e-300)).expect("finite σ");
-        let mut observations = Vec::new();
-        let inside = |m: &CameraModel, p: Point2<f64>| {
-            p.x > 2.0
-                && p.y > 2.0
-                && p.x < f64::from(m.width) - 3.0
-                && p.y < f64::from(m.height) - 3.0
-        };
-        for (k, s_k) in boards.iter().enumerate() {
-            for (c, cam) in devices
-                .iter()
-                .enumerate()
-                .filter(|(_, d)| d.kind == DeviceKind::Camera)
-            {
-                for side in Side::BOTH {
-                    let dev_side = cam.pose * s_k * board.side_transform(side);
-                    // The side faces the device when the device centre lies on its +z side.
-                    if (dev_side.inverse() * Point3::origin()).z <= 0.0 {
-                        continue;
-                    }
-                    for circle in board.circles(side) {
-                        let dev_side = cam.pose * s_k * face(side, circle.hex);
-                        let Some(e) =
-                            ellipse_center(&cam.model, &dev_side, circle.center_2d, board.radius)
-                        else {
-                            continue;
-                        };
-                        if !inside(&cam.model, e) {
-                            continue;
-                        }
-                        let obs = e + nalgebra::Vector2::new(
-                            noise.sample(&mut rng),
-                            noise.sample(&mut rng),
-                        );
-                        observations.push(Observation {
-                            device: c,
-                            pose: k,
-                            side,
-                            hex: circle.hex,
-                            pixel: obs,
-                            via: None,
-                        });
-                        // Projector observations: the projector pixel of the board point this
-                        // camera sees at its observed ellipse centre.
-                        let ray = cam.model.ray(obs).expect("inside the image");
-                        let t = dev_side.inverse();
-                        let (o, d) = (t * Point3::origin(), t * ray);
-                        let x = o + d * (-o.z / d.z);
-                        for (p, proj) in devices
-                            .iter()
-                            .enumerate()
-                            .filter(|(_, d)| d.kind == DeviceKind::Projector)
-                        {
-                            let proj_side = proj.pose * s_k * face(side, circle.hex);
-                            if (proj_side.inverse() * Point3::origin()).z <= 0.0 {
-                                continue;
-                            }
-                            let Some(u) = proj.model.project(&(proj_side * x)) else {
-                                continue;
-                            };
-                            if inside(&proj.model, u) {
-                                observations.push(Observation {
-                                    device: p,
-                                    pose: k,
-                                    side,
-                                    hex: circle.hex,
-                                    pixel: u + nalgebra::Vector2::new(
-                                        noise.sample(&mut rng),
-                                        noise.sample(&mut rng),
-                                    ),
-                                    via: Some(Via {
-                                        camera: c,
-                                        ellipse_center: obs,
-                                    }),
-                                });
-                            }
-                        }
-                    }
-                }
-            }
-        }
+        let observations = observer.observations(&boards, &mut rng);
         SyntheticRig {
             board,
             devices,

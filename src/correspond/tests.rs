@@ -8,7 +8,7 @@ use super::*;
 use crate::board::Board;
 use crate::camera::{CameraModel, Distortion, Intrinsics};
 use crate::grid::{build, GridParams};
-use crate::sim::{render, Imaging, PoseSpec, Scene};
+use crate::sim::{render, Imaging, PoseSpec, Scene, View};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::{rngs::StdRng, SeedableRng};
 use rand_distr::{Distribution, Normal};
@@ -89,6 +89,34 @@ fn setup() -> Setup {
 #[test]
 fn projector_pixels_at_ellipse_centres_match_the_geometry() {
     let s = setup();
+    let (scene, view) = render_view(&s);
+    let (w, h) = (s.camera.width, s.camera.height);
+    let image = GrayImage::from_fn(w, h, |x, y| {
+        image::Luma([f32::from(view.frame.data[(y * w + x) as usize])])
+    });
+    let circles = detect(&image, &DetectParams::default());
+    let grid = build(&image, &circles, &scene.board, &GridParams::default());
+    assert!(grid.anchored && grid.points.len() > 300);
+
+    let (u, vv, valid) = decoded_maps(&s, &scene, &view);
+    let map = ProjectorMap {
+        projector: 7,
+        width: w,
+        height: h,
+        u: &u,
+        v: &vv,
+        valid: &valid,
+    };
+    let cv = camera_view(2, 5, &grid, &circles, &[map], &FitParams::default()).unwrap();
+    assert_eq!(
+        (cv.camera, cv.pose, cv.frame),
+        (2, 5, Frame::Anchored(Side::Front))
+    );
+    check_errors(&errors_by_size(&s, &cv, &grid, &circles));
+}
+
+/// The board rendered by the camera of `s`, and its scene.
+fn render_view(s: &Setup) -> (Scene, View) {
     let t = s.cam_from_board;
     let (r, v) = (t.rotation.scaled_axis(), t.translation.vector);
     let scene = Scene {
@@ -104,15 +132,12 @@ fn projector_pixels_at_ellipse_centres_match_the_geometry() {
         board: Board::hex600(),
     };
     let view = render(&scene).unwrap();
-    let (w, h) = (s.camera.width, s.camera.height);
-    let image = GrayImage::from_fn(w, h, |x, y| {
-        image::Luma([f32::from(view.frame.data[(y * w + x) as usize])])
-    });
-    let circles = detect(&image, &DetectParams::default());
-    let grid = build(&image, &circles, &scene.board, &GridParams::default());
-    assert!(grid.anchored && grid.points.len() > 300);
+    (scene, view)
+}
 
-    // Decoded maps: truth + noise where the noise-free image is white.
+/// Decoded maps (u, v, valid): truth + noise where the noise-free image is white.
+fn decoded_maps(s: &Setup, scene: &Scene, view: &View) -> (Vec<f32>, Vec<f32>, Vec<bool>) {
+    let (w, h) = (s.camera.width, s.camera.height);
     let mut rng = StdRng::seed_from_u64(4);
     let (nu, nv) = (
         Normal::new(0.0, 0.35).unwrap(),
@@ -134,21 +159,17 @@ fn projector_pixels_at_ellipse_centres_match_the_geometry() {
             }
         }
     }
-    let map = ProjectorMap {
-        projector: 7,
-        width: w,
-        height: h,
-        u: &u,
-        v: &vv,
-        valid: &valid,
-    };
-    let cv = camera_view(2, 5, &grid, &circles, &[map], &FitParams::default()).unwrap();
-    assert_eq!(
-        (cv.camera, cv.pose, cv.frame),
-        (2, 5, Frame::Anchored(Side::Front))
-    );
+    (u, vv, valid)
+}
 
-    // Errors against the truth at the detected ellipse centre, by circle size.
+/// Errors against the truth at the detected ellipse centre, by circle size: radius ≥ 8 px
+/// and 5–8 px.
+fn errors_by_size(
+    s: &Setup,
+    cv: &CameraView,
+    grid: &Grid,
+    circles: &[Circle],
+) -> [Vec<[f64; 2]>; 2] {
     let mut bins: [Vec<[f64; 2]>; 2] = [Vec::new(), Vec::new()];
     for (p, lp) in cv.points.iter().zip(&grid.points) {
         let Some(pp) = p.projectors.first() else {
@@ -165,6 +186,11 @@ fn projector_pixels_at_ellipse_centres_match_the_geometry() {
             bins[1].push(err);
         }
     }
+    bins
+}
+
+/// The errors' RMS per size bin and axis, and their mean, against the targets.
+fn check_errors(bins: &[Vec<[f64; 2]>; 2]) {
     // Noise: the constant term of a 6-term fit over n ≈ 7·π·(0.85 r)² pixels has
     // σ ≈ σ_u·√(c/n), c ≈ 2–3 → 0.015 px at r = 10: the targets (0.03 px for r ≥ 8, 0.06 for
     // 5–8, |mean| ≤ 0.005) leave room only for a small bias, which is what they test.

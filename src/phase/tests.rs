@@ -2,7 +2,7 @@
 //! docs/design.md §9 (8 bit, read noise 2 DN, shot variance 0.1·I, PSF σ 0.8 px, ambient 40 DN on
 //! white, P projectors sharing 195 DN, projector gamma 2.2), against ground truth.
 
-use super::accuracy::accuracy;
+use super::accuracy::{accuracy, ProjectorAccuracy};
 use super::*;
 use crate::pattern::*;
 use crate::sim::fringe::{Renderer, Scene, Truth};
@@ -46,80 +46,98 @@ fn decode_case(p: usize, response: ProjectorResponse, width: u32, height: u32, s
 
 /// The acceptance checks of one decoded case (issue 9).
 fn check_case(case: &Case, label: &str) {
-    let Case {
-        seq,
-        truth,
-        decoded,
-    } = case;
-    let n = f64::from(seq.steps());
-    let g = seq.groups() as f64;
-    let np = seq.projectors().len();
-    let accs = accuracy(decoded, truth, seq);
-    for (p, maps) in decoded.projectors.iter().enumerate() {
-        let acc = accs[p];
-        // Truth-based prediction over the same valid pixels (docs/design.md §6), RMS over pixels.
-        let sigma = truth.sigma_uv(seq, p);
-        let (mut pu, mut pv, mut pu_all, mut cnt_all) = (0f64, 0f64, 0f64, 0usize);
-        for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
-            if !ok {
-                continue;
-            }
-            let (su, sv) = sigma(i);
-            pu_all += su * su;
-            cnt_all += 1;
-            if truth.interior[i] {
-                pu += su * su;
-                pv += sv * sv;
-            }
-        }
-        let c = acc.compared as f64;
-        let (pu, pv) = ((pu / c).sqrt(), (pv / c).sqrt());
-        let pu_all = (pu_all / cnt_all as f64).sqrt();
-        eprintln!(
-            "{label} projector {p}: valid {} compared {} | rms u {:.3} v {:.3} | truth σ_u {:.3} σ_v {:.3} | reported σ_u {:.3} σ_v {:.3} (truth over valid {:.3}) | B {:.1} σ_I {:.2} σ_φ {:.4}",
-            acc.valid, acc.compared, acc.rms_u, acc.rms_v, pu, pv, maps.noise.sigma_u,
-            maps.noise.sigma_v, pu_all, maps.noise.modulation, maps.noise.sigma_i, maps.noise.sigma_phi
-        );
-        // Enough pixels for the RMS to mean something (its relative standard error is
-        // 1/√(2·compared) < 1 %).
-        assert!(
-            acc.compared > 5000,
-            "{label} p{p}: only {} compared",
-            acc.compared
-        );
-        // Issue 9: RMS ≤ 1.2× the predicted σ, against both the truth-based prediction and the
-        // decoder's own report.
-        assert!(
-            acc.rms_u <= 1.2 * pu,
-            "{label} p{p}: rms u {} vs {pu}",
-            acc.rms_u
-        );
-        assert!(
-            acc.rms_v <= 1.2 * pv,
-            "{label} p{p}: rms v {} vs {pv}",
-            acc.rms_v
-        );
-        assert!(
-            acc.rms_u <= 1.2 * maps.noise.sigma_u,
-            "{label} p{p}: reported σ_u"
-        );
-        assert!(
-            acc.rms_v <= 1.2 * maps.noise.sigma_v,
-            "{label} p{p}: reported σ_v"
-        );
-        // The decoder's prediction from its measured B and σ_I agrees with the truth's: B is
-        // unbiased after the noise correction and σ_I comes from a fit over all pixels, so a
-        // 10 % band is wide (their own statistical error is < 1 %).
-        assert!(
-            (maps.noise.sigma_u / pu_all - 1.0).abs() < 0.1,
-            "{label} p{p}: reported σ_u {} vs truth {pu_all}",
-            maps.noise.sigma_u
-        );
-        // No unwrapping error: interior valid pixels within max(6σ, 1 px) of the truth (σ per
-        // pixel from the true B; a Gaussian exceeds 6σ with probability 2·10⁻⁹).
-        assert_eq!(acc.gross, 0, "{label} p{p}: gross errors");
+    let accs = accuracy(&case.decoded, &case.truth, &case.seq);
+    for (p, maps) in case.decoded.projectors.iter().enumerate() {
+        check_projector(case, p, maps, accs[p], label);
     }
-    // No unwrapping error on any valid pixel, edge pixels included, against the same bound.
+    check_unwrap_errors(case, label);
+    check_ambient(case, label);
+    check_noise_model(&case.decoded, label);
+    assert_eq!(case.decoded.projectors.len(), case.seq.projectors().len());
+}
+
+/// Truth-based prediction of projector p's σ_u, σ_v over its valid interior pixels, and of
+/// σ_u over all its valid pixels (docs/design.md §6, RMS over pixels; `compared` interior
+/// pixels).
+fn predicted_sigmas(case: &Case, p: usize, maps: &ProjectorMaps, compared: usize) -> [f64; 3] {
+    let sigma = case.truth.sigma_uv(&case.seq, p);
+    let (mut pu, mut pv, mut pu_all, mut cnt_all) = (0f64, 0f64, 0f64, 0usize);
+    for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
+        if !ok {
+            continue;
+        }
+        let (su, sv) = sigma(i);
+        pu_all += su * su;
+        cnt_all += 1;
+        if case.truth.interior[i] {
+            pu += su * su;
+            pv += sv * sv;
+        }
+    }
+    let c = compared as f64;
+    let (pu, pv) = ((pu / c).sqrt(), (pv / c).sqrt());
+    let pu_all = (pu_all / cnt_all as f64).sqrt();
+    [pu, pv, pu_all]
+}
+
+/// Projector p's accuracy `acc` against the truth's and its own predicted σ, and no gross
+/// errors.
+fn check_projector(
+    case: &Case,
+    p: usize,
+    maps: &ProjectorMaps,
+    acc: ProjectorAccuracy,
+    label: &str,
+) {
+    // Truth-based prediction over the same valid pixels (docs/design.md §6), RMS over pixels.
+    let [pu, pv, pu_all] = predicted_sigmas(case, p, maps, acc.compared);
+    eprintln!(
+        "{label} projector {p}: valid {} compared {} | rms u {:.3} v {:.3} | truth σ_u {:.3} σ_v {:.3} | reported σ_u {:.3} σ_v {:.3} (truth over valid {:.3}) | B {:.1} σ_I {:.2} σ_φ {:.4}",
+        acc.valid, acc.compared, acc.rms_u, acc.rms_v, pu, pv, maps.noise.sigma_u,
+        maps.noise.sigma_v, pu_all, maps.noise.modulation, maps.noise.sigma_i, maps.noise.sigma_phi
+    );
+    // Enough pixels for the RMS to mean something (its relative standard error is
+    // 1/√(2·compared) < 1 %).
+    assert!(
+        acc.compared > 5000,
+        "{label} p{p}: only {} compared",
+        acc.compared
+    );
+    // Issue 9: RMS ≤ 1.2× the predicted σ, against both the truth-based prediction and the
+    // decoder's own report.
+    assert!(
+        acc.rms_u <= 1.2 * pu,
+        "{label} p{p}: rms u {} vs {pu}",
+        acc.rms_u
+    );
+    assert!(
+        acc.rms_v <= 1.2 * pv,
+        "{label} p{p}: rms v {} vs {pv}",
+        acc.rms_v
+    );
+    assert!(
+        acc.rms_u <= 1.2 * maps.noise.sigma_u,
+        "{label} p{p}: reported σ_u"
+    );
+    assert!(
+        acc.rms_v <= 1.2 * maps.noise.sigma_v,
+        "{label} p{p}: reported σ_v"
+    );
+    // The decoder's prediction from its measured B and σ_I agrees with the truth's: B is
+    // unbiased after the noise correction and σ_I comes from a fit over all pixels, so a
+    // 10 % band is wide (their own statistical error is < 1 %).
+    assert!(
+        (maps.noise.sigma_u / pu_all - 1.0).abs() < 0.1,
+        "{label} p{p}: reported σ_u {} vs truth {pu_all}",
+        maps.noise.sigma_u
+    );
+    // No unwrapping error: interior valid pixels within max(6σ, 1 px) of the truth (σ per
+    // pixel from the true B; a Gaussian exceeds 6σ with probability 2·10⁻⁹).
+    assert_eq!(acc.gross, 0, "{label} p{p}: gross errors");
+}
+
+/// No unwrapping error on any valid pixel, edge pixels included, against max(6σ, 1 px).
+fn check_unwrap_errors(case: &Case, label: &str) {
     // At albedo and coverage edges the decoded coordinate is the lit part's centroid, up to
     // ≈ 1 camera px (0.9 projector px here) from the pixel centre's: with the 1 px floor that
     // leaves little room (measured worst: 0.89 of the bound over 64 k edge pairs at
@@ -134,14 +152,28 @@ fn check_case(case: &Case, label: &str) {
         "{label}: interior pixels beyond max(6σ, 1 px)"
     );
     assert_eq!(edge[1], 0.0, "{label}: edge pixels beyond max(6σ, 1 px)");
-    // Ambient image against the truth: A − Σ κ_p·B_p, κ_p = a_0/a_1 (0.727 for γ = 2.2).
-    // Where projector p lights the pixel (B ≫ σ_I): Var(Ā) = σ_I²/(G·N) and B_p, the RMS over
-    // G groups of a modulation with variance 2σ_I²/N, has variance 2σ_I²/(G·N), so the error
-    // is Gaussian with σ_amb² = σ_I²·(1 + 2·Σκ_p²)/(G·N) (docs/design.md §6 for G = 1, κ = 1).
-    // Where p lights nothing, B_p² = θ·(Y − 1)₊ with θ = 4σ_I²/N and Y ~ Gamma(G, 1/G), whose
-    // mean square is θ·E(Y − 1)₊ = θ·e^{−G}·G^G/G!: not Gaussian, so only its RMS is checked.
-    // Shot noise correlates A with B_p (brighter frames are noisier), which lowers the
-    // ambient's variance by ≈ 2·Σκ_p·0.1·B_p/(G·N): the predictions are upper bounds.
+}
+
+/// The ambient image's errors against the truth, per class of pixel (lit by all projectors,
+/// unlit by some): [count, Σe², Σe, Σσ², beyond 3σ].
+///
+/// The truth is A − Σ κ_p·B_p, κ_p = a_0/a_1 (0.727 for γ = 2.2). Where projector p lights
+/// the pixel (B ≫ σ_I): Var(Ā) = σ_I²/(G·N) and B_p, the RMS over G groups of a modulation
+/// with variance 2σ_I²/N, has variance 2σ_I²/(G·N), so the error is Gaussian with
+/// σ_amb² = σ_I²·(1 + 2·Σκ_p²)/(G·N) (docs/design.md §6 for G = 1, κ = 1). Where p lights
+/// nothing, B_p² = θ·(Y − 1)₊ with θ = 4σ_I²/N and Y ~ Gamma(G, 1/G), whose mean square is
+/// θ·E(Y − 1)₊ = θ·e^{−G}·G^G/G!: not Gaussian, so only its RMS is checked. Shot noise
+/// correlates A with B_p (brighter frames are noisier), which lowers the ambient's variance
+/// by ≈ 2·Σκ_p·0.1·B_p/(G·N): the predictions are upper bounds.
+fn ambient_classes(case: &Case) -> [[f64; 5]; 2] {
+    let Case {
+        seq,
+        truth,
+        decoded,
+    } = case;
+    let n = f64::from(seq.steps());
+    let g = seq.groups() as f64;
+    let np = seq.projectors().len();
     let kappa: Vec<f64> = seq
         .projectors()
         .iter()
@@ -185,7 +217,13 @@ fn check_case(case: &Case, label: &str) {
         c[3] += var;
         c[4] += f64::from(u8::from(e.abs() > 3.0 * var.sqrt()));
     }
-    for (class, c) in classes.iter().enumerate() {
+    classes
+}
+
+/// The ambient image against the truth ([`ambient_classes`]): RMS within 1.2× the
+/// prediction, and where all projectors light the pixel, Gaussian and unbiased.
+fn check_ambient(case: &Case, label: &str) {
+    for (class, c) in ambient_classes(case).iter().enumerate() {
         if c[0] == 0.0 {
             continue;
         }
@@ -211,7 +249,10 @@ fn check_case(case: &Case, label: &str) {
             );
         }
     }
-    // The measured noise model against read² + 0.1·A + 1/12.
+}
+
+/// The measured noise model against read² + 0.1·A + 1/12.
+fn check_noise_model(decoded: &DecodedStack, label: &str) {
     for a in [40.0, 150.0] {
         let want = (4.0 + 0.1 * a + 1.0 / 12.0f64).sqrt();
         let got = decoded.noise.sigma(a);
@@ -220,7 +261,6 @@ fn check_case(case: &Case, label: &str) {
             "{label}: σ_I({a}) {got} vs {want}"
         );
     }
-    assert_eq!(decoded.projectors.len(), np);
 }
 
 #[test]

@@ -287,89 +287,9 @@ fn images_show_circles_gaps_and_rings_where_the_truth_says() {
         let scene = scene(camera(-0.15), eye, [0.0, 0.0, 0.0], 11);
         let view = render(&scene).unwrap();
         assert_eq!(view.truth.side, Some(side));
-        let board = &scene.board;
+        let whites = check_circle_centres_and_rings(&scene, &view, side);
+        let blacks = check_gaps(&scene, &view, side);
         let im = scene.imaging;
-        // Default noise: σ² = 0.1·I + 2² → 4.9 DN at white, 2.4 DN at black, plus rounding.
-        let sd = |level: f64| (im.shot_gain * level + im.read_noise.powi(2) + 1.0 / 12.0).sqrt();
-        // The rings the codes ask for, from the marker cells and code bits.
-        let mut expected = std::collections::HashSet::new();
-        for cell in board.marker_cells(side) {
-            let code = board.codes.get(cell.kind);
-            for k in (0..6).filter(|&k| code.bit(k)) {
-                expected.insert(cell.center.neighbour(k));
-            }
-        }
-        let (mut rings_seen, mut plain_seen) = (0, 0);
-        let (mut whites, mut blacks) = (Vec::new(), Vec::new());
-        for c in view
-            .truth
-            .circles
-            .iter()
-            .filter(|c| c.whole && c.radius.unwrap() >= 7.0)
-        {
-            let h = Hex::new(c.q, c.r);
-            assert_eq!(c.side, side);
-            // At r ≥ 7 px the white centre (radius ≥ 0.45·7 = 3.15 px) keeps the dark ring
-            // ≥ 1.9 px = 2.4 σ_PSF from any part of the centre pixel: < 2 DN of leakage.
-            let v = pixel(&view.frame, Point2::from(c.proj));
-            if !c.ringed {
-                whites.push(v);
-            }
-            assert!(
-                (v - im.white_dn).abs() < 5.0 * sd(im.white_dn) + 2.0,
-                "{h:?}: centre {v}"
-            );
-            // Mid-ring radius 0.6R at 12 angles: a ring keeps its middle ≤ 54 DN at r = 7 px
-            // (half-width 1.05 px = 1.3 σ_PSF), a plain circle reads white; the midpoint
-            // 110 DN is ≥ 50 DN from both, 20σ of the 12-sample mean.
-            let centre = board.position(h);
-            let samples: Vec<f64> = (0..12)
-                .filter_map(|k| {
-                    let phi = std::f64::consts::PI * k as f64 / 6.0;
-                    let p = centre + 0.6 * board.radius * Vector2::new(phi.cos(), phi.sin());
-                    image_of(&scene, side, p).map(|q| pixel(&view.frame, q))
-                })
-                .collect();
-            let mean = samples.iter().sum::<f64>() / samples.len() as f64;
-            let dark = mean < 0.5 * (im.white_dn + im.black_dn);
-            assert_eq!(
-                dark,
-                expected.contains(&h),
-                "{side} {h:?}: ring mean {mean}"
-            );
-            assert_eq!(c.ringed, expected.contains(&h));
-            if dark {
-                rings_seen += 1;
-            } else {
-                plain_seen += 1;
-            }
-        }
-        assert!(
-            rings_seen >= 20 && plain_seen >= 200,
-            "{rings_seen} rings, {plain_seen} plain"
-        );
-        // Black at the centroid of every lattice triangle: 5.5 mm of black to each rim.
-        let mut gaps = 0;
-        for h in board.lattice() {
-            let tri = [h, h.neighbour(0), h.neighbour(1)];
-            if !tri.iter().all(|&t| board.contains(t)) {
-                continue;
-            }
-            let p = tri
-                .iter()
-                .fold(Vector2::zeros(), |s, &t| s + board.position(t).coords)
-                / 3.0;
-            if let Some(q) = image_of(&scene, side, Point2::from(p)) {
-                let v = pixel(&view.frame, q);
-                blacks.push(v);
-                assert!(
-                    (v - im.black_dn).abs() < 5.0 * sd(im.black_dn),
-                    "{h:?}: gap {v}"
-                );
-                gaps += 1;
-            }
-        }
-        assert!(gaps > 500, "{gaps} gaps");
         // Noise statistics of these flat regions (plain circle centres, gap centres) against
         // the model σ² = gain·I + read² + 1/12: the sample mean has standard error √(σ²/n),
         // the sample variance σ²·√(2/n); allow 5 of each.
@@ -377,7 +297,7 @@ fn images_show_circles_gaps_and_rings_where_the_truth_says() {
             let n = values.len() as f64;
             let mean = values.iter().sum::<f64>() / n;
             let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
-            let model = sd(level).powi(2);
+            let model = noise_sd(&im, level).powi(2);
             assert!(
                 (mean - level).abs() < 5.0 * (model / n).sqrt(),
                 "{side} level {level}: mean {mean}"
@@ -388,6 +308,112 @@ fn images_show_circles_gaps_and_rings_where_the_truth_says() {
             );
         }
     }
+}
+
+/// Default noise at `level` (DN): σ² = 0.1·I + 2² → 4.9 DN at white, 2.4 DN at black, plus
+/// rounding.
+fn noise_sd(im: &Imaging, level: f64) -> f64 {
+    (im.shot_gain * level + im.read_noise.powi(2) + 1.0 / 12.0).sqrt()
+}
+
+/// The circles of `side` the marker codes ring, from the marker cells and code bits.
+fn expected_rings(board: &Board, side: Side) -> std::collections::HashSet<Hex> {
+    let mut expected = std::collections::HashSet::new();
+    for cell in board.marker_cells(side) {
+        let code = board.codes.get(cell.kind);
+        for k in (0..6).filter(|&k| code.bit(k)) {
+            expected.insert(cell.center.neighbour(k));
+        }
+    }
+    expected
+}
+
+/// Every whole circle of r ≥ 7 px in `view` of `side`: white at its centre, and its ring
+/// dark exactly where the codes ring it; gives the plain circles' centre values.
+fn check_circle_centres_and_rings(scene: &Scene, view: &View, side: Side) -> Vec<f64> {
+    let board = &scene.board;
+    let im = scene.imaging;
+    let expected = expected_rings(board, side);
+    let (mut rings_seen, mut plain_seen) = (0, 0);
+    let mut whites = Vec::new();
+    for c in view
+        .truth
+        .circles
+        .iter()
+        .filter(|c| c.whole && c.radius.unwrap() >= 7.0)
+    {
+        let h = Hex::new(c.q, c.r);
+        assert_eq!(c.side, side);
+        // At r ≥ 7 px the white centre (radius ≥ 0.45·7 = 3.15 px) keeps the dark ring
+        // ≥ 1.9 px = 2.4 σ_PSF from any part of the centre pixel: < 2 DN of leakage.
+        let v = pixel(&view.frame, Point2::from(c.proj));
+        if !c.ringed {
+            whites.push(v);
+        }
+        assert!(
+            (v - im.white_dn).abs() < 5.0 * noise_sd(&im, im.white_dn) + 2.0,
+            "{h:?}: centre {v}"
+        );
+        // Mid-ring radius 0.6R at 12 angles: a ring keeps its middle ≤ 54 DN at r = 7 px
+        // (half-width 1.05 px = 1.3 σ_PSF), a plain circle reads white; the midpoint
+        // 110 DN is ≥ 50 DN from both, 20σ of the 12-sample mean.
+        let centre = board.position(h);
+        let samples: Vec<f64> = (0..12)
+            .filter_map(|k| {
+                let phi = std::f64::consts::PI * k as f64 / 6.0;
+                let p = centre + 0.6 * board.radius * Vector2::new(phi.cos(), phi.sin());
+                image_of(scene, side, p).map(|q| pixel(&view.frame, q))
+            })
+            .collect();
+        let mean = samples.iter().sum::<f64>() / samples.len() as f64;
+        let dark = mean < 0.5 * (im.white_dn + im.black_dn);
+        assert_eq!(
+            dark,
+            expected.contains(&h),
+            "{side} {h:?}: ring mean {mean}"
+        );
+        assert_eq!(c.ringed, expected.contains(&h));
+        if dark {
+            rings_seen += 1;
+        } else {
+            plain_seen += 1;
+        }
+    }
+    assert!(
+        rings_seen >= 20 && plain_seen >= 200,
+        "{rings_seen} rings, {plain_seen} plain"
+    );
+    whites
+}
+
+/// Black at the centroid of every lattice triangle of `side` in `view`: 5.5 mm of black to
+/// each rim; gives the values there.
+fn check_gaps(scene: &Scene, view: &View, side: Side) -> Vec<f64> {
+    let board = &scene.board;
+    let im = scene.imaging;
+    let mut blacks = Vec::new();
+    let mut gaps = 0;
+    for h in board.lattice() {
+        let tri = [h, h.neighbour(0), h.neighbour(1)];
+        if !tri.iter().all(|&t| board.contains(t)) {
+            continue;
+        }
+        let p = tri
+            .iter()
+            .fold(Vector2::zeros(), |s, &t| s + board.position(t).coords)
+            / 3.0;
+        if let Some(q) = image_of(scene, side, Point2::from(p)) {
+            let v = pixel(&view.frame, q);
+            blacks.push(v);
+            assert!(
+                (v - im.black_dn).abs() < 5.0 * noise_sd(&im, im.black_dn),
+                "{h:?}: gap {v}"
+            );
+            gaps += 1;
+        }
+    }
+    assert!(gaps > 500, "{gaps} gaps");
+    blacks
 }
 
 /// Fit a conic to points by least squares with the constant term fixed at −1 (valid as

@@ -16,7 +16,7 @@ use crate::sim::{Imaging, PoseSpec};
 use nalgebra::Point2;
 use {
     crate::pattern::{ProjectorResponse, ProjectorSetup},
-    crate::phase::{Decoder, FrameRef},
+    crate::phase::{DecodedStack, Decoder, FrameRef},
 };
 
 fn look(eye: [f64; 3]) -> Isometry3<f64> {
@@ -94,11 +94,10 @@ struct CircleError {
 /// Render, decode, detect, label and fit one board pose seen from `eye`; checks the per-pixel
 /// decoding on the way.
 fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> Vec<CircleError> {
-    let camera = camera();
     let scene = Scene {
         name: "stack".into(),
         seed,
-        camera,
+        camera: camera(),
         pose: PoseSpec {
             eye: Some(eye),
             target: Some(target),
@@ -115,8 +114,15 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> Vec<CircleError>
     };
     let seq = Sequence::default_for(&[setup; 3]).unwrap();
     let renderer = StackRenderer::new(&scene, &projectors, AMBIENT, &seq).unwrap();
+    let decoded = decode(&renderer, &seq);
+    check_decoded_pixels(&renderer, &decoded);
+    projector_pixel_errors(&scene, &projectors, &decoded)
+}
+
+/// The rendered stack of `seq`, frame by frame through the decoder.
+fn decode(renderer: &StackRenderer, seq: &Sequence) -> DecodedStack {
     let size = renderer.size();
-    let mut decoder = Decoder::<u16>::new(&seq, "cam", size.width, size.height, 255.0).unwrap();
+    let mut decoder = Decoder::<u16>::new(seq, "cam", size.width, size.height, 255.0).unwrap();
     for k in 0..seq.frame_count() {
         let frame = renderer.frame(k);
         decoder
@@ -130,11 +136,14 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> Vec<CircleError>
             )
             .unwrap();
     }
-    let decoded = decoder.finish().unwrap();
+    decoder.finish().unwrap()
+}
 
-    // Per pixel: decoded against true (u, v) on valid pixels inside uniform regions (no
-    // albedo change within ±3 px ≈ 4 PSF σ: near an edge the PSF mixes the phases of
-    // differently bright neighbours, which is optics, not decoding), against the predicted σ_u.
+/// Per pixel: decoded against true (u, v) on valid pixels inside uniform regions (no
+/// albedo change within ±3 px ≈ 4 PSF σ: near an edge the PSF mixes the phases of
+/// differently bright neighbours, which is optics, not decoding), against the predicted σ_u.
+fn check_decoded_pixels(renderer: &StackRenderer, decoded: &DecodedStack) {
+    let size = renderer.size();
     let (w, h) = (size.width as usize, size.height as usize);
     let albedo = renderer.albedo();
     let uniform = |i: usize| {
@@ -179,7 +188,16 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> Vec<CircleError>
             "projector {p}: worst {worst}"
         );
     }
+}
 
+/// Circles detected and labelled on the decoded ambient image, their projector pixels
+/// fitted from the decoded maps, against the exact geometry of `scene` and `projectors` at
+/// the detected ellipse centres.
+fn projector_pixel_errors(
+    scene: &Scene,
+    projectors: &[StackProjector],
+    decoded: &DecodedStack,
+) -> Vec<CircleError> {
     // Circles on the decoded ambient image: evenly lit, and averaged over the whole stack.
     let image = decoded.ambient.clone();
     let circles = detect(&image, &DetectParams::default());
@@ -196,7 +214,7 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> Vec<CircleError>
     // Projector pixels at the detected ellipse centres against the exact geometry there.
     let board_from_cam = scene.pose.cam_from_board().unwrap().inverse();
     let exact = |p: usize, e: Point2<f64>| {
-        let ray = camera.ray(e)?;
+        let ray = scene.camera.ray(e)?;
         let (o, d) = (board_from_cam * Point3::origin(), board_from_cam * ray);
         let x = o + d * (-o.z / d.z);
         projectors[p]
