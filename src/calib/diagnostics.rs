@@ -33,6 +33,8 @@ pub struct ResidualRow {
     pub std: f64,
     /// RMS of the inliers' residual norms (px).
     pub rms: f64,
+    /// Board poses in which the device has observations.
+    pub poses: usize,
 }
 
 /// The per-device residual table of a calibration.
@@ -41,9 +43,10 @@ pub fn residual_table(cal: &Calibration) -> Vec<ResidualRow> {
         .iter()
         .enumerate()
         .map(|(d, dev)| {
-            let (mut norms, mut outliers) = (Vec::new(), 0);
+            let (mut norms, mut outliers, mut poses) = (Vec::new(), 0, BTreeSet::new());
             for (o, r) in cal.observations.iter().zip(&cal.solution.residuals) {
                 if o.device == d {
+                    poses.insert(o.pose);
                     if r.outlier {
                         outliers += 1;
                     } else {
@@ -63,6 +66,7 @@ pub fn residual_table(cal: &Calibration) -> Vec<ResidualRow> {
                 mean,
                 std: var.sqrt(),
                 rms,
+                poses: poses.len(),
             }
         })
         .collect()
@@ -84,21 +88,15 @@ pub fn expected_rms(cal: &Calibration) -> f64 {
 pub fn warnings(cal: &Calibration, rows: &[ResidualRow]) -> Vec<String> {
     let mut w = Vec::new();
     let expected = expected_rms(cal);
-    for (d, (dev, row)) in cal.devices.iter().zip(rows).enumerate() {
-        let poses: BTreeSet<usize> = cal
-            .observations
-            .iter()
-            .filter(|o| o.device == d)
-            .map(|o| o.pose)
-            .collect();
-        if poses.len() < MIN_POSES {
+    for (dev, row) in cal.devices.iter().zip(rows) {
+        if row.poses < MIN_POSES {
             w.push(format!(
                 "{} ({}) is seen in only {} board pose{} (at least {MIN_POSES} wanted): its \
                  model rests on few views; capture more poses that it sees.",
                 dev.name,
                 kind_name(dev.kind),
-                poses.len(),
-                if poses.len() == 1 { "" } else { "s" }
+                row.poses,
+                if row.poses == 1 { "" } else { "s" }
             ));
         }
         let mut same: Vec<f64> = rows

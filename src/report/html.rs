@@ -87,7 +87,7 @@ pub fn html_report(input: &ReportInput) -> String {
         h.push_str("</ul>\n");
     }
     h.push_str("<div class=\"row\">\n<div>\n");
-    residual_section(&mut h, cal, &rows);
+    residual_section(&mut h, &rows);
     h.push_str("</div>\n<div>\n");
     rig_section(&mut h, cal);
     h.push_str("</div>\n</div>\n");
@@ -186,19 +186,13 @@ fn summary(h: &mut String, cal: &Calibration) {
 }
 
 /// The paper's Table I.
-fn residual_section(h: &mut String, cal: &Calibration, rows: &[ResidualRow]) {
+fn residual_section(h: &mut String, rows: &[ResidualRow]) {
     h.push_str(
         "<h2 id=\"residuals\">Residuals per device</h2>\n<table>\n<tr><th class=\"l\">device\
          </th><th class=\"l\">kind</th><th>points</th><th>outliers</th><th>mean ± std of \
          |r| (px)</th><th>RMS (px)</th><th>poses</th></tr>\n",
     );
-    for (d, r) in rows.iter().enumerate() {
-        let poses: BTreeSet<usize> = cal
-            .observations
-            .iter()
-            .filter(|o| o.device == d)
-            .map(|o| o.pose)
-            .collect();
+    for r in rows {
         let _ = writeln!(
             h,
             "<tr><td class=\"l {}\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td>\
@@ -211,7 +205,7 @@ fn residual_section(h: &mut String, cal: &Calibration, rows: &[ResidualRow]) {
             r.mean,
             r.std,
             r.rms,
-            poses.len()
+            r.poses
         );
     }
     h.push_str(
