@@ -51,6 +51,10 @@ pub struct LabelledPoint {
     pub side: Option<Side>,
     /// Whether `hex` and `side` are in that side's own board frame.
     pub anchored: bool,
+    /// Whether the circle carries a marker ring: the board's when anchored, else as read (an
+    /// unsure reading counts as ringed, so the annulus is kept out of projector fits).
+    #[serde(default)]
+    pub ringed: bool,
 }
 
 /// Tolerances of grid building. The defaults follow docs/design.md §5; the board supplies d/R and
@@ -255,6 +259,10 @@ pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &Grid
         };
     };
     let (comp, frame) = (&components[best], frames[best]);
+    let board_rings = frame
+        .side
+        .filter(|_| frame.anchored)
+        .map(|s| board.ringed(s));
     stats.components = std::iter::once(comp.points.len())
         .chain(
             components
@@ -277,6 +285,11 @@ pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &Grid
             hex,
             side: frame.side,
             anchored: frame.anchored,
+            ringed: board_rings
+                .as_ref()
+                .map_or(readings[circle as usize] != Ring::Plain, |ringed| {
+                    ringed.contains(&hex)
+                }),
         });
     }
     points.sort_by_key(|p| p.circle);
