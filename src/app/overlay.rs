@@ -203,6 +203,7 @@ mod tests {
                         hex: Hex::new(q, 0),
                         side: None,
                         anchored: true,
+                        ringed: false,
                     })
                     .to_vec(),
                 anchored: true,

@@ -63,7 +63,14 @@ pub fn process_decoded(
         .enumerate()
         .map(|(p, m)| ProjectorMap::from_decoded(first_projector + p, m))
         .collect();
-    let view = camera_view(camera, pose, &grid, &circles, &maps, &FitParams::default());
+    let view = camera_view(
+        camera,
+        pose,
+        &grid,
+        &circles,
+        &maps,
+        &FitParams::for_board(board),
+    );
     let projector_points = (0..decoded.projectors.len())
         .map(|p| {
             view.as_ref().map_or(0, |v| {

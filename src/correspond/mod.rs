@@ -4,7 +4,8 @@
 //!
 //! The projector pixel at an ellipse centre e comes from a least-squares fit of the decoded
 //! u(x, y) and v(x, y) over the valid pixels of the circle and its labelled neighbours (one
-//! planar patch, ≈ 7× a circle's pixels), evaluated at e. The fit is quadratic in (x − e):
+//! planar patch, ≈ 7× a circle's pixels), evaluated at e. A marker ring's band is left out
+//! of a ringed circle's pixels: its white inside and outside the ring serves as any other. The fit is quadratic in (x − e):
 //! lens distortion curves the camera→projector map, and a plain plane or homography over
 //! the patch is biased by up to 0.2 projector px in the corners of a k1 = −0.3 lens.
 
@@ -99,6 +100,13 @@ pub struct FitParams {
     /// Fraction of the centre circle's own pixels that must be valid (a projector that
     /// lights only part of a circle gives no observation of it).
     pub min_own_valid: f64,
+    /// A marker ring's band (inner, outer) as fractions of the circle's radius (the board's
+    /// `ring`). On a ringed circle the band, widened by `ring_margin`, is left out of the
+    /// circle's own pixels and of every fit: it is dark (no valid decoding), and near its
+    /// edges blur mixes black into the white.
+    pub ring: [f64; 2],
+    /// Widening of the ring band on either side (px): the blur's reach.
+    pub ring_margin: f64,
 }
 
 impl Default for FitParams {
@@ -107,22 +115,56 @@ impl Default for FitParams {
             shrink: 0.85,
             min_pixels: 30,
             min_own_valid: 0.8,
+            ring: [0.45, 0.75],
+            ring_margin: 1.0,
         }
     }
 }
 
-/// Pixels (x, y) whose centres lie inside `e` shrunk by `shrink`.
-fn pixels_inside(e: &Ellipse, shrink: f64, width: u32, height: u32) -> Vec<(u32, u32)> {
-    let (a, b) = (e.a * shrink, e.b * shrink);
+impl FitParams {
+    /// The defaults with `board`'s ring band.
+    pub fn for_board(board: &crate::board::Board) -> FitParams {
+        FitParams {
+            ring: board.ring,
+            ..FitParams::default()
+        }
+    }
+
+    /// The white of a circle: pixels (x, y) whose centres lie inside `e` shrunk by
+    /// `shrink`, without the ring band when the circle is `ringed`.
+    pub(crate) fn white_pixels(
+        &self,
+        e: &Ellipse,
+        ringed: bool,
+        width: u32,
+        height: u32,
+    ) -> Vec<(u32, u32)> {
+        let margin = self.ring_margin / (e.a * e.b).sqrt().max(1e-9);
+        let band = ringed.then(|| (self.ring[0] - margin, self.ring[1] + margin));
+        pixels_inside(e, self.shrink, band, width, height)
+    }
+}
+
+/// Pixels (x, y) whose centres lie inside `e` shrunk by `shrink`, leaving out those whose
+/// normalised radius (1 on the outline of `e`) lies strictly within `band`.
+fn pixels_inside(
+    e: &Ellipse,
+    shrink: f64,
+    band: Option<(f64, f64)>,
+    width: u32,
+    height: u32,
+) -> Vec<(u32, u32)> {
     let (c, s) = (e.angle.cos(), e.angle.sin());
-    let reach = a.ceil() as i64 + 1;
+    let reach = (e.a * shrink).ceil() as i64 + 1;
     let (cx, cy) = (e.center.x.round() as i64, e.center.y.round() as i64);
     let mut out = Vec::new();
     for y in (cy - reach).max(0)..=(cy + reach).min(i64::from(height) - 1) {
         for x in (cx - reach).max(0)..=(cx + reach).min(i64::from(width) - 1) {
             let (dx, dy) = (x as f64 - e.center.x, y as f64 - e.center.y);
             let (p, q) = (dx * c + dy * s, -dx * s + dy * c);
-            if (p / a).powi(2) + (q / b).powi(2) <= 1.0 {
+            let rho = ((p / e.a).powi(2) + (q / e.b).powi(2)).sqrt();
+            let in_band = band.is_some_and(|(lo, hi)| rho > lo && rho < hi);
+            if rho <= shrink && !in_band {
                 out.push((x as u32, y as u32));
             }
         }
@@ -185,30 +227,32 @@ pub fn camera_view(
         .iter()
         .map(|p| {
             let own = &circles[p.circle].ellipse;
-            // The patch: this circle and its labelled neighbours.
-            let patch: Vec<&Ellipse> = std::iter::once(own)
+            // The patch: this circle and its labelled neighbours, each without its ring.
+            let patch: Vec<(&Ellipse, bool)> = std::iter::once((own, p.ringed))
                 .chain(
                     p.hex
                         .neighbours()
                         .iter()
                         .filter_map(|h| by_hex.get(h))
-                        .map(|q| &circles[q.circle].ellipse),
+                        .map(|q| (&circles[q.circle].ellipse, q.ringed)),
                 )
                 .collect();
             let projectors = maps
                 .iter()
                 .filter_map(|m| {
-                    let own_px = pixels_inside(own, params.shrink, m.width, m.height);
+                    let own_px = params.white_pixels(own, p.ringed, m.width, m.height);
                     let own_valid = own_px
                         .iter()
                         .filter(|&&(x, y)| m.valid[(y * m.width + x) as usize])
                         .count();
-                    if (own_valid as f64) < params.min_own_valid * own_px.len() as f64 {
+                    if own_valid == 0
+                        || (own_valid as f64) < params.min_own_valid * own_px.len() as f64
+                    {
                         return None;
                     }
                     let pixels: Vec<(u32, u32)> = patch
                         .iter()
-                        .flat_map(|e| pixels_inside(e, params.shrink, m.width, m.height))
+                        .flat_map(|&(e, ringed)| params.white_pixels(e, ringed, m.width, m.height))
                         .collect();
                     if pixels.len() < params.min_pixels {
                         return None;

@@ -136,6 +136,24 @@ fn whitening(c: &Circle) -> Matrix2<f64> {
     (u * u.transpose()) * (0.5 / e.a) + (v * v.transpose()) * (0.5 / e.b)
 }
 
+/// Whether `other`'s ellipse has the shape of the centre's (whitening `w`) within `ratio`
+/// along every direction: the semi-axes of `other` in the centre's whitened frame, √ of the
+/// eigenvalues of 16·W·M·W, lie in [1/ratio, ratio]. Neighbours under the local affine map
+/// are alike; a circle cut by an occluder and fitted to what is left of it is short along
+/// the cut even when its √(ab) is not.
+fn alike(w: &Matrix2<f64>, other: &Circle, ratio: f64) -> bool {
+    let e = &other.ellipse;
+    let (s, co) = e.angle.sin_cos();
+    let (u, v) = (Vector2::new(co, s), Vector2::new(-s, co));
+    let m = (u * u.transpose()) * (e.a * e.a / 4.0) + (v * v.transpose()) * (e.b * e.b / 4.0);
+    let shape = (w * m * w) * 16.0;
+    let (lo, hi) = (1.0 / (ratio * ratio), ratio * ratio);
+    shape
+        .symmetric_eigenvalues()
+        .iter()
+        .all(|&l| l >= lo && l <= hi)
+}
+
 /// Counter-clockwise screen angle of a y-down vector: atan2(−y, x).
 fn screen_angle(z: Vector2<f64>) -> f64 {
     (-z.y).atan2(z.x)
@@ -195,7 +213,6 @@ pub(crate) fn find_cells(
             }
             candidates.clear();
             let w = whitening(c);
-            let r = c.ellipse.radius();
             let centre = c.ellipse.center.coords;
             // |WΔ| ≥ |Δ|/(2a): a neighbour within ν ≤ max_near lies within 2a·max_near px.
             buckets.around(centre, 2.0 * major(c) * max_near, |j| {
@@ -203,8 +220,7 @@ pub(crate) fn find_cells(
                     return;
                 }
                 let other = &circles[j as usize];
-                let ratio = other.ellipse.radius() / r;
-                if ratio > params.radius_ratio || ratio * params.radius_ratio < 1.0 {
+                if !alike(&w, other, params.radius_ratio) {
                     return;
                 }
                 let z = w * (other.ellipse.center.coords - centre);

@@ -21,17 +21,20 @@
 //!   without them the frame is arbitrary. Anchored labels off the board are dropped, and more
 //!   than a few of them refute the anchor.
 //!
-//! When the cells fall into several disconnected components, the grid is the anchored one if
-//! any, else the largest; the points of the others are left unlabelled and counted in
-//! [`GridStats`].
+//! - Joining (`join`): when an occluder splits the cells into several components, the others
+//!   join the anchored one (else the largest) across the gap when local homographies predict
+//!   their circles onto free lattice positions under one transform, both ways, and (when
+//!   anchored) the board's rings agree. Components that do not join are kept as pieces, each
+//!   labelled in a frame of its own.
 
 mod anchor;
 mod assemble;
 mod cell;
+mod join;
 mod ring;
 
 use crate::board::{Board, Code, Hex, MarkerKind, Side};
-use anchor::{BoardRings, Frame, PlacedMarker};
+use anchor::{BoardRings, Frame, LatticeMap, PlacedMarker};
 use nalgebra::Point2;
 use ring::Ring;
 use serde::{Deserialize, Serialize};
@@ -51,6 +54,10 @@ pub struct LabelledPoint {
     pub side: Option<Side>,
     /// Whether `hex` and `side` are in that side's own board frame.
     pub anchored: bool,
+    /// Whether the circle carries a marker ring: the board's when anchored, else as read (an
+    /// unsure reading counts as ringed, so the annulus is kept out of projector fits).
+    #[serde(default)]
+    pub ringed: bool,
 }
 
 /// Tolerances of grid building. The defaults follow docs/design.md §5; the board supplies d/R and
@@ -63,10 +70,12 @@ pub struct GridParams {
     /// Candidates lie within this factor of the nominal neighbour distance d/(2R) (either
     /// way). The next lattice ring sits at √3 times it.
     pub max_neighbour_ratio: f64,
-    /// Largest ratio between a neighbour's radius √(ab) and the centre's (either way).
-    /// Perspective makes neighbours differ by ≤ 7 % at 75° of tilt (the shared samples), and
-    /// thin ellipses' fitted radii scatter by ~10 %; a circle cut by an occluder, fitted to
-    /// what is left of it, or a marker's inner disk (0.45 R) differ by far more.
+    /// Largest ratio between a neighbour's semi-axes and the centre's along any direction
+    /// (either way; the neighbour's ellipse in the centre's whitened frame). Perspective
+    /// makes neighbours differ by ≤ 7 % at 75° of tilt (the shared samples), and thin
+    /// ellipses' fitted axes scatter by ~10 %; a circle cut by an occluder, fitted to what is
+    /// left of it (short across the cut), or a marker's inner disk (0.45 R) differ by far
+    /// more.
     pub radius_ratio: f64,
     /// Relative tolerance of an opposing pair's chord-normalised length ν against d/R
     /// (true pairs: within 5 % at r = 5 px; nearest wrong kinds at −13 % and +32 %).
@@ -96,6 +105,20 @@ pub struct GridParams {
     /// Labelled points an anchored grid may map off the board (they are dropped); more
     /// refute the anchor.
     pub max_off_board: usize,
+    /// Reference circles (nearest in the image) a local homography is fitted to when
+    /// predicting lattice positions across a gap.
+    pub join_support: usize,
+    /// Circles on each side of a gap, nearest the other side, whose predictions decide a join.
+    pub join_candidates: usize,
+    /// Largest distance (pitch units) of a predicted lattice-plane point from the lattice
+    /// position it falls on.
+    pub join_tolerance: f64,
+    /// Largest residual (pitch units) of a local homography on its own circles.
+    pub join_fit_tolerance: f64,
+    /// Predictions that must agree on the joining transform.
+    pub min_join_points: usize,
+    /// Fraction of the candidates whose predictions must agree.
+    pub join_agreement: f64,
 }
 
 impl Default for GridParams {
@@ -116,6 +139,12 @@ impl Default for GridParams {
             min_side_marks: 2,
             max_ring_disagreement: 0.2,
             max_off_board: 2,
+            join_support: 16,
+            join_candidates: 24,
+            join_tolerance: 0.25,
+            join_fit_tolerance: 0.05,
+            min_join_points: 6,
+            join_agreement: 0.8,
         }
     }
 }
@@ -151,7 +180,8 @@ pub struct GridStats {
     pub unsure_rings: usize,
     /// Every decoded marker cell.
     pub markers: Vec<MarkerReading>,
-    /// Sizes (labelled points) of the connected components, the chosen one first.
+    /// Sizes (labelled points) of the connected components before joining, the chosen one
+    /// first.
     pub components: Vec<usize>,
     /// Cells rejected in pass 2 because they disagreed with the labelling around them.
     pub conflicts: usize,
@@ -159,6 +189,12 @@ pub struct GridStats {
     pub off_board: usize,
     /// Ring readings that contradict the output labelling (anchored grids only).
     pub ring_disagreements: usize,
+    /// Components joined across gaps (into the grid or into its pieces).
+    #[serde(default)]
+    pub joined: usize,
+    /// Sizes (labelled points) of the pieces left beside the grid after joining.
+    #[serde(default)]
+    pub pieces: Vec<usize>,
 }
 
 /// The labelled grid of one image.
@@ -172,84 +208,231 @@ pub struct Grid {
     pub side: Option<Side>,
     /// Diagnostics.
     pub stats: GridStats,
+    /// Components that could not be joined to this grid, each labelled in a frame of its own
+    /// (never anchored: only calibration can place them on the board). Their own `pieces`
+    /// are empty.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub pieces: Vec<Grid>,
+}
+
+/// What grid building reads from one image, shared by its steps.
+struct Scene<'a> {
+    circles: &'a [Circle],
+    board: &'a Board,
+    params: &'a GridParams,
+    cells: Vec<cell::Cell>,
+    readings: Vec<Ring>,
+    decoded: Vec<Option<(MarkerKind, usize)>>,
+    rings: BoardRings,
 }
 
 /// Build the labelled grid of one image from its detected circles (docs/design.md §5).
 pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &GridParams) -> Grid {
-    let nu = board.pitch / board.radius;
-    let found = cell::find_cells(circles, nu, params);
-    let mut stats = GridStats {
-        circles: circles.len(),
-        inconsistent_cells: found
-            .iter()
-            .filter(|c| matches!(c, Err(cell::Rejection::Inconsistent)))
-            .count(),
-        ..GridStats::default()
-    };
-    let cells: Vec<cell::Cell> = found.into_iter().filter_map(Result::ok).collect();
-    stats.cells = cells.len();
-    stats.full_cells = cells.iter().filter(|c| c.is_full()).count();
-
-    let readings = read_rings(image, circles, &cells, board, params);
-    stats.ringed = readings.iter().filter(|&&r| r == Ring::Ringed).count();
-    stats.unsure_rings = readings.iter().filter(|&&r| r == Ring::Unsure).count();
-    let decoded: Vec<Option<(MarkerKind, usize)>> =
-        cells.iter().map(|c| decode(c, &readings, board)).collect();
-
-    let components = assemble_components(&cells, &decoded, circles.len());
+    let (scene, mut stats) = Scene::read(image, circles, board, params);
+    // Pass 2: seeds are centre cells first, then the best cells.
+    let mut assembler = assemble::Assembler::new(&scene.cells, circles.len());
+    let mut seeds = assembler.by_quality();
+    seeds.sort_by_key(|&k| !scene.decoded[k].is_some_and(|(kind, _)| kind.is_center()));
+    let mut components = Vec::new();
+    for k in seeds {
+        if assembler.can_seed(k) {
+            let id = components.len() as u32;
+            components.push(assembler.grow(id, k));
+        }
+    }
     stats.conflicts = components.iter().map(|c| c.rejected).sum();
-
-    let rings = BoardRings::new(board);
-    let markers: Vec<Vec<PlacedMarker>> = components
-        .iter()
-        .map(|comp| placed_markers(comp, &cells, &decoded))
-        .collect();
-    let frames: Vec<Frame> = components
-        .iter()
-        .zip(&markers)
-        .map(|(comp, markers)| anchor::frame(board, &rings, comp, markers, &readings, params))
-        .collect();
-    let Some(best) = best_component(&components, &frames) else {
-        stats.markers = marker_readings(&cells, &decoded, &[]);
+    // The anchored component if any (most agreeing markers), else the largest.
+    let frames: Vec<Frame> = components.iter().map(|c| scene.frame(c)).collect();
+    let Some(best) = (0..components.len()).max_by_key(|&i| {
+        let f = &frames[i];
+        (
+            f.anchored,
+            f.anchored.then_some(f.evidence.markers_agree),
+            components[i].points.len(),
+        )
+    }) else {
+        stats.markers = marker_readings(&scene.cells, &scene.decoded, &[]);
         return Grid {
             stats,
             ..Grid::default()
         };
     };
-    let (comp, frame) = (&components[best], frames[best]);
-    stats.components = std::iter::once(comp.points.len())
-        .chain(
-            components
-                .iter()
-                .enumerate()
-                .filter(|&(i, _)| i != best)
-                .map(|(_, c)| c.points.len()),
-        )
+    let mut reference = components.swap_remove(best);
+    stats.components = std::iter::once(reference.points.len())
+        .chain(components.iter().map(|c| c.points.len()))
         .collect();
-    let points = labelled_points(comp, &frame, circles, board, &mut stats);
-    if frame.anchored {
-        stats.ring_disagreements = frame.evidence.rings_disagree;
-    }
-    let confirmed: Vec<PlacedMarker> = markers[best]
+    let (grid, pieces) = scene.join(&mut reference, components, frames[best], &mut stats);
+    let mut grid = scene.output(&reference, grid, stats);
+    grid.pieces = pieces
         .iter()
-        .filter(|m| frame.confirms(m, &rings, board.marker_spacing))
-        .copied()
+        .map(|p| {
+            let frame = Frame {
+                anchored: false,
+                ..scene.frame(p)
+            };
+            scene.output(p, frame, GridStats::default())
+        })
         .collect();
-    stats.markers = marker_readings(&cells, &decoded, &confirmed);
-    Grid {
-        points,
-        anchored: frame.anchored,
-        side: frame.side,
-        stats,
+    grid
+}
+
+impl<'a> Scene<'a> {
+    /// Pass 1 and the ring readings: every circle's local cell, its ring, and the decoded
+    /// marker cells.
+    fn read(
+        image: &GrayImage,
+        circles: &'a [Circle],
+        board: &'a Board,
+        params: &'a GridParams,
+    ) -> (Scene<'a>, GridStats) {
+        let nu = board.pitch / board.radius;
+        let found = cell::find_cells(circles, nu, params);
+        let mut stats = GridStats {
+            circles: circles.len(),
+            inconsistent_cells: found
+                .iter()
+                .filter(|c| matches!(c, Err(cell::Rejection::Inconsistent)))
+                .count(),
+            ..GridStats::default()
+        };
+        let cells: Vec<cell::Cell> = found.into_iter().filter_map(Result::ok).collect();
+        stats.cells = cells.len();
+        stats.full_cells = cells.iter().filter(|c| c.is_full()).count();
+        let readings = read_rings(image, circles, &cells, board, params);
+        stats.ringed = readings.iter().filter(|&&r| r == Ring::Ringed).count();
+        stats.unsure_rings = readings.iter().filter(|&&r| r == Ring::Unsure).count();
+        let decoded = cells.iter().map(|c| decode(c, &readings, board)).collect();
+        let scene = Scene {
+            circles,
+            board,
+            params,
+            cells,
+            readings,
+            decoded,
+            rings: BoardRings::new(board),
+        };
+        (scene, stats)
+    }
+
+    /// A component's frame from its markers and rings.
+    fn frame(&self, comp: &assemble::Component) -> Frame {
+        let markers = placed_markers(comp, &self.cells, &self.decoded);
+        anchor::frame(
+            self.board,
+            &self.rings,
+            comp,
+            &markers,
+            &self.readings,
+            self.params,
+        )
+    }
+
+    /// Whether `comp`, moved by `map` into a component anchored by `frame`, agrees with the
+    /// board: its markers at marker cells of their kind, its ring readings and its outline.
+    fn admits(&self, frame: Frame, comp: &assemble::Component, map: LatticeMap) -> bool {
+        let Some(side) = frame.side else {
+            return false;
+        };
+        let to_board = LatticeMap {
+            rotation: (map.rotation + frame.map.rotation) % 6,
+            offset: map.offset.rotate(frame.map.rotation as usize) + frame.map.offset,
+        };
+        let markers = placed_markers(comp, &self.cells, &self.decoded);
+        let ev = anchor::weigh(
+            self.board,
+            &self.rings,
+            comp,
+            &markers,
+            &self.readings,
+            side,
+            to_board,
+        );
+        let bearing = ev.rings_agree + ev.rings_disagree;
+        ev.markers_disagree <= ev.markers_agree
+            && ev.rings_disagree as f64 <= self.params.max_ring_disagreement * bearing as f64
+            && ev.off_board <= self.params.max_off_board
+    }
+
+    /// Join components across gaps into `reference` (anchored by `frame` or not), then the
+    /// rest among themselves, largest first. Gives the reference's frame after joining and
+    /// the pieces left.
+    fn join(
+        &self,
+        reference: &mut assemble::Component,
+        mut rest: Vec<assemble::Component>,
+        frame: Frame,
+        stats: &mut GridStats,
+    ) -> (Frame, Vec<assemble::Component>) {
+        let centres: Vec<Point2<f64>> = self.circles.iter().map(|c| c.ellipse.center).collect();
+        let admit =
+            |c: &assemble::Component, m: LatticeMap| !frame.anchored || self.admits(frame, c, m);
+        stats.joined = join::join_into(reference, &mut rest, &centres, self.params, &admit);
+        // Joined markers may fix the side of an unanchored reference.
+        let frame = if frame.anchored {
+            frame
+        } else {
+            self.frame(reference)
+        };
+        let mut pieces = Vec::new();
+        while !rest.is_empty() {
+            let mut piece = rest.remove(0);
+            stats.joined +=
+                join::join_into(&mut piece, &mut rest, &centres, self.params, &|_, _| true);
+            pieces.push(piece);
+        }
+        stats.pieces = pieces.iter().map(|p| p.points.len()).collect();
+        (frame, pieces)
+    }
+
+    /// The labelled points of a component in `frame`, its markers and the remaining stats.
+    fn output(&self, comp: &assemble::Component, frame: Frame, mut stats: GridStats) -> Grid {
+        let board_rings = frame
+            .side
+            .filter(|_| frame.anchored)
+            .map(|s| self.board.ringed(s));
+        let mut points = Vec::with_capacity(comp.points.len());
+        for &(circle, h) in &comp.points {
+            let hex = frame.map.apply(h);
+            if frame.anchored && !self.board.contains(hex) {
+                stats.off_board += 1;
+                continue;
+            }
+            points.push(LabelledPoint {
+                circle: circle as usize,
+                image: self.circles[circle as usize].ellipse.center,
+                hex,
+                side: frame.side,
+                anchored: frame.anchored,
+                ringed: board_rings
+                    .as_ref()
+                    .map_or(self.readings[circle as usize] != Ring::Plain, |ringed| {
+                        ringed.contains(&hex)
+                    }),
+            });
+        }
+        points.sort_by_key(|p| p.circle);
+        if frame.anchored {
+            stats.ring_disagreements = frame.evidence.rings_disagree;
+        }
+        let confirmed: Vec<PlacedMarker> = placed_markers(comp, &self.cells, &self.decoded)
+            .into_iter()
+            .filter(|m| frame.confirms(m, &self.rings, self.board.marker_spacing))
+            .collect();
+        stats.markers = marker_readings(&self.cells, &self.decoded, &confirmed);
+        Grid {
+            points,
+            anchored: frame.anchored,
+            side: frame.side,
+            stats,
+            pieces: Vec::new(),
+        }
     }
 }
 
-/// Every circle's ring reading, against the brightest foreground of the cells it belongs
-/// to.
-///
-/// A ring dims a small circle's own foreground level (blur darkens the white left around
-/// it), which would hide the ring: read each ring against the brightest foreground of
-/// the cells it belongs to. Every ringed circle neighbours its marker's plain centre.
+/// Every circle's ring reading. A ring dims a small circle's own foreground level (blur
+/// darkens the white left around it), which would hide the ring: each ring is read against
+/// the brightest foreground of the cells it belongs to. Every ringed circle neighbours its
+/// marker's plain centre.
 fn read_rings(
     image: &GrayImage,
     circles: &[Circle],
@@ -275,67 +458,6 @@ fn read_rings(
             ring::classify(contrast, params.ring_plain_below, params.ring_ringed_above)
         })
         .collect()
-}
-
-/// Pass 2 over `cells` (their markers `decoded`, of `n_circles` circles): the connected
-/// components, grown from seeds that are centre cells first, then the best cells.
-fn assemble_components(
-    cells: &[cell::Cell],
-    decoded: &[Option<(MarkerKind, usize)>],
-    n_circles: usize,
-) -> Vec<assemble::Component> {
-    let mut assembler = assemble::Assembler::new(cells, n_circles);
-    let mut seeds = assembler.by_quality();
-    seeds.sort_by_key(|&k| !decoded[k].is_some_and(|(kind, _)| kind.is_center()));
-    let mut components = Vec::new();
-    for k in seeds {
-        if assembler.can_seed(k) {
-            let id = components.len() as u32;
-            components.push(assembler.grow(id, k));
-        }
-    }
-    components
-}
-
-/// The chosen component: the anchored one if any (most agreeing markers), else the
-/// largest; `None` without components.
-fn best_component(components: &[assemble::Component], frames: &[Frame]) -> Option<usize> {
-    (0..components.len()).max_by_key(|&i| {
-        let f = &frames[i];
-        (
-            f.anchored,
-            f.anchored.then_some(f.evidence.markers_agree),
-            components[i].points.len(),
-        )
-    })
-}
-
-/// The points of component `comp` labelled in its `frame`, in circle order; anchored
-/// labels off the board are dropped and counted in `stats`.
-fn labelled_points(
-    comp: &assemble::Component,
-    frame: &Frame,
-    circles: &[Circle],
-    board: &Board,
-    stats: &mut GridStats,
-) -> Vec<LabelledPoint> {
-    let mut points = Vec::with_capacity(comp.points.len());
-    for &(circle, h) in &comp.points {
-        let hex = frame.map.apply(h);
-        if frame.anchored && !board.contains(hex) {
-            stats.off_board += 1;
-            continue;
-        }
-        points.push(LabelledPoint {
-            circle: circle as usize,
-            image: circles[circle as usize].ellipse.center,
-            hex,
-            side: frame.side,
-            anchored: frame.anchored,
-        });
-    }
-    points.sort_by_key(|p| p.circle);
-    points
 }
 
 /// Decode a full cell whose centre is not ringed and whose six neighbours read confidently.
