@@ -20,9 +20,11 @@ fn json<T: serde::Serialize>(dir: &Path, name: &str, value: &T) -> io::Result<()
     )
 }
 
-/// `views` with at most [`POINTS_PER_VIEW`] points each.
+/// `views` with at most [`POINTS_PER_VIEW`] points each, those lit by most projectors.
 fn trimmed(mut views: Vec<CameraView>) -> Vec<CameraView> {
     for v in &mut views {
+        v.points
+            .sort_by_key(|p| std::cmp::Reverse(p.projectors.len()));
         v.points.truncate(POINTS_PER_VIEW);
     }
     views
