@@ -46,14 +46,6 @@ pub enum CalibError {
         /// Views given.
         got: usize,
     },
-    /// Zhang's initialisation of a device failed.
-    #[error("Zhang initialisation from {views} views: {reason}")]
-    Start {
-        /// Views given.
-        views: usize,
-        /// Why it failed.
-        reason: Box<CalibError>,
-    },
     /// The data do not determine the quantity (e.g. parallel views, collinear points).
     #[error("degenerate data: {0}")]
     Degenerate(&'static str),

@@ -254,6 +254,92 @@ fn too_few_views(groups: &Groups, usable: usize, min_points: usize) -> String {
     text
 }
 
+/// Refuses a reference device index out of range.
+fn check_reference(devices: &[DeviceInfo], reference: usize) -> Result<(), CalibError> {
+    if reference >= devices.len() {
+        return Err(CalibError::Input {
+            at: "reference".into(),
+            reason: format!(
+                "device {reference} is out of range ({} devices)",
+                devices.len()
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// The devices with a start that the graph reached: their input indices, the devices, and
+/// each input device's new index; those it did not reach join `excluded`.
+fn kept_devices(
+    devices: &[DeviceInfo],
+    models: &[Option<CameraModel>],
+    chained: &[Option<nalgebra::Isometry3<f64>>],
+    excluded: &mut Vec<Excluded>,
+) -> (Vec<usize>, Vec<Device>, Vec<Option<usize>>) {
+    let mut device_index = Vec::new();
+    let mut kept = Vec::new();
+    let mut new_device = vec![None; devices.len()];
+    for (d, info) in devices.iter().enumerate() {
+        match (models[d], chained[d]) {
+            (Some(model), Some(pose)) => {
+                new_device[d] = Some(kept.len());
+                device_index.push(d);
+                kept.push(Device {
+                    name: info.name.clone(),
+                    kind: info.kind,
+                    model,
+                    pose,
+                });
+            }
+            (Some(_), None) => excluded.push(Excluded {
+                name: info.name.clone(),
+                reason: "shares no board pose with the devices linked to the reference".into(),
+            }),
+            (None, _) => {}
+        }
+    }
+    (device_index, kept, new_device)
+}
+
+/// The board poses the graph reached, renumbered: their input indices, their poses, and
+/// the observations of kept devices at kept poses (renumbered by `new_device`); a
+/// projector observation also needs its camera kept.
+fn kept_poses(
+    chained: &[Option<nalgebra::Isometry3<f64>>],
+    obs: &[Observation],
+    new_device: &[Option<usize>],
+) -> (Vec<usize>, Vec<nalgebra::Isometry3<f64>>, Vec<Observation>) {
+    let mut pose_index = Vec::new();
+    let mut new_pose = vec![None; chained.len()];
+    let mut boards = Vec::new();
+    for (k, b) in chained.iter().enumerate() {
+        if let Some(b) = b {
+            new_pose[k] = Some(boards.len());
+            pose_index.push(k);
+            boards.push(*b);
+        }
+    }
+    let observations = obs
+        .iter()
+        .filter_map(|o| {
+            let via = match o.via {
+                Some(v) => Some(bundle::Via {
+                    camera: new_device[v.camera]?,
+                    ..v
+                }),
+                None => None,
+            };
+            Some(Observation {
+                device: new_device[o.device]?,
+                pose: new_pose[o.pose]?,
+                via,
+                ..*o
+            })
+        })
+        .collect();
+    (pose_index, boards, observations)
+}
+
 /// Calibrate every device from the cameras' labelled views of `poses` board poses.
 pub fn calibrate(
     board: &Board,
@@ -263,16 +349,7 @@ pub fn calibrate(
     options: &CalibrateOptions,
 ) -> Result<Calibration, CalibError> {
     check_input(devices, poses, views).map_err(|(at, reason)| CalibError::Input { at, reason })?;
-    if options.bundle.reference >= devices.len() {
-        return Err(CalibError::Input {
-            at: "reference".into(),
-            reason: format!(
-                "device {} is out of range ({} devices)",
-                options.bundle.reference,
-                devices.len()
-            ),
-        });
-    }
+    check_reference(devices, options.bundle.reference)?;
     let (views, registration) = register(views, &options.register);
     let obs = observations(&views);
     let mut excluded = Vec::new();
@@ -301,57 +378,9 @@ pub fn calibrate(
     }
     let graph = chain(&pairs, devices.len(), poses, reference);
     // Keep the devices and poses the graph reached; renumber them.
-    let mut device_index = Vec::new();
-    let mut kept = Vec::new();
-    let mut new_device = vec![None; devices.len()];
-    for (d, info) in devices.iter().enumerate() {
-        match (models[d], graph.devices[d]) {
-            (Some(model), Some(pose)) => {
-                new_device[d] = Some(kept.len());
-                device_index.push(d);
-                kept.push(Device {
-                    name: info.name.clone(),
-                    kind: info.kind,
-                    model,
-                    pose,
-                });
-            }
-            (Some(_), None) => excluded.push(Excluded {
-                name: info.name.clone(),
-                reason: "shares no board pose with the devices linked to the reference".into(),
-            }),
-            (None, _) => {}
-        }
-    }
-    let mut pose_index = Vec::new();
-    let mut new_pose = vec![None; poses];
-    let mut boards = Vec::new();
-    for (k, b) in graph.boards.iter().enumerate() {
-        if let Some(b) = b {
-            new_pose[k] = Some(boards.len());
-            pose_index.push(k);
-            boards.push(*b);
-        }
-    }
-    // A projector observation also needs its camera kept.
-    let observations: Vec<Observation> = obs
-        .iter()
-        .filter_map(|o| {
-            let via = match o.via {
-                Some(v) => Some(bundle::Via {
-                    camera: new_device[v.camera]?,
-                    ..v
-                }),
-                None => None,
-            };
-            Some(Observation {
-                device: new_device[o.device]?,
-                pose: new_pose[o.pose]?,
-                via,
-                ..*o
-            })
-        })
-        .collect();
+    let (device_index, kept, new_device) =
+        kept_devices(devices, &models, &graph.devices, &mut excluded);
+    let (pose_index, boards, observations) = kept_poses(&graph.boards, &obs, &new_device);
     let bundle_options = Options {
         reference: new_device[reference].expect("the reference is kept"),
         ..options.bundle
