@@ -22,6 +22,10 @@ rustup component add rustfmt clippy >/dev/null 2>&1 || true
 cargo fmt --all --check
 cargo clippy --workspace --all-targets -- -D warnings
 cargo test --workspace
+# Fuzzing regressions (docs/fuzzing.md): every corpus input once, then a seeded mutation
+# run of every target, 40 s in all; a panic, a slow input or an allocation past the cap
+# fails CI.
+cargo run -q -p hexcal-fuzz -- ci --seconds 40
 # The hardware drivers (features `aravis`, `v4l2`, `window`) and the benchmark harnesses
 # (`bench`), built once together: lints,
 # then only their tests (no second full-workspace test run): the Aravis driver through the

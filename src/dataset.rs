@@ -7,6 +7,7 @@
 //! keeps every finished pose and resumes at the first incomplete one.
 
 use crate::images::{CameraFrame, Pixels};
+use crate::limits;
 use crate::pattern::Sequence;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -170,11 +171,153 @@ fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), DatasetError> 
 }
 
 fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, DatasetError> {
-    let text = std::fs::read_to_string(path).map_err(io(path))?;
+    let text = crate::limits::read_text(path).map_err(io(path))?;
     serde_json::from_str(&text).map_err(|e| DatasetError::Invalid {
         path: path.to_owned(),
         reason: e.to_string(),
     })
+}
+
+/// `Invalid` naming `path` and the JSON path of a problem found by a check.
+fn invalid(path: &Path) -> impl FnOnce((String, String)) -> DatasetError + '_ {
+    move |(at, what)| DatasetError::Invalid {
+        path: path.to_owned(),
+        reason: format!("{at}: {what}"),
+    }
+}
+
+/// Device names of the dataset, unique and usable as folder names ([`limits::device_name`]).
+fn check_names<'a>(names: impl Iterator<Item = (String, &'a str)>) -> Result<(), (String, String)> {
+    let mut seen: std::collections::HashMap<&str, String> = std::collections::HashMap::new();
+    for (at, name) in names {
+        limits::device_name(name).map_err(|m| (at.clone(), m))?;
+        if let Some(first) = seen.insert(name, at.clone()) {
+            return Err((at, format!("{name:?} is already the name of {first}")));
+        }
+    }
+    Ok(())
+}
+
+impl DatasetInfo {
+    /// The first problem of a `dataset.json`: (JSON path, what is wrong). Devices within
+    /// [`limits::MAX_DEVICES`], names unique and usable as folder names, image sizes within
+    /// [`limits::image_size`], 8, 12 or 16 bits, and one sequence code per projector with
+    /// the projector's raster size.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        if self.cameras.is_empty() {
+            return Err(("cameras".into(), "no camera".into()));
+        }
+        let devices = self.cameras.len() + self.projectors.len();
+        limits::count(devices, limits::MAX_DEVICES, "devices")
+            .map_err(|m| ("cameras".into(), m))?;
+        let cameras = self.cameras.iter().enumerate();
+        let projectors = self.projectors.iter().enumerate();
+        check_names(
+            cameras
+                .clone()
+                .map(|(i, c)| (format!("cameras[{i}].name"), c.name.as_str()))
+                .chain(
+                    projectors
+                        .clone()
+                        .map(|(i, p)| (format!("projectors[{i}].name"), p.name.as_str())),
+                ),
+        )?;
+        for (i, c) in cameras {
+            limits::image_size(c.width, c.height)
+                .map_err(|m| (format!("cameras[{i}].width"), m))?;
+            if ![8, 12, 16].contains(&c.bits) {
+                return Err((
+                    format!("cameras[{i}].bits"),
+                    format!("{} bits: 8, 12 or 16", c.bits),
+                ));
+            }
+        }
+        let codes = self.sequence.projectors();
+        if codes.len() != self.projectors.len() {
+            return Err((
+                "sequence.projectors".into(),
+                format!(
+                    "{} codes for {} projectors",
+                    codes.len(),
+                    self.projectors.len()
+                ),
+            ));
+        }
+        for ((i, p), code) in projectors.zip(codes) {
+            if (p.width, p.height) != (code.width, code.height) {
+                return Err((
+                    format!("projectors[{i}].width"),
+                    format!(
+                        "{}×{} px, but its sequence code is {}×{} px",
+                        p.width, p.height, code.width, code.height
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl StackInfo {
+    /// The first problem of a `stack.json`: (JSON path, what is wrong). A camera name usable
+    /// as a folder name, an image size within [`limits::image_size`], 8, 12 or 16 bits, and
+    /// frame files inside the stack folder (relative, no `..`) with finite exposures.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        limits::device_name(&self.camera).map_err(|m| ("camera".into(), m))?;
+        limits::image_size(self.width, self.height).map_err(|m| ("width".into(), m))?;
+        if ![8, 12, 16].contains(&self.bits) {
+            return Err(("bits".into(), format!("{} bits: 8, 12 or 16", self.bits)));
+        }
+        for (i, f) in self.frames.iter().enumerate() {
+            let inside = !f.file.is_empty()
+                && Path::new(&f.file)
+                    .components()
+                    .all(|c| matches!(c, std::path::Component::Normal(_)));
+            if !inside {
+                return Err((
+                    format!("frames[{i}].file"),
+                    format!("{:?} is not a file inside the stack folder", f.file),
+                ));
+            }
+            limits::non_negative(f.exposure_us, 1e3 * limits::MAX_DURATION_MS)
+                .map_err(|m| (format!("frames[{i}].exposure_us"), m))?;
+        }
+        Ok(())
+    }
+}
+
+impl PoseInfo {
+    /// The first problem of pose `pose`'s `pose.json` in a dataset of `info`: (JSON path,
+    /// what is wrong). Its own pose index, cameras of the dataset, finite non-negative times.
+    pub fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), (String, String)> {
+        if self.pose != pose {
+            return Err((
+                "pose".into(),
+                format!("{} in the folder of pose {pose}", self.pose),
+            ));
+        }
+        for (i, c) in self.cameras.iter().enumerate() {
+            if !info.cameras.iter().any(|e| &e.name == c) {
+                return Err((
+                    format!("cameras[{i}]"),
+                    format!("{c:?} is not a camera of the dataset"),
+                ));
+            }
+        }
+        limits::non_negative(self.seconds, limits::MAX_DURATION_MS)
+            .map_err(|m| ("seconds".into(), m))?;
+        for (i, t) in self.timeline.iter().enumerate() {
+            limits::finite(t).map_err(|m| (format!("timeline[{i}]"), m))?;
+        }
+        Ok(())
+    }
+}
+
+/// A JSON file of a pose folder, checked against its dataset before use.
+pub trait PoseFile: for<'de> Deserialize<'de> {
+    /// The first problem of the file of pose `pose` in a dataset of `info`: (JSON path,
+    /// what is wrong).
+    fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), (String, String)>;
 }
 
 impl Dataset {
@@ -220,6 +363,7 @@ impl Dataset {
                 ),
             });
         }
+        info.check().map_err(invalid(&path))?;
         Ok(Dataset {
             root: root.to_owned(),
             info,
@@ -241,25 +385,42 @@ impl Dataset {
         self.pose_dir(pose).join(camera)
     }
 
-    /// The completed pose `pose`, if it is.
+    /// The completed pose `pose`, if it is (its `pose.json` checked).
     pub fn pose(&self, pose: usize) -> Result<Option<PoseInfo>, DatasetError> {
         let path = self.pose_dir(pose).join("pose.json");
         if !path.exists() {
             return Ok(None);
         }
-        read_json(&path).map(Some)
+        let info: PoseInfo = read_json(&path)?;
+        info.check(pose, &self.info).map_err(invalid(&path))?;
+        Ok(Some(info))
     }
 
-    /// Indices of the completed poses, ascending.
+    /// Indices of the completed poses, ascending; a pose folder beyond
+    /// [`limits::MAX_POSES`] is refused.
     pub fn completed(&self) -> Result<Vec<usize>, DatasetError> {
         let mut poses = Vec::new();
         for entry in std::fs::read_dir(&self.root).map_err(io(&self.root))? {
             let entry = entry.map_err(io(&self.root))?;
             let name = entry.file_name().to_string_lossy().into_owned();
-            if let Some(k) = name.strip_prefix("pose-").and_then(|k| k.parse().ok()) {
-                if entry.path().join("pose.json").exists() {
-                    poses.push(k);
-                }
+            let Some(digits) = name.strip_prefix("pose-") else {
+                continue;
+            };
+            if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+                continue;
+            }
+            let k = digits
+                .parse::<usize>()
+                .ok()
+                .filter(|&k| k < limits::MAX_POSES);
+            let Some(k) = k else {
+                return Err(DatasetError::Invalid {
+                    path: entry.path(),
+                    reason: format!("pose {digits}: at most {} poses", limits::MAX_POSES),
+                });
+            };
+            if entry.path().join("pose.json").exists() {
+                poses.push(k);
             }
         }
         poses.sort_unstable();
@@ -283,8 +444,8 @@ impl Dataset {
         write_json(&dir.join(name), value)
     }
 
-    /// Read JSON file `name` of pose `pose`, if it exists.
-    pub fn read_pose_file<T: for<'de> Deserialize<'de>>(
+    /// Read JSON file `name` of pose `pose`, if it exists, checked against the dataset.
+    pub fn read_pose_file<T: PoseFile>(
         &self,
         pose: usize,
         name: &str,
@@ -293,7 +454,9 @@ impl Dataset {
         if !path.exists() {
             return Ok(None);
         }
-        read_json(&path).map(Some)
+        let value: T = read_json(&path)?;
+        value.check(pose, &self.info).map_err(invalid(&path))?;
+        Ok(Some(value))
     }
 
     /// A writer of pose `pose` (its folder is created). A folder that already holds files
@@ -432,7 +595,13 @@ impl StackReader {
     /// Open the stack in `dir`; a frame list that does not cover the sequence in order is
     /// an error naming the camera and the first missing frame.
     pub fn open(dir: &Path) -> Result<StackReader, DatasetError> {
-        let info: StackInfo = read_json(&dir.join("stack.json"))?;
+        StackReader::new(dir, read_json(&dir.join("stack.json"))?)
+    }
+
+    /// The stack in `dir` described by `info` (its `stack.json`), checked as [`Self::open`]
+    /// checks it.
+    pub fn new(dir: &Path, info: StackInfo) -> Result<StackReader, DatasetError> {
+        info.check().map_err(invalid(&dir.join("stack.json")))?;
         let n = info.sequence.frame_count();
         for k in 0..n {
             match info.frames.get(k) {
@@ -473,10 +642,8 @@ impl StackReader {
             path: path.clone(),
             reason,
         };
-        let img = image::ImageReader::open(&path)
-            .map_err(|e| err(e.to_string()))?
-            .decode()
-            .map_err(|e| err(e.to_string()))?;
+        let reader = image::ImageReader::open(&path).map_err(|e| err(e.to_string()))?;
+        let img = crate::images::decode(reader).map_err(|e| err(e.to_string()))?;
         if (img.width(), img.height()) != (self.info.width, self.info.height) {
             return Err(err(format!(
                 "{}×{} in a {}×{} stack",

@@ -3,7 +3,7 @@
 //!
 //! Layers, bottom first (docs/design.md §1b; `tests/layers.rs` checks that a module uses only
 //! lower layers or earlier modules of its own):
-//! - foundation: [`atomic`] file writes, `tomlspan`;
+//! - foundation: [`atomic`] file writes, `tomlspan`, [`limits`] on what is read;
 //! - vocabulary: [`board`], [`camera`], [`pattern`] (the phase-shift sequence), [`images`],
 //!   [`dataset`];
 //! - [`sim`]: the simulated world with ground truth;
@@ -25,6 +25,7 @@ pub mod dataset;
 pub mod detect;
 pub mod grid;
 pub mod images;
+pub mod limits;
 pub mod pattern;
 pub mod phase;
 pub mod report;

@@ -1,4 +1,8 @@
 //! The `hexcal` command line.
+//!
+//! Exit statuses (README "Exit codes"): 0 when every device is calibrated (or the command
+//! has nothing to calibrate), 2 when a calibration finished but left a device uncalibrated,
+//! 1 when the command failed: refused input or any other error, told in one line.
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
@@ -6,10 +10,62 @@ use hexcal::app::AppError;
 use hexcal::board::{Board, Side};
 use hexcal::calib::solve::CalibrateOptions;
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+// Printing never panics: std's print macros panic when stdout or stderr is a closed pipe
+// (`hexcal … | head`), so these replacements, in scope for this file and the modules
+// declared after them, drop what cannot be written and the command goes on to its end.
+
+/// `println!` that drops output a closed stdout cannot take.
+macro_rules! println {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
+/// `print!` that drops output a closed stdout cannot take.
+macro_rules! print {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = write!(std::io::stdout(), $($arg)*);
+    }};
+}
+
+/// `eprintln!` that drops output a closed stderr cannot take.
+macro_rules! eprintln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
+
+/// `eprint!` that drops output a closed stderr cannot take.
+macro_rules! eprint {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = write!(std::io::stderr(), $($arg)*);
+    }};
+}
 
 #[cfg(feature = "bench")]
 mod benchcmd;
 mod cli;
+
+/// Exit status of a command that failed (refused input or any other error).
+const EXIT_FAILED: u8 = 1;
+/// Exit status of a calibration that finished with some device not calibrated.
+const EXIT_UNCALIBRATED: u8 = 2;
+/// Exit status of a run stopped by Ctrl-C (128 + SIGINT, as shells report it).
+const EXIT_INTERRUPTED: u8 = 130;
+
+/// How a command that did not fail ended.
+enum Finished {
+    /// Everything asked for was done.
+    Done,
+    /// A calibration was written without these devices.
+    Uncalibrated(Vec<String>),
+}
 
 /// Calibrate a structured-light rig of many cameras and projectors.
 #[derive(Parser)]
@@ -175,7 +231,7 @@ fn calibrate(
     reference: Option<&str>,
     options: CalibrateOptions,
     held_out: usize,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Finished> {
     use hexcal::app::calibrate::{calibrate_dataset, calibrate_file, device_index};
     if input.is_dir() {
         let mut options = options;
@@ -189,7 +245,7 @@ fn calibrate(
         let mut printer = cli::printer(cli::Progress::Human);
         let outcome = calibrate_dataset(input, out, held_out, &options, &mut printer)?;
         cli::summarise(&outcome, cli::Progress::Human);
-        return Ok(());
+        return Ok(finished(&outcome.calibration));
     }
     let done = calibrate_file(input, out, reference, options)?;
     let cal = &done.calibration;
@@ -211,7 +267,44 @@ fn calibrate(
         println!("not calibrated: {}: {}", e.name, e.reason);
     }
     println!("wrote {} files to {}", done.files.len(), out.display());
-    Ok(())
+    Ok(finished(cal))
+}
+
+/// Whether `cal` calibrated every device.
+fn finished(cal: &hexcal::calib::solve::Calibration) -> Finished {
+    match cal.excluded.is_empty() {
+        true => Finished::Done,
+        false => Finished::Uncalibrated(cal.excluded.iter().map(|e| e.name.clone()).collect()),
+    }
+}
+
+/// `hexcal run`: refuses `--poses` beyond the limit and a `--held-out` that leaves too few
+/// poses to calibrate before anything is captured; after the run, the devices its
+/// calibration (`OUT/calibration/calibration.json`) lacks.
+fn run(
+    rig: &Path,
+    out: &Path,
+    options: &hexcal::app::run::RunOptions,
+    auto: bool,
+    progress: cli::Progress,
+) -> anyhow::Result<Finished> {
+    let file = hexcal::rig::file::RigFile::load(rig)?;
+    if let Some(poses) = options.poses.or(file.poses.as_ref().map(|p| p.count)) {
+        check_poses(poses)?;
+        hexcal::app::calibrate::check_held_out(poses, options.held_out)?;
+    }
+    cli::run(rig, out, options, auto, progress)?;
+    let missing = hexcal::app::calibrate::uncalibrated(out)?;
+    Ok(match missing.is_empty() {
+        true => Finished::Done,
+        false => Finished::Uncalibrated(missing),
+    })
+}
+
+/// Refuses a `--poses` beyond [`hexcal::limits::MAX_POSES`].
+fn check_poses(poses: usize) -> anyhow::Result<()> {
+    hexcal::limits::count(poses, hexcal::limits::MAX_POSES, "poses")
+        .map_err(|m| anyhow::anyhow!("--poses {m}"))
 }
 
 /// `hexcal detect`: every image in turn, the JSON written even when some fail; the failures
@@ -272,31 +365,52 @@ fn keep_freed_blocks() {
     }
 }
 
-/// Exit code of a run stopped by Ctrl-C (128 + SIGINT, as shells report it).
-const INTERRUPTED: i32 = 130;
-
-fn main() {
+fn main() -> ExitCode {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     keep_freed_blocks();
-    if let Err(e) = command(Cli::parse()) {
-        eprintln!("error: {e:#}");
-        let interrupted = matches!(
-            e.downcast_ref::<AppError>(),
-            Some(AppError::Interrupted { .. })
-        );
-        std::process::exit(if interrupted { INTERRUPTED } else { 1 });
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            // Usage errors are refused input; --help and --version are not errors.
+            let failed = e.use_stderr();
+            eprint!("{e}");
+            return ExitCode::from(if failed { EXIT_FAILED } else { 0 });
+        }
+    };
+    match execute(cli.command) {
+        Ok(Finished::Done) => ExitCode::SUCCESS,
+        Ok(Finished::Uncalibrated(names)) => {
+            eprintln!(
+                "not calibrated: {} (exit status {EXIT_UNCALIBRATED})",
+                names.join(", ")
+            );
+            ExitCode::from(EXIT_UNCALIBRATED)
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            let interrupted = matches!(
+                e.downcast_ref::<AppError>(),
+                Some(AppError::Interrupted { .. })
+            );
+            ExitCode::from(if interrupted { EXIT_INTERRUPTED } else { EXIT_FAILED })
+        }
     }
 }
 
 /// Run one command.
-fn command(cli: Cli) -> anyhow::Result<()> {
-    match cli.command {
+fn execute(command: Command) -> anyhow::Result<Finished> {
+    match command {
         Command::Capture {
             rig,
             out,
             poses,
             auto,
-        } => cli::capture(&rig, &out, poses, auto)?,
+        } => {
+            if let Some(p) = poses {
+                check_poses(p)?;
+            }
+            cli::capture(&rig, &out, poses, auto)?
+        }
         Command::Decode { stack, out } => cli::decode(&stack, &out)?,
         Command::Devices => cli::devices()?,
         Command::Run {
@@ -308,24 +422,43 @@ fn command(cli: Cli) -> anyhow::Result<()> {
             keep_stacks,
             quiet,
             json,
-        } => cli::run(
-            &rig,
-            &out,
-            &hexcal::app::run::RunOptions {
+        } => {
+            let options = hexcal::app::run::RunOptions {
                 poses,
                 held_out,
                 keep_stacks,
                 stop: Some(cli::stop_flag()?),
-            },
-            auto,
-            if json {
+            };
+            let progress = if json {
                 cli::Progress::Json
             } else if quiet {
                 cli::Progress::Quiet
             } else {
                 cli::Progress::Human
-            },
-        )?,
+            };
+            return run(&rig, &out, &options, auto, progress);
+        }
+        Command::Calibrate {
+            input,
+            out,
+            reference,
+            fix_k3,
+            refine_flatness,
+            held_out,
+        } => {
+            let mut options = CalibrateOptions::default();
+            options.bundle.fix_k3 = fix_k3;
+            options.bundle.refine_flatness = refine_flatness;
+            return calibrate(&input, &out, reference.as_deref(), options, held_out);
+        }
+        other => execute_other(other)?,
+    }
+    Ok(Finished::Done)
+}
+
+/// The commands that calibrate nothing and capture nothing.
+fn execute_other(command: Command) -> anyhow::Result<()> {
+    match command {
         Command::Info => {
             let b = hexcal::board::Board::hex600();
             println!("{}: {} circles per side", b.name, b.lattice().len());
@@ -342,37 +475,11 @@ fn command(cli: Cli) -> anyhow::Result<()> {
                 .with_context(|| format!("cannot write {}", out.display()))?;
             println!("{} {side} side written to {}", board.name, out.display());
         }
-        Command::Calibrate {
-            input,
-            out,
-            reference,
-            fix_k3,
-            refine_flatness,
-            held_out,
-        } => {
-            let mut options = CalibrateOptions::default();
-            options.bundle.fix_k3 = fix_k3;
-            options.bundle.refine_flatness = refine_flatness;
-            calibrate(&input, &out, reference.as_deref(), options, held_out)?
-        }
         Command::Verify { calibration, input } => {
             let checks = hexcal::app::calibrate::verify_file(&calibration, &input)?;
             print!("{}", hexcal::report::format_verification(&checks));
         }
-        Command::Simulate { scene, out, seed } => {
-            let mut scene = load_scene(scene.as_ref())?;
-            scene.seed = seed.unwrap_or(scene.seed);
-            let view = hexcal::sim::render(&scene)?;
-            let [png, json] = hexcal::sim::write_view(&view, &out)?;
-            let whole = view.truth.circles.iter().filter(|c| c.whole).count();
-            println!(
-                "{}: side {}, {} circles imaged ({whole} whole); truth in {}",
-                png.display(),
-                view.truth.side.map_or("none", |s| s.name()),
-                view.truth.circles.len(),
-                json.display()
-            );
-        }
+        Command::Simulate { scene, out, seed } => simulate(scene.as_ref(), &out, seed)?,
         Command::Detect {
             board,
             json,
@@ -381,6 +488,28 @@ fn command(cli: Cli) -> anyhow::Result<()> {
         } => detect_command(&board, &json, overlay.as_deref(), &images)?,
         #[cfg(feature = "bench")]
         Command::Bench { what } => benchcmd::run(what)?,
+        Command::Capture { .. }
+        | Command::Decode { .. }
+        | Command::Devices
+        | Command::Run { .. }
+        | Command::Calibrate { .. } => unreachable!("handled by execute"),
     }
+    Ok(())
+}
+
+/// `hexcal simulate`: render one view of a scene, write its PNG and ground truth.
+fn simulate(scene: Option<&PathBuf>, out: &Path, seed: Option<u64>) -> anyhow::Result<()> {
+    let mut scene = load_scene(scene)?;
+    scene.seed = seed.unwrap_or(scene.seed);
+    let view = hexcal::sim::render(&scene)?;
+    let [png, json] = hexcal::sim::write_view(&view, out)?;
+    let whole = view.truth.circles.iter().filter(|c| c.whole).count();
+    println!(
+        "{}: side {}, {} circles imaged ({whole} whole); truth in {}",
+        png.display(),
+        view.truth.side.map_or("none", |s| s.name()),
+        view.truth.circles.len(),
+        json.display()
+    );
     Ok(())
 }

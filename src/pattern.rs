@@ -210,6 +210,9 @@ pub enum SequenceError {
     /// Too few phase steps.
     #[error("sequence: steps N = {0} is below 3")]
     TooFewSteps(u32),
+    /// A count or size beyond [`crate::limits`].
+    #[error("sequence: {0}")]
+    Limit(String),
     /// A frequency outside 0 < f < N/2.
     #[error("sequence: projector {projector}'s frequency f={frequency} is outside 0 < f < N/2 = {half} (N = {steps})", half = *steps as f64 / 2.0)]
     FrequencyRange {
@@ -376,13 +379,25 @@ impl Sequence {
         if n < 3 {
             return Err(SequenceError::TooFewSteps(n));
         }
+        if n > crate::limits::MAX_PHASE_STEPS {
+            return Err(SequenceError::Limit(format!(
+                "steps N = {n}: at most {}",
+                crate::limits::MAX_PHASE_STEPS
+            )));
+        }
+        crate::limits::count(
+            self.projectors.len(),
+            crate::limits::MAX_DEVICES,
+            "projectors",
+        )
+        .map_err(SequenceError::Limit)?;
         for (p, code) in self.projectors.iter().enumerate() {
-            if code.width == 0 || code.height == 0 {
-                return Err(SequenceError::Projector {
+            crate::limits::image_size(code.width, code.height).map_err(|m| {
+                SequenceError::Projector {
                     projector: p,
-                    what: format!("image size {}×{} is empty", code.width, code.height),
-                });
-            }
+                    what: format!("image size {m}"),
+                }
+            })?;
             if let ProjectorResponse::Gamma { gamma } | ProjectorResponse::Linearised { gamma } =
                 code.response
             {
@@ -393,7 +408,7 @@ impl Sequence {
                     });
                 }
             }
-            if code.frequency == 0 || 2 * code.frequency >= n {
+            if code.frequency == 0 || 2 * u64::from(code.frequency) >= u64::from(n) {
                 return Err(SequenceError::FrequencyRange {
                     projector: p,
                     frequency: code.frequency,
@@ -401,6 +416,14 @@ impl Sequence {
                 });
             }
         }
+        self.validate_aliases()?;
+        self.validate_counts()
+    }
+
+    /// No fundamental on another projector's frequency; for uncorrected gamma, no harmonic
+    /// 2…3 of any projector on ±f of any projector.
+    fn validate_aliases(&self) -> Result<(), SequenceError> {
+        let n = self.steps;
         // Fundamentals (h = 1, other projectors only) and, for uncorrected gamma, harmonics
         // 2…3 of every projector against ±f of every projector and the mean.
         for (p, code) in self.projectors.iter().enumerate() {
@@ -439,6 +462,12 @@ impl Sequence {
                 }
             }
         }
+        Ok(())
+    }
+
+    /// Each direction's fringe counts: 2 to [`MAX_COUNTS`], non-zero, distinct, coprime, and
+    /// fringes at least 2 px wide on every projector.
+    fn validate_counts(&self) -> Result<(), SequenceError> {
         for (direction, counts) in [
             (Direction::Columns, &self.column_counts),
             (Direction::Rows, &self.row_counts),
@@ -474,7 +503,7 @@ impl Sequence {
                     Direction::Columns => code.width,
                     Direction::Rows => code.height,
                 };
-                if 2 * max > size {
+                if 2 * u64::from(max) > u64::from(size) {
                     return Err(bad(format!(
                         "count {max} exceeds half of projector {p}'s {size} px (fringes under 2 px)"
                     )));

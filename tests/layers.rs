@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 /// The layers, bottom first; within a layer, the order data flows.
 const LAYERS: &[&[&str]] = &[
-    &["atomic", "tomlspan"],
+    &["atomic", "tomlspan", "limits"],
     &["board", "camera", "pattern", "images", "dataset"],
     &["sim"],
     &[

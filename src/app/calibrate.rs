@@ -12,6 +12,10 @@ use crate::correspond::CameraView;
 use crate::dataset::{Dataset, DatasetInfo};
 use std::path::{Path, PathBuf};
 
+/// Board poses a calibration needs: a device sees one side of the board per pose, and
+/// Zhang's start needs [`crate::calib::zhang::MIN_VIEWS`] views.
+pub const MIN_CALIBRATION_POSES: usize = crate::calib::zhang::MIN_VIEWS;
+
 pub(crate) fn devices_of(info: &DatasetInfo) -> Vec<DeviceInfo> {
     info.cameras
         .iter()
@@ -153,6 +157,7 @@ pub fn calibrate_dataset(
             root.display()
         )));
     }
+    check_held_out(poses.len(), held_out)?;
     // Renumber the complete poses 0…n−1 in order.
     let mut all = Vec::new();
     let mut warnings = Vec::new();
@@ -204,12 +209,29 @@ pub struct FileOutcome {
 
 /// Read a correspondences file (README: "A correspondences file").
 pub fn read_correspondences(path: &Path) -> Result<Correspondences, AppError> {
-    let text = std::fs::read_to_string(path).map_err(AppError::io(path))?;
-    serde_json::from_str(&text).map_err(|source| AppError::Json {
+    let text = crate::limits::read_text(path).map_err(AppError::io(path))?;
+    let c: Correspondences = serde_json::from_str(&text).map_err(|source| AppError::Json {
         path: path.to_owned(),
         what: "correspondences file",
         source,
-    })
+    })?;
+    c.check()
+        .map_err(|(at, what)| AppError::Input(format!("{}: {at}: {what}", path.display())))?;
+    Ok(c)
+}
+
+/// Refuses `held_out` poses of `poses` when fewer than [`MIN_CALIBRATION_POSES`] remain to
+/// calibrate (checked before a capture starts).
+pub fn check_held_out(poses: usize, held_out: usize) -> Result<(), AppError> {
+    let left = poses.saturating_sub(held_out);
+    if left < MIN_CALIBRATION_POSES {
+        return Err(AppError::Input(format!(
+            "--held-out {held_out} leaves {left} calibration pose{} of {poses}: at least \
+             {MIN_CALIBRATION_POSES} needed (every device needs {MIN_CALIBRATION_POSES} views)",
+            if left == 1 { "" } else { "s" }
+        )));
+    }
+    Ok(())
 }
 
 /// The index of the device called `name` among `names`, for `--reference`.
@@ -260,7 +282,7 @@ pub fn calibrate_file(
 /// `hexcal verify`: the held-out poses of the correspondences file `input` triangulated
 /// with the devices of the calibration file `calibration`.
 pub fn verify_file(calibration: &Path, input: &Path) -> Result<Vec<PairCheck>, AppError> {
-    let text = std::fs::read_to_string(calibration).map_err(AppError::io(calibration))?;
+    let text = crate::limits::read_text(calibration).map_err(AppError::io(calibration))?;
     let cal = crate::report::CalibrationFile::from_json(&text, &calibration.display().to_string())?;
     let c = read_correspondences(input)?;
     let devices = c
@@ -296,4 +318,18 @@ pub fn verify_file(calibration: &Path, input: &Path) -> Result<Vec<PairCheck>, A
         )));
     }
     Ok(checks)
+}
+
+/// The devices of the dataset at `out` (of `hexcal run`) that its calibration
+/// (`out/calibration/calibration.json`) lacks.
+pub fn uncalibrated(out: &Path) -> Result<Vec<String>, AppError> {
+    let data = Dataset::open(out)?;
+    let path = out.join("calibration").join("calibration.json");
+    let text = crate::limits::read_text(&path).map_err(AppError::io(&path))?;
+    let cal = crate::report::CalibrationFile::from_json(&text, &path.display().to_string())?;
+    Ok(devices_of(&data.info)
+        .into_iter()
+        .filter(|d| !cal.devices.iter().any(|c| c.name == d.name))
+        .map(|d| d.name)
+        .collect())
 }

@@ -6,7 +6,7 @@
 
 use crate::board::Board;
 use crate::correspond::{camera_view, CameraView, FitParams, ProjectorMap};
-use crate::dataset::{CameraEntry, Dataset};
+use crate::dataset::{CameraEntry, Dataset, DatasetInfo};
 use crate::detect::{detect, DetectParams};
 use crate::grid::{build, GridParams};
 use crate::images::{CameraFrame, Pixels};
@@ -42,6 +42,67 @@ pub struct PoseViews {
     pub pose: usize,
     /// Per camera, in rig order.
     pub stacks: Vec<StackResult>,
+}
+
+impl crate::dataset::PoseFile for PoseViews {
+    /// `views.json` of pose `pose`: its own pose index, one result per camera of the
+    /// dataset in order, one projector count per projector, and every view of its own
+    /// camera and pose with projector indices among the dataset's projectors (device
+    /// indices: cameras first, then projectors).
+    fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), (String, String)> {
+        if self.pose != pose {
+            return Err((
+                "pose".into(),
+                format!("{} in the folder of pose {pose}", self.pose),
+            ));
+        }
+        let (cameras, projectors) = (info.cameras.len(), info.projectors.len());
+        if self.stacks.len() != cameras {
+            return Err((
+                "stacks".into(),
+                format!("{} results for {cameras} cameras", self.stacks.len()),
+            ));
+        }
+        for (c, (s, entry)) in self.stacks.iter().zip(&info.cameras).enumerate() {
+            let at = |k: &str| format!("stacks[{c}].{k}");
+            if s.camera != entry.name {
+                return Err((
+                    at("camera"),
+                    format!("{:?}, but camera {c} is {:?}", s.camera, entry.name),
+                ));
+            }
+            if s.projector_points.len() != projectors {
+                return Err((
+                    at("projector_points"),
+                    format!(
+                        "{} counts for {projectors} projectors",
+                        s.projector_points.len()
+                    ),
+                ));
+            }
+            let Some(view) = &s.view else { continue };
+            let camera = |i: usize| match i == c {
+                true => Ok(()),
+                false => Err(format!("camera {i} in the result of camera {c}")),
+            };
+            let projector = |j: usize| match (cameras..cameras + projectors).contains(&j) {
+                true => Ok(()),
+                false => Err(format!(
+                    "device {j} is not one of the {projectors} projectors (devices from \
+                     {cameras} on)"
+                )),
+            };
+            if view.pose != pose {
+                return Err((
+                    at("view.pose"),
+                    format!("{} in the folder of pose {pose}", view.pose),
+                ));
+            }
+            view.check(&camera, &projector, pose + 1)
+                .map_err(|(k, m)| (at(&format!("view.{k}")), m))?;
+        }
+        Ok(())
+    }
 }
 
 /// Detection, grid and projector fits on one camera's decoded stack (circles on the decoded

@@ -128,7 +128,7 @@ impl Board {
     /// Read and validate a board file.
     pub fn load(path: impl AsRef<Path>) -> Result<Board, BoardError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| BoardError::Read {
+        let text = crate::limits::read_text(path).map_err(|source| BoardError::Read {
             path: path.to_owned(),
             source,
         })?;

@@ -405,18 +405,33 @@ impl Board {
 
     /// Every lattice point with a circle, row by row (r ascending, then q ascending).
     pub fn lattice(&self) -> Vec<Hex> {
-        let row_step = self.pitch * 0.75f64.sqrt();
-        let r_max = (self.half_height / row_step + 1e-9).floor() as i32;
         let mut out = Vec::new();
-        for r in -r_max..=r_max {
-            let q_span = (self.half_width / self.pitch).ceil() as i32 + r.abs();
+        for r in -self.row_reach()..=self.row_reach() {
+            let (lo, hi) = self.row_span(r);
             out.extend(
-                (-q_span..=q_span)
+                (lo..=hi)
                     .map(|q| Hex::new(q, r))
                     .filter(|&h| self.contains(h)),
             );
         }
         out
+    }
+
+    /// The largest |r| of a row with circles.
+    fn row_reach(&self) -> i32 {
+        let row_step = self.pitch * 0.75f64.sqrt();
+        (self.half_height / row_step + 1e-9).floor() as i32
+    }
+
+    /// A range of q holding every circle of row r (x = d·(q + r/2), |x| ≤ half_width),
+    /// one lattice point wider on each side.
+    fn row_span(&self, r: i32) -> (i32, i32) {
+        let reach = self.half_width / self.pitch;
+        let shift = 0.5 * f64::from(r);
+        (
+            (-reach - shift).floor() as i32 - 1,
+            (reach - shift).ceil() as i32 + 1,
+        )
     }
 
     /// The marker cells of one side: the centre cell, then the side marks.
@@ -431,10 +446,11 @@ impl Board {
         }];
         let s = self.marker_spacing;
         if s > 0 {
-            let reach = 2 * (self.half_width.max(self.half_height) / self.pitch).ceil() as i32 + 2;
-            let n = reach / s + 1;
-            for j in -n..=n {
-                for i in -n..=n {
+            // Rows r = s·j of the lattice, and in each the q = s·i of its circles.
+            let rows = self.row_reach() / s;
+            for j in -rows..=rows {
+                let (lo, hi) = self.row_span(s * j);
+                for i in lo.div_euclid(s)..=hi.div_euclid(s) + 1 {
                     let c = Hex::new(s * i, s * j);
                     if (i, j) != (0, 0)
                         && self.contains(c)

@@ -2,6 +2,7 @@
 //! to make sense; [`Board::validate`] names the field that breaks one.
 
 use super::{Board, Code, Hex, MarkerKind, Side};
+use crate::limits;
 use std::collections::HashMap;
 
 /// A broken rule: the board field to fix (dotted, as in a board file) and what is wrong.
@@ -73,6 +74,7 @@ impl Board {
             self.half_height > 0.0,
             "half_height > 0",
         )?;
+        self.check_extent()?;
         let [w, h] = self.size;
         let fits = 2.0 * (self.half_width + r) <= w && 2.0 * (self.half_height + r) <= h;
         check(
@@ -96,6 +98,40 @@ impl Board {
         if let Some(t) = &self.front_back {
             check("front_back.rotation", &t.rotation, true, "all finite")?;
             check("front_back.translation", &t.translation, true, "all finite")?;
+        }
+        Ok(())
+    }
+
+    /// The pitch is at least [`limits::MIN_BOARD_PITCH_MM`] and a side has at most
+    /// [`limits::MAX_BOARD_CIRCLES`] circles (rows × circles per row, an upper bound known
+    /// before any lattice is built).
+    fn check_extent(&self) -> Result<(), Invalid> {
+        let d = self.pitch;
+        if d < limits::MIN_BOARD_PITCH_MM {
+            return Err(invalid(
+                "pitch",
+                format!(
+                    "{d} mm is below the smallest pitch, {} mm",
+                    limits::MIN_BOARD_PITCH_MM
+                ),
+            ));
+        }
+        let rows = 2.0 * (self.half_height / (d * 0.75f64.sqrt())).floor() + 1.0;
+        let per_row = 2.0 * (self.half_width / d).floor() + 1.0;
+        if rows * per_row > limits::MAX_BOARD_CIRCLES {
+            let field = if rows > per_row {
+                "half_height"
+            } else {
+                "half_width"
+            };
+            return Err(invalid(
+                field,
+                format!(
+                    "about {:.0} circles per side (pitch {d} mm): at most {}",
+                    rows * per_row,
+                    limits::MAX_BOARD_CIRCLES
+                ),
+            ));
         }
         Ok(())
     }

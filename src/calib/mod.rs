@@ -46,17 +46,26 @@ pub enum CalibError {
         /// Views given.
         got: usize,
     },
-    /// Zhang's initialisation of a device failed.
-    #[error("Zhang initialisation from {views} views: {reason}")]
-    Start {
-        /// Views given.
-        views: usize,
-        /// Why it failed.
-        reason: Box<CalibError>,
-    },
     /// The data do not determine the quantity (e.g. parallel views, collinear points).
     #[error("degenerate data: {0}")]
     Degenerate(&'static str),
+    /// The reference device could not be calibrated.
+    #[error("the reference device {name} cannot be calibrated: {reason}")]
+    Reference {
+        /// Its name.
+        name: String,
+        /// Why (which views it has, what they lack).
+        reason: String,
+    },
+    /// The input refers to what is not there (a device, pose or index out of range, a
+    /// duplicate name or view, a value that is not finite).
+    #[error("{at}: {reason}")]
+    Input {
+        /// Where: the JSON path of the offending value (e.g. `views[3].camera`).
+        at: String,
+        /// What is wrong.
+        reason: String,
+    },
 }
 
 #[cfg(test)]

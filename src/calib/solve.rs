@@ -14,6 +14,7 @@ use super::zhang;
 use super::{CalibError, PlanarView, PlaneCorrespondence};
 use crate::board::{Board, Side};
 use crate::camera::CameraModel;
+use crate::limits;
 use std::collections::BTreeMap;
 
 /// A device to calibrate.
@@ -43,6 +44,72 @@ pub struct Correspondences {
     pub poses: usize,
     /// The labelled views.
     pub views: Vec<CameraView>,
+}
+
+impl Correspondences {
+    /// The first problem of a correspondences file: (JSON path, what is wrong), as
+    /// [`check_input`] finds it.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        check_input(&self.devices, self.poses, &self.views)
+    }
+}
+
+/// The first problem of calibration input: (JSON path, what is wrong). At least one and
+/// at most [`limits::MAX_DEVICES`] devices with unique names usable as file names and sizes
+/// within [`limits::image_size`]; 1 to [`limits::MAX_POSES`] poses; every view of a camera
+/// and a pose in range, at most one per (camera, pose), its projector pixels of projectors
+/// ([`CameraView::check`]).
+pub fn check_input(
+    devices: &[DeviceInfo],
+    poses: usize,
+    views: &[CameraView],
+) -> Result<(), (String, String)> {
+    if devices.is_empty() {
+        return Err(("devices".into(), "no device".into()));
+    }
+    limits::count(devices.len(), limits::MAX_DEVICES, "devices")
+        .map_err(|m| ("devices".to_string(), m))?;
+    let mut names = BTreeMap::new();
+    for (i, d) in devices.iter().enumerate() {
+        let at = |k: &str| format!("devices[{i}].{k}");
+        limits::device_name(&d.name).map_err(|m| (at("name"), m))?;
+        if let Some(first) = names.insert(d.name.as_str(), i) {
+            return Err((
+                at("name"),
+                format!("{:?} is already the name of devices[{first}]", d.name),
+            ));
+        }
+        limits::image_size(d.width, d.height).map_err(|m| (at("width"), m))?;
+    }
+    if poses == 0 {
+        return Err(("poses".into(), "no board pose".into()));
+    }
+    limits::count(poses, limits::MAX_POSES, "poses").map_err(|m| ("poses".to_string(), m))?;
+    let kind = |want: DeviceKind, i: usize| match devices.get(i) {
+        Some(d) if d.kind == want => Ok(()),
+        Some(d) => Err(format!("device {i} ({}) is a {:?}", d.name, d.kind).to_lowercase()),
+        None => Err(format!(
+            "device {i} is out of range ({} devices)",
+            devices.len()
+        )),
+    };
+    let camera = |i| kind(DeviceKind::Camera, i);
+    let projector = |i| kind(DeviceKind::Projector, i);
+    let mut seen = BTreeMap::new();
+    for (i, v) in views.iter().enumerate() {
+        v.check(&camera, &projector, poses)
+            .map_err(|(k, m)| (format!("views[{i}].{k}"), m))?;
+        if let Some(first) = seen.insert((v.camera, v.pose), i) {
+            return Err((
+                format!("views[{i}]"),
+                format!(
+                    "camera {} at pose {} already has a view (views[{first}])",
+                    v.camera, v.pose
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Settings of [`calibrate`].
@@ -105,24 +172,24 @@ struct Start {
     pairs: Vec<PairEstimate>,
 }
 
+/// Views of one device grouped by (pose, side): one correspondence per circle.
+type Groups = BTreeMap<(usize, Side), BTreeMap<crate::board::Hex, PlaneCorrespondence>>;
+
+/// Zhang's start of device `device` from its views of at least `min_points` circles; the
+/// error names the views it has and what they lack.
 fn initialise(
     board: &Board,
     info: &DeviceInfo,
     device: usize,
     obs: &[Observation],
     min_points: usize,
-) -> Result<Start, CalibError> {
+) -> Result<Start, String> {
     // Group by (pose, side); a projector sees each circle through several cameras: keep one
     // correspondence per circle (the first) for the start.
-    let mut groups: BTreeMap<(usize, u8), BTreeMap<crate::board::Hex, PlaneCorrespondence>> =
-        BTreeMap::new();
+    let mut groups = Groups::new();
     for o in obs.iter().filter(|o| o.device == device) {
-        let side = match o.side {
-            Side::Front => 0,
-            Side::Back => 1,
-        };
         groups
-            .entry((o.pose, side))
+            .entry((o.pose, o.side))
             .or_default()
             .entry(o.hex)
             .or_insert(PlaneCorrespondence {
@@ -130,77 +197,90 @@ fn initialise(
                 image: o.pixel,
             });
     }
-    let keys: Vec<(usize, u8)> = groups
+    let keys: Vec<(usize, Side)> = groups
         .iter()
         .filter(|(_, g)| g.len() >= min_points)
         .map(|(k, _)| *k)
         .collect();
+    if keys.len() < zhang::MIN_VIEWS {
+        return Err(too_few_views(&groups, keys.len(), min_points));
+    }
     let views: Vec<PlanarView> = keys
         .iter()
         .map(|k| PlanarView {
             points: groups[k].values().copied().collect(),
         })
         .collect();
-    let (model, poses) =
-        zhang::initialise(&views, info.width, info.height).map_err(|e| CalibError::Start {
-            views: views.len(),
-            reason: Box::new(e),
-        })?;
+    let (model, poses) = zhang::initialise(&views, info.width, info.height).map_err(|e| {
+        format!(
+            "Zhang initialisation from {} views ({}): {e}",
+            views.len(),
+            keys.iter()
+                .map(|&(k, s)| format!("pose {k} {s}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    })?;
     let pairs = keys
         .iter()
         .zip(&poses)
         .zip(&views)
-        .map(|((&(pose, side), device_from_side), view)| {
-            let side = if side == 0 { Side::Front } else { Side::Back };
-            PairEstimate {
-                device,
-                pose,
-                device_from_board: device_from_side * board.side_transform(side).inverse(),
-                points: view.points.len(),
-            }
+        .map(|((&(pose, side), device_from_side), view)| PairEstimate {
+            device,
+            pose,
+            device_from_board: device_from_side * board.side_transform(side).inverse(),
+            points: view.points.len(),
         })
         .collect();
     Ok(Start { model, pairs })
 }
 
-/// Calibrate every device from the cameras' labelled views of `poses` board poses.
-pub fn calibrate(
-    board: &Board,
+/// "2 usable views, at least 3 needed (pose 4 front has 7 circles, a view needs 12)".
+fn too_few_views(groups: &Groups, usable: usize, min_points: usize) -> String {
+    let mut text = format!(
+        "{usable} usable views, at least {} needed",
+        zhang::MIN_VIEWS
+    );
+    let sparse: Vec<String> = groups
+        .iter()
+        .filter(|(_, g)| g.len() < min_points)
+        .map(|((k, s), g)| format!("pose {k} {s} has {} circles", g.len()))
+        .collect();
+    if groups.is_empty() {
+        text += " (no labelled circle of it in any view)";
+    } else if !sparse.is_empty() {
+        text += &format!(" ({}; a view needs {min_points})", sparse.join(", "));
+    }
+    text
+}
+
+/// Refuses a reference device index out of range.
+fn check_reference(devices: &[DeviceInfo], reference: usize) -> Result<(), CalibError> {
+    if reference >= devices.len() {
+        return Err(CalibError::Input {
+            at: "reference".into(),
+            reason: format!(
+                "device {reference} is out of range ({} devices)",
+                devices.len()
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// The devices with a start that the graph reached: their input indices, the devices, and
+/// each input device's new index; those it did not reach join `excluded`.
+fn kept_devices(
     devices: &[DeviceInfo],
-    poses: usize,
-    views: &[CameraView],
-    options: &CalibrateOptions,
-) -> Result<Calibration, CalibError> {
-    let (views, registration) = register(views, &options.register);
-    let obs = observations(&views);
-    let mut excluded = Vec::new();
-    let mut models = vec![None; devices.len()];
-    let mut pairs = Vec::new();
-    for (d, info) in devices.iter().enumerate() {
-        match initialise(board, info, d, &obs, options.min_view_points) {
-            Ok(start) => {
-                models[d] = Some(start.model);
-                pairs.extend(start.pairs);
-            }
-            Err(e) => excluded.push(Excluded {
-                name: info.name.clone(),
-                reason: e.to_string(),
-            }),
-        }
-    }
-    let reference = options.bundle.reference;
-    if models.get(reference).is_none_or(Option::is_none) {
-        return Err(CalibError::Degenerate(
-            "the reference device could not be initialised",
-        ));
-    }
-    let graph = chain(&pairs, devices.len(), poses, reference);
-    // Keep the devices and poses the graph reached; renumber them.
+    models: &[Option<CameraModel>],
+    chained: &[Option<nalgebra::Isometry3<f64>>],
+    excluded: &mut Vec<Excluded>,
+) -> (Vec<usize>, Vec<Device>, Vec<Option<usize>>) {
     let mut device_index = Vec::new();
     let mut kept = Vec::new();
     let mut new_device = vec![None; devices.len()];
     for (d, info) in devices.iter().enumerate() {
-        match (models[d], graph.devices[d]) {
+        match (models[d], chained[d]) {
             (Some(model), Some(pose)) => {
                 new_device[d] = Some(kept.len());
                 device_index.push(d);
@@ -218,18 +298,28 @@ pub fn calibrate(
             (None, _) => {}
         }
     }
+    (device_index, kept, new_device)
+}
+
+/// The board poses the graph reached, renumbered: their input indices, their poses, and
+/// the observations of kept devices at kept poses (renumbered by `new_device`); a
+/// projector observation also needs its camera kept.
+fn kept_poses(
+    chained: &[Option<nalgebra::Isometry3<f64>>],
+    obs: &[Observation],
+    new_device: &[Option<usize>],
+) -> (Vec<usize>, Vec<nalgebra::Isometry3<f64>>, Vec<Observation>) {
     let mut pose_index = Vec::new();
-    let mut new_pose = vec![None; poses];
+    let mut new_pose = vec![None; chained.len()];
     let mut boards = Vec::new();
-    for (k, b) in graph.boards.iter().enumerate() {
+    for (k, b) in chained.iter().enumerate() {
         if let Some(b) = b {
             new_pose[k] = Some(boards.len());
             pose_index.push(k);
             boards.push(*b);
         }
     }
-    // A projector observation also needs its camera kept.
-    let observations: Vec<Observation> = obs
+    let observations = obs
         .iter()
         .filter_map(|o| {
             let via = match o.via {
@@ -247,6 +337,50 @@ pub fn calibrate(
             })
         })
         .collect();
+    (pose_index, boards, observations)
+}
+
+/// Calibrate every device from the cameras' labelled views of `poses` board poses.
+pub fn calibrate(
+    board: &Board,
+    devices: &[DeviceInfo],
+    poses: usize,
+    views: &[CameraView],
+    options: &CalibrateOptions,
+) -> Result<Calibration, CalibError> {
+    check_input(devices, poses, views).map_err(|(at, reason)| CalibError::Input { at, reason })?;
+    check_reference(devices, options.bundle.reference)?;
+    let (views, registration) = register(views, &options.register);
+    let obs = observations(&views);
+    let mut excluded = Vec::new();
+    let mut models = vec![None; devices.len()];
+    let mut pairs = Vec::new();
+    for (d, info) in devices.iter().enumerate() {
+        match initialise(board, info, d, &obs, options.min_view_points) {
+            Ok(start) => {
+                models[d] = Some(start.model);
+                pairs.extend(start.pairs);
+            }
+            Err(reason) => excluded.push(Excluded {
+                name: info.name.clone(),
+                reason,
+            }),
+        }
+    }
+    let reference = options.bundle.reference;
+    if models[reference].is_none() {
+        let name = devices[reference].name.clone();
+        let reason = excluded
+            .iter()
+            .find(|e| e.name == name)
+            .map_or(String::new(), |e| e.reason.clone());
+        return Err(CalibError::Reference { name, reason });
+    }
+    let graph = chain(&pairs, devices.len(), poses, reference);
+    // Keep the devices and poses the graph reached; renumber them.
+    let (device_index, kept, new_device) =
+        kept_devices(devices, &models, &graph.devices, &mut excluded);
+    let (pose_index, boards, observations) = kept_poses(&graph.boards, &obs, &new_device);
     let bundle_options = Options {
         reference: new_device[reference].expect("the reference is kept"),
         ..options.bundle

@@ -58,33 +58,42 @@ fn midpoint(a: (Point3<f64>, Vector3<f64>), b: (Point3<f64>, Vector3<f64>)) -> O
     ))
 }
 
-/// Rigid transform taking `from` onto `to` in the least-squares sense (Kabsch).
-fn fit_rigid(from: &[Point3<f64>], to: &[Point3<f64>]) -> Isometry3<f64> {
+/// Iterations an SVD or eigen-decomposition may take (they converge in tens; points gone
+/// non-finite never converge, and the pair is left out instead).
+const MAX_ITERATIONS: usize = 10_000;
+
+/// Rigid transform taking `from` onto `to` in the least-squares sense (Kabsch); `None`
+/// when the decomposition does not converge.
+fn fit_rigid(from: &[Point3<f64>], to: &[Point3<f64>]) -> Option<Isometry3<f64>> {
     let n = from.len() as f64;
     let cf = from.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
     let ct = to.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
     let h = from.iter().zip(to).fold(Matrix3::zeros(), |h, (f, t)| {
         h + (f.coords - cf) * (t.coords - ct).transpose()
     });
-    let svd = h.svd(true, true);
-    let (u, vt) = (svd.u.expect("u"), svd.v_t.expect("v_t"));
+    let svd = h.try_svd(true, true, f64::EPSILON, MAX_ITERATIONS)?;
+    let (u, vt) = (svd.u?, svd.v_t?);
     let mut d = Matrix3::identity();
     d[(2, 2)] = (vt.transpose() * u.transpose()).determinant().signum();
     let r = vt.transpose() * d * u.transpose();
     let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
-    Isometry3::from_parts(Translation3::from(ct - rot * cf), rot)
+    Some(Isometry3::from_parts(
+        Translation3::from(ct - rot * cf),
+        rot,
+    ))
 }
 
-/// RMS distance from the least-squares plane.
+/// RMS distance from the least-squares plane (NaN when the decomposition does not converge).
 fn flatness(points: &[Point3<f64>]) -> f64 {
     let n = points.len() as f64;
     let c = points.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
     let cov = points.iter().fold(Matrix3::zeros(), |m, p| {
         m + (p.coords - c) * (p.coords - c).transpose()
     });
-    (cov.symmetric_eigen().eigenvalues.min() / n)
-        .max(0.0)
-        .sqrt()
+    match cov.try_symmetric_eigen(f64::EPSILON, MAX_ITERATIONS) {
+        Some(eig) => (eig.eigenvalues.min() / n).max(0.0).sqrt(),
+        None => f64::NAN,
+    }
 }
 
 /// Observations of one circle by the two devices of a pair.
@@ -119,7 +128,7 @@ fn check_pair(
     let (points, nominal) = if second_is_camera {
         // Fit the pose to the points, remove each camera's ellipse-centre bias predicted
         // from it (§8), triangulate again.
-        let ref_from_board = fit_rigid(&nominal, &first);
+        let ref_from_board = fit_rigid(&nominal, &first)?;
         let debias = |d: usize, p: &Pairing, pixel: Point2<f64>| {
             let dev = &devices[d];
             let face = dev.pose * ref_from_board * board.side_transform(side);
@@ -137,7 +146,7 @@ fn check_pair(
         // centre (§7), so the raw rays meet there: compare with that point's nominal
         // position, the circle centre moved by its offset on the board (found with the
         // fitted pose; the ~0.1 mm offset barely depends on the pose's small error).
-        let ref_from_side = fit_rigid(&nominal, &first) * board.side_transform(side);
+        let ref_from_side = fit_rigid(&nominal, &first)? * board.side_transform(side);
         let normal = ref_from_side.rotation * Vector3::z();
         let q = ref_from_side.translation.vector;
         let moved = pairs

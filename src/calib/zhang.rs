@@ -39,7 +39,7 @@ impl Homography {
                 a[(2 * i + 1, j)] = r1[j];
             }
         }
-        let svd = a.svd(false, true);
+        let svd = a.try_svd(false, true, f64::EPSILON, MAX_SVD_ITERATIONS)?;
         let vt = svd.v_t?;
         let (k, _) = svd
             .singular_values
@@ -105,7 +105,9 @@ pub fn intrinsics_from_homographies(hs: &[Homography]) -> Result<Intrinsics, Cal
             .copy_from(&(v_ij(&h, 0, 0) - v_ij(&h, 1, 1)).transpose());
     }
     v[(2 * hs.len(), 1)] = 1.0;
-    let svd = v.svd(false, true);
+    let svd = v
+        .try_svd(false, true, f64::EPSILON, MAX_SVD_ITERATIONS)
+        .ok_or(CalibError::Degenerate("intrinsics SVD"))?;
     let vt = svd.v_t.ok_or(CalibError::Degenerate("intrinsics SVD"))?;
     let (k, _) = svd
         .singular_values
@@ -146,7 +148,7 @@ pub fn pose_from_homography(h: &Homography, k: &Intrinsics) -> Option<Isometry3<
     let t = m.column(2) * lambda;
     let r3 = r1.cross(&r2);
     let r = Matrix3::from_columns(&[r1, r2, r3]);
-    let svd = r.svd(true, true);
+    let svd = r.try_svd(true, true, f64::EPSILON, MAX_SVD_ITERATIONS)?;
     let mut rot = svd.u? * svd.v_t?;
     if rot.determinant() < 0.0 {
         rot = -rot;
@@ -189,16 +191,24 @@ pub fn radial_from_views(
     }
 }
 
+/// Iterations an SVD may take: it converges in tens; data gone non-finite never converge,
+/// and the step ends as degenerate instead.
+const MAX_SVD_ITERATIONS: usize = 10_000;
+
+/// Views [`initialise`] needs.
+pub const MIN_VIEWS: usize = 3;
+
 /// Zhang's initialisation of one device from its planar views: intrinsics, one pose per view
-/// (in view order), and a linear radial start. Needs at least three non-parallel views.
+/// (in view order), and a linear radial start. Needs at least [`MIN_VIEWS`] non-parallel
+/// views.
 pub fn initialise(
     views: &[PlanarView],
     width: u32,
     height: u32,
 ) -> Result<(CameraModel, Vec<Isometry3<f64>>), CalibError> {
-    if views.len() < 3 {
+    if views.len() < MIN_VIEWS {
         return Err(CalibError::TooFewViews {
-            needed: 3,
+            needed: MIN_VIEWS,
             got: views.len(),
         });
     }

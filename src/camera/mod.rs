@@ -51,7 +51,58 @@ pub struct CameraModel {
     pub distortion: Distortion,
 }
 
+impl Intrinsics {
+    /// The first problem of intrinsics read from a file: (field, what is wrong); focal
+    /// lengths must be finite and positive, the principal point finite.
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
+        for (field, v) in [("fx", self.fx), ("fy", self.fy)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err((field, format!("{v} is not a positive focal length (px)")));
+            }
+        }
+        for (field, v) in [("cx", self.cx), ("cy", self.cy)] {
+            crate::limits::finite(&[v]).map_err(|m| (field, m))?;
+        }
+        Ok(())
+    }
+}
+
+impl Distortion {
+    /// The first problem of coefficients read from a file: (coefficient, what is wrong);
+    /// every coefficient must be finite.
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
+        let d = self;
+        let named = [
+            ("k1", d.k1),
+            ("k2", d.k2),
+            ("p1", d.p1),
+            ("p2", d.p2),
+            ("k3", d.k3),
+            ("k4", d.k4),
+            ("k5", d.k5),
+            ("k6", d.k6),
+        ];
+        for (field, v) in named {
+            crate::limits::finite(&[v]).map_err(|m| (field, m))?;
+        }
+        Ok(())
+    }
+}
+
 impl CameraModel {
+    /// The first problem of a model read from a file: (dotted field, what is wrong). The
+    /// image size is within [`crate::limits::image_size`], the intrinsics and distortion as
+    /// [`Intrinsics::check`] and [`Distortion::check`] require.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        crate::limits::image_size(self.width, self.height).map_err(|m| ("width".into(), m))?;
+        self.intrinsics
+            .check()
+            .map_err(|(f, m)| (format!("intrinsics.{f}"), m))?;
+        self.distortion
+            .check()
+            .map_err(|(f, m)| (format!("distortion.{f}"), m))
+    }
+
     /// Pixel of a normalised (already distorted) image point.
     pub fn to_pixel(&self, d: Vector2<f64>) -> Point2<f64> {
         let k = &self.intrinsics;

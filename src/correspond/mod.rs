@@ -58,6 +58,46 @@ pub struct CameraView {
     pub points: Vec<ViewPoint>,
 }
 
+/// Says whether a device index is one a view may use (`Err` says why not).
+pub type IndexCheck<'a> = &'a dyn Fn(usize) -> Result<(), String>;
+
+impl CameraView {
+    /// The first problem of a view read from a file: (JSON path within the view, what is
+    /// wrong). `camera` and `projector` check device indices, `poses` bounds the pose;
+    /// lattice positions lie within ±[`crate::limits::MAX_LATTICE_COORD`], pixels are finite.
+    pub fn check(
+        &self,
+        camera: IndexCheck,
+        projector: IndexCheck,
+        poses: usize,
+    ) -> Result<(), (String, String)> {
+        camera(self.camera).map_err(|m| ("camera".to_string(), m))?;
+        if self.pose >= poses {
+            return Err((
+                "pose".into(),
+                format!("pose {} is out of range ({poses} poses)", self.pose),
+            ));
+        }
+        let max = crate::limits::MAX_LATTICE_COORD;
+        for (i, p) in self.points.iter().enumerate() {
+            if p.hex.q.abs() > max || p.hex.r.abs() > max {
+                return Err((
+                    format!("points[{i}].hex"),
+                    format!("({}, {}) is beyond ±{max}", p.hex.q, p.hex.r),
+                ));
+            }
+            crate::limits::finite(&[p.image.x, p.image.y])
+                .map_err(|m| (format!("points[{i}].image"), m))?;
+            for (j, q) in p.projectors.iter().enumerate() {
+                let at = |k: &str| format!("points[{i}].projectors[{j}].{k}");
+                projector(q.projector).map_err(|m| (at("projector"), m))?;
+                crate::limits::finite(&[q.pixel.x, q.pixel.y]).map_err(|m| (at("pixel"), m))?;
+            }
+        }
+        Ok(())
+    }
+}
+
 /// One projector's decoded maps in one camera, as the fit reads them.
 #[derive(Clone, Copy, Debug)]
 pub struct ProjectorMap<'a> {

@@ -88,6 +88,9 @@ impl Conic {
     }
 }
 
+/// Iterations the eigenvalue solver of [`fit_ellipse`] may take (it converges in tens).
+const MAX_SCHUR_ITERATIONS: usize = 10_000;
+
 /// Fitzgibbon's direct ellipse fit (Halíř–Flusser form) to ≥ 6 points; coordinates are
 /// centred and scaled first for conditioning. `None` when no ellipse fits.
 pub(crate) fn fit_ellipse(points: &[Point2<f64>]) -> Option<Conic> {
@@ -102,7 +105,8 @@ pub(crate) fn fit_ellipse(points: &[Point2<f64>]) -> Option<Conic> {
         .sum::<f64>()
         / n as f64)
         .sqrt();
-    if spread <= 0.0 {
+    // Not finite (a NaN pixel of a float image) or all points equal: no ellipse.
+    if !(spread.is_finite() && spread > 0.0) {
         return None;
     }
     let k = 1.0 / spread;
@@ -124,7 +128,9 @@ pub(crate) fn fit_ellipse(points: &[Point2<f64>]) -> Option<Conic> {
     let t = -s3.try_inverse()? * s2.transpose();
     let m = s1 + s2 * t;
     let mp = Matrix3::from_rows(&[(m.row(2) * 0.5), (-m.row(1)), (m.row(0) * 0.5)]);
-    let eig = mp.complex_eigenvalues();
+    // Bounded iterations: a Schur decomposition that does not converge ends, unfitted.
+    let eig = nalgebra::linalg::Schur::try_new(mp, f64::EPSILON, MAX_SCHUR_ITERATIONS)?
+        .complex_eigenvalues();
     let mut best: Option<(f64, Vector3<f64>)> = None;
     for l in eig.iter() {
         if l.im.abs() > 1e-9 * (1.0 + l.re.abs()) {

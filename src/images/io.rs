@@ -6,40 +6,62 @@
 //! scale; alpha is ignored.
 
 use super::GrayImage;
-use image::DynamicImage;
+use image::{DynamicImage, ImageDecoder, ImageReader};
+use std::io::{BufRead, Seek};
 use std::path::{Path, PathBuf};
 
 /// An image that could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageIoError {
-    /// Opening or decoding failed.
+    /// Opening or decoding failed, or the image is beyond the limits.
     #[error("cannot read image {path}: {source}")]
     Read {
         /// The file.
         path: PathBuf,
         /// What went wrong.
-        source: image::ImageError,
+        source: DecodeError,
     },
+}
+
+/// Why image bytes could not be decoded.
+#[derive(Debug, thiserror::Error)]
+pub enum DecodeError {
+    /// The decoder's error (format, corrupt data, its allocation limit).
+    #[error("{0}")]
+    Image(#[from] image::ImageError),
+    /// The header gives a size beyond [`crate::limits::image_size`].
+    #[error("{0}")]
+    Size(String),
+}
+
+/// Bytes a decoder may allocate: a 2²⁸-pixel image of 16-bit RGBA samples.
+const MAX_DECODE_BYTES: u64 = 8 * crate::limits::MAX_IMAGE_PIXELS;
+
+/// Decodes an image (format from its first bytes) whose header gives a size within
+/// [`crate::limits::image_size`]; a larger one is refused before its pixels are allocated.
+pub fn decode<R: BufRead + Seek>(reader: ImageReader<R>) -> Result<DynamicImage, DecodeError> {
+    let mut reader = reader
+        .with_guessed_format()
+        .map_err(image::ImageError::IoError)?;
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(crate::limits::MAX_IMAGE_SIDE);
+    limits.max_image_height = Some(crate::limits::MAX_IMAGE_SIDE);
+    limits.max_alloc = Some(MAX_DECODE_BYTES);
+    reader.limits(limits);
+    let decoder = reader.into_decoder()?;
+    let (w, h) = decoder.dimensions();
+    crate::limits::image_size(w, h).map_err(DecodeError::Size)?;
+    Ok(DynamicImage::from_decoder(decoder)?)
 }
 
 /// Reads an image file as grey levels on the file's own scale (see the module doc).
 pub fn load_gray(path: &Path) -> Result<GrayImage, ImageIoError> {
-    let img = image::ImageReader::open(path)
-        .map_err(|e| ImageIoError::Read {
-            path: path.to_owned(),
-            source: image::ImageError::IoError(e),
-        })?
-        .with_guessed_format()
-        .map_err(|e| ImageIoError::Read {
-            path: path.to_owned(),
-            source: image::ImageError::IoError(e),
-        })?
-        .decode()
-        .map_err(|source| ImageIoError::Read {
-            path: path.to_owned(),
-            source,
-        })?;
-    Ok(to_gray(&img))
+    let read = |source| ImageIoError::Read {
+        path: path.to_owned(),
+        source,
+    };
+    let reader = ImageReader::open(path).map_err(|e| read(image::ImageError::IoError(e).into()))?;
+    Ok(to_gray(&decode(reader).map_err(read)?))
 }
 
 /// Converts a decoded image to grey levels on its own scale (see the module doc).

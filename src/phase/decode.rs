@@ -90,6 +90,26 @@ pub enum DecodeError {
         /// Saturation level.
         full_scale: f32,
     },
+    /// The stack would need more memory than [`crate::limits::MAX_DECODER_BYTES`].
+    #[error(
+        "camera {camera}: decoding {width}×{height} frames of {steps} steps for {projectors} \
+         projectors needs {bytes} bytes: at most {} (limits::MAX_DECODER_BYTES)",
+        crate::limits::MAX_DECODER_BYTES
+    )]
+    TooLarge {
+        /// Camera label.
+        camera: String,
+        /// Frame width.
+        width: u32,
+        /// Frame height.
+        height: u32,
+        /// Phase steps.
+        steps: u32,
+        /// Projectors.
+        projectors: usize,
+        /// Bytes it would hold.
+        bytes: u64,
+    },
     /// A frame arrived out of order: frame `expected` is missing.
     #[error("camera {camera}: frame {got} arrived while frame {expected} was due (frame {expected} is missing or out of order)")]
     OutOfOrder {
@@ -355,6 +375,24 @@ impl<T: Sample> Decoder<T> {
         }
         let npx = width as usize * height as usize;
         let n = seq.steps() as usize;
+        let projectors = seq.projectors().len();
+        // The group's frames, B² sums and statistics, and per group a 16-bit phase and
+        // modulation per projector and pixel.
+        let per_pixel = n * std::mem::size_of::<T>()
+            + 4 * projectors
+            + std::mem::size_of::<PixelStats>()
+            + seq.groups() * 4 * projectors;
+        let bytes = (npx as u64).saturating_mul(per_pixel as u64);
+        if bytes > crate::limits::MAX_DECODER_BYTES {
+            return Err(DecodeError::TooLarge {
+                camera,
+                width,
+                height,
+                steps: seq.steps(),
+                projectors,
+                bytes,
+            });
+        }
         let twiddles = seq
             .projectors()
             .iter()

@@ -201,7 +201,47 @@ impl CalibrationFile {
                 found: v.version,
             });
         }
-        serde_json::from_str(text).map_err(parse)
+        let file: CalibrationFile = serde_json::from_str(text).map_err(parse)?;
+        file.check().map_err(|(at, what)| ReportError::Parse {
+            path: path.into(),
+            message: format!("{at}: {what}"),
+        })?;
+        Ok(file)
+    }
+
+    /// The first problem of a calibration file: (JSON path, what is wrong). Devices within
+    /// [`crate::limits::MAX_DEVICES`] with unique names, models as
+    /// [`CameraModel::check`] requires, finite poses and figures, and a reference among them.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        use crate::limits;
+        limits::count(self.devices.len(), limits::MAX_DEVICES, "devices")
+            .map_err(|m| ("devices".to_string(), m))?;
+        let mut names = std::collections::BTreeMap::new();
+        for (i, d) in self.devices.iter().enumerate() {
+            let at = |k: &str| format!("devices[{i}].{k}");
+            limits::device_name(&d.name).map_err(|m| (at("name"), m))?;
+            if let Some(first) = names.insert(d.name.as_str(), i) {
+                return Err((
+                    at("name"),
+                    format!("{:?} is already the name of devices[{first}]", d.name),
+                ));
+            }
+            d.model().check().map_err(|(f, m)| (at(&f), m))?;
+            limits::finite(&d.pose.rvec).map_err(|m| (at("pose.rvec"), m))?;
+            limits::finite(&d.pose.tvec).map_err(|m| (at("pose.tvec"), m))?;
+            limits::count(d.lens_std.len(), crate::camera::LENS_PARAM_COUNT, "values")
+                .map_err(|m| (at("lens_std"), m))?;
+        }
+        if !self.devices.iter().any(|d| d.name == self.reference) {
+            return Err((
+                "reference".into(),
+                format!("{:?} is none of the devices", self.reference),
+            ));
+        }
+        limits::finite(&self.front_back.rvec).map_err(|m| ("front_back.rvec".to_string(), m))?;
+        limits::finite(&self.front_back.tvec).map_err(|m| ("front_back.tvec".to_string(), m))?;
+        limits::finite(&self.bend).map_err(|m| ("bend".to_string(), m))?;
+        limits::finite(&[self.bend_scale, self.sigma]).map_err(|m| ("sigma".to_string(), m))
     }
 
     /// Pretty JSON text.

@@ -6,6 +6,7 @@
 use crate::board::{Board, BoardError};
 use crate::camera::{Distortion, Intrinsics};
 use crate::dataset::{CameraEntry, DatasetInfo, ProjectorEntry};
+use crate::limits;
 use crate::pattern::{ProjectorCode, ProjectorResponse, ProjectorSetup, Sequence, SequenceError};
 use crate::tomlspan::{line_of, KeySpans};
 use serde::{Deserialize, Serialize};
@@ -296,7 +297,7 @@ impl RigFile {
     pub fn load(path: impl AsRef<Path>) -> Result<RigFile, RigError> {
         let path = path.as_ref();
         let origin = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| RigError::Io {
+        let text = crate::limits::read_text(path).map_err(|source| RigError::Io {
             origin: origin.clone(),
             source,
         })?;
@@ -422,52 +423,23 @@ impl RigFile {
         Ok(rig)
     }
 
-    /// The checks serde cannot make: (dotted key, message) of the first violation.
+    /// The checks serde cannot make: (dotted key, message) of the first violation. Every
+    /// number is finite and physically possible, every count and size within
+    /// [`crate::limits`], every name unique and usable as a folder name.
     fn check(&self) -> Result<(), (String, String)> {
-        let t = &self.timing;
-        if t.frame_period_ms <= 0.0 {
-            return Err(("timing.frame_period_ms".into(), "must be positive".into()));
-        }
-        if t.settle_ms < 0.0 || t.settle_ms >= t.frame_period_ms {
-            return Err((
-                "timing.settle_ms".into(),
-                format!(
-                    "must lie in [0, frame_period_ms = {}) ms",
-                    t.frame_period_ms
-                ),
-            ));
-        }
+        self.check_timing()?;
         if self.cameras.is_empty() {
             return Err(("camera".into(), "a rig needs at least one camera".into()));
         }
+        let devices = self.cameras.len() + self.projectors.len();
+        limits::count(devices, limits::MAX_DEVICES, "devices")
+            .map_err(|m| ("camera".to_string(), m))?;
         let mut names: HashMap<&str, String> = HashMap::new();
         let mut lines: HashMap<u8, String> = HashMap::new();
-        let window = t.frame_period_ms - t.settle_ms;
         for (i, c) in self.cameras.iter().enumerate() {
             let at = |k: &str| format!("camera[{i}].{k}");
             check_device(&mut names, &c.name, at("name"))?;
-            if c.width == 0 || c.height == 0 {
-                return Err((at("width"), "image size must be positive".into()));
-            }
-            if ![8, 12, 16].contains(&c.bits) {
-                return Err((at("bits"), format!("{} bits: use 8, 12 or 16", c.bits)));
-            }
-            if !(c.exposure_ms > 0.0 && c.exposure_ms <= window) {
-                return Err((
-                    at("exposure_ms"),
-                    format!(
-                        "{} ms does not fit in a pattern's display time after settling \
-                         ({} − {} = {window} ms)",
-                        c.exposure_ms, t.frame_period_ms, t.settle_ms
-                    ),
-                ));
-            }
-            check_driver(
-                c.driver == CameraDriver::Sim,
-                c.sim.is_some(),
-                &c.address,
-                &at,
-            )?;
+            self.check_camera(c, &at)?;
             if let Some(l) = c.trigger_line {
                 check_line(&mut lines, l, &c.name, at("trigger_line"))?;
             }
@@ -475,60 +447,226 @@ impl RigFile {
         for (i, p) in self.projectors.iter().enumerate() {
             let at = |k: &str| format!("projector[{i}].{k}");
             check_device(&mut names, &p.name, at("name"))?;
-            if p.width == 0 || p.height == 0 {
-                return Err((at("width"), "raster size must be positive".into()));
-            }
-            if !(p.gamma > 0.0 && p.gamma < 5.0) {
-                return Err((at("gamma"), format!("{} is not a projector gamma", p.gamma)));
-            }
-            if p.latency_ms < 0.0 || p.latency_ms >= t.frame_period_ms {
-                return Err((
-                    at("latency_ms"),
-                    format!(
-                        "must lie in [0, frame_period_ms = {}) ms",
-                        t.frame_period_ms
-                    ),
-                ));
-            }
-            match p.driver {
-                ProjectorDriver::Sim if p.sim.is_none() => {
-                    return Err((at("sim"), "a sim projector needs its ground truth".into()))
-                }
-                ProjectorDriver::Window if p.monitor.is_none() => {
-                    return Err((at("monitor"), "a window projector needs a monitor".into()))
-                }
-                ProjectorDriver::Window if p.sim.is_some() => {
-                    return Err((at("sim"), "only sim projectors have ground truth".into()))
-                }
-                _ => {}
-            }
+            self.check_projector(p, &at)?;
             if let Some(l) = p.trigger_line {
                 check_line(&mut lines, l, &p.name, at("trigger_line"))?;
             }
         }
-        if !lines.is_empty() && self.trigger.is_none() {
+        self.check_trigger(&lines)?;
+        self.check_sequence()?;
+        self.check_poses()
+    }
+
+    /// `[timing]`: durations finite, positive where they must be, at most an hour.
+    fn check_timing(&self) -> Result<(), (String, String)> {
+        let t = &self.timing;
+        let at = |k: &str| format!("timing.{k}");
+        if !(t.frame_period_ms.is_finite()
+            && t.frame_period_ms > 0.0
+            && t.frame_period_ms <= limits::MAX_DURATION_MS)
+        {
+            return Err((
+                at("frame_period_ms"),
+                format!(
+                    "{} is not a duration in (0, {}] ms",
+                    t.frame_period_ms,
+                    limits::MAX_DURATION_MS
+                ),
+            ));
+        }
+        if !(t.settle_ms.is_finite() && t.settle_ms >= 0.0 && t.settle_ms < t.frame_period_ms) {
+            return Err((
+                at("settle_ms"),
+                format!(
+                    "must lie in [0, frame_period_ms = {}) ms",
+                    t.frame_period_ms
+                ),
+            ));
+        }
+        limits::non_negative(t.pose_pause_s, limits::MAX_DURATION_MS / 1e3)
+            .map_err(|m| (at("pose_pause_s"), format!("{m} s")))?;
+        if !(1..=limits::MAX_REPEATS).contains(&t.repeats) {
+            return Err((
+                at("repeats"),
+                format!("{} repeats: 1 to {}", t.repeats, limits::MAX_REPEATS),
+            ));
+        }
+        Ok(())
+    }
+
+    /// One camera: image size, bits, an exposure that fits the frame, finite gain, driver
+    /// and ground truth.
+    fn check_camera(
+        &self,
+        c: &CameraSpec,
+        at: &dyn Fn(&str) -> String,
+    ) -> Result<(), (String, String)> {
+        let t = &self.timing;
+        let window = t.frame_period_ms - t.settle_ms;
+        limits::image_size(c.width, c.height).map_err(|m| (at("width"), m))?;
+        if ![8, 12, 16].contains(&c.bits) {
+            return Err((at("bits"), format!("{} bits: use 8, 12 or 16", c.bits)));
+        }
+        if !(c.exposure_ms > 0.0 && c.exposure_ms <= window) {
+            return Err((
+                at("exposure_ms"),
+                format!(
+                    "{} ms does not fit in a pattern's display time after settling \
+                     ({} − {} = {window} ms)",
+                    c.exposure_ms, t.frame_period_ms, t.settle_ms
+                ),
+            ));
+        }
+        limits::finite(&[c.gain_db]).map_err(|m| (at("gain_db"), m))?;
+        check_driver(
+            c.driver == CameraDriver::Sim,
+            c.sim.is_some(),
+            &c.address,
+            at,
+        )?;
+        check_truth(c.sim.as_ref(), at)
+    }
+
+    /// One projector: raster size, gamma, latency within the frame, driver and truth.
+    fn check_projector(
+        &self,
+        p: &ProjectorSpec,
+        at: &dyn Fn(&str) -> String,
+    ) -> Result<(), (String, String)> {
+        let period = self.timing.frame_period_ms;
+        limits::image_size(p.width, p.height).map_err(|m| (at("width"), m))?;
+        if !(p.gamma > 0.0 && p.gamma < 5.0) {
+            return Err((at("gamma"), format!("{} is not a projector gamma", p.gamma)));
+        }
+        if !(p.latency_ms.is_finite() && p.latency_ms >= 0.0 && p.latency_ms < period) {
+            return Err((
+                at("latency_ms"),
+                format!(
+                    "{} is not in [0, frame_period_ms = {period}) ms",
+                    p.latency_ms
+                ),
+            ));
+        }
+        match p.driver {
+            ProjectorDriver::Sim if p.sim.is_none() => {
+                return Err((at("sim"), "a sim projector needs its ground truth".into()))
+            }
+            ProjectorDriver::Window if p.monitor.is_none() => {
+                return Err((at("monitor"), "a window projector needs a monitor".into()))
+            }
+            ProjectorDriver::Window if p.sim.is_some() => {
+                return Err((at("sim"), "only sim projectors have ground truth".into()))
+            }
+            _ => {}
+        }
+        check_truth(p.sim.as_ref(), at)
+    }
+
+    /// `[trigger]`: present when lines are given; a pulse that fits the frame.
+    fn check_trigger(&self, lines: &HashMap<u8, String>) -> Result<(), (String, String)> {
+        let Some(t) = &self.trigger else {
+            if lines.is_empty() {
+                return Ok(());
+            }
             return Err((
                 "trigger".into(),
                 "trigger lines are given but no trigger controller".into(),
             ));
+        };
+        let period_us = 1e3 * self.timing.frame_period_ms;
+        if t.pulse_us == 0 || f64::from(t.pulse_us) > period_us {
+            return Err((
+                "trigger.pulse_us".into(),
+                format!(
+                    "{} µs is not in [1, {period_us}] µs (the frame period)",
+                    t.pulse_us
+                ),
+            ));
         }
-        if self.sequence.fringe_counts.len() < 2 {
+        Ok(())
+    }
+
+    /// `[sequence]`: enough fringe counts, each and the steps within the limits.
+    fn check_sequence(&self) -> Result<(), (String, String)> {
+        let s = &self.sequence;
+        if s.fringe_counts.len() < 2 {
             return Err((
                 "sequence.fringe_counts".into(),
                 "temporal unwrapping needs at least two fringe counts".into(),
             ));
         }
+        if let Some(&c) = s
+            .fringe_counts
+            .iter()
+            .find(|&&c| c > limits::MAX_IMAGE_SIDE)
+        {
+            return Err((
+                "sequence.fringe_counts".into(),
+                format!("{c} fringes: at most {}", limits::MAX_IMAGE_SIDE),
+            ));
+        }
+        if let Some(n) = s.steps.filter(|&n| n > limits::MAX_PHASE_STEPS) {
+            return Err((
+                "sequence.steps".into(),
+                format!("{n} steps: at most {}", limits::MAX_PHASE_STEPS),
+            ));
+        }
+        Ok(())
+    }
+
+    /// `[poses]`: present for a simulated rig, a count within the limit, finite ranges,
+    /// absent poses among them.
+    fn check_poses(&self) -> Result<(), (String, String)> {
         let simulated = self.cameras.iter().any(|c| c.driver == CameraDriver::Sim);
         if simulated && self.poses.is_none() {
             return Err(("poses".into(), "a simulated rig needs board poses".into()));
         }
-        if let Some(p) = &self.poses {
-            if p.count == 0 {
-                return Err(("poses.count".into(), "at least one pose".into()));
-            }
+        let Some(p) = &self.poses else {
+            return Ok(());
+        };
+        if p.count == 0 {
+            return Err(("poses.count".into(), "at least one pose".into()));
+        }
+        limits::count(p.count, limits::MAX_POSES, "poses")
+            .map_err(|m| ("poses.count".to_string(), m))?;
+        for (key, v) in [
+            ("yaw_deg", p.yaw_deg),
+            ("tilt_deg", p.tilt_deg),
+            ("shift_mm", p.shift_mm),
+        ] {
+            limits::finite(&[v]).map_err(|m| (format!("poses.{key}"), m))?;
+        }
+        if let Some(k) = p.absent.iter().find(|&&k| k >= p.count) {
+            return Err((
+                "poses.absent".into(),
+                format!("pose {k} is out of range (count = {})", p.count),
+            ));
         }
         Ok(())
     }
+}
+
+/// A simulated device's ground truth: intrinsics and distortion as [`Intrinsics::check`]
+/// and [`Distortion::check`] require, a finite look-at with the eye off the target.
+fn check_truth(
+    truth: Option<&SimTruth>,
+    at: &dyn Fn(&str) -> String,
+) -> Result<(), (String, String)> {
+    let Some(t) = truth else {
+        return Ok(());
+    };
+    t.intrinsics
+        .check()
+        .map_err(|(f, m)| (at(&format!("sim.intrinsics.{f}")), m))?;
+    t.distortion
+        .check()
+        .map_err(|(f, m)| (at(&format!("sim.distortion.{f}")), m))?;
+    limits::finite(&t.pose.eye).map_err(|m| (at("sim.pose.eye"), m))?;
+    limits::finite(&t.pose.target).map_err(|m| (at("sim.pose.target"), m))?;
+    if t.pose.eye == t.pose.target {
+        return Err((at("sim.pose"), "eye equals target".into()));
+    }
+    Ok(())
 }
 
 fn check_device<'a>(
@@ -536,9 +674,7 @@ fn check_device<'a>(
     name: &'a str,
     field: String,
 ) -> Result<(), (String, String)> {
-    if name.is_empty() {
-        return Err((field, "a device needs a name".into()));
-    }
+    limits::device_name(name).map_err(|m| (field.clone(), m))?;
     match names.insert(name, field.clone()) {
         Some(first) => Err((field, format!("{name:?} is already the name of {first}"))),
         None => Ok(()),

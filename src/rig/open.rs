@@ -206,9 +206,10 @@ fn open_trigger(
     Ok(Some(Box::new(w)))
 }
 
-/// The capture timing of `rig`; simulated cameras render while the others wait, so their
-/// frame timeout allows for it.
-fn timing(rig: &RigFile, simulated: bool) -> CaptureTiming {
+/// The capture timing of `rig` (a checked rig file: every duration finite, at most an
+/// hour); simulated cameras render while the others wait, so their frame timeout allows
+/// for it.
+pub fn timing(rig: &RigFile, simulated: bool) -> CaptureTiming {
     let frame = Duration::from_secs_f64(1e-3 * rig.timing.frame_period_ms);
     CaptureTiming {
         settle: Duration::from_secs_f64(1e-3 * rig.timing.settle_ms),

@@ -38,6 +38,7 @@
 use super::SimError;
 use crate::board::Board;
 use crate::camera::CameraModel;
+use crate::limits::{MAX_PSF_SIGMA_PX, MIN_BACKGROUND_SCALE_PX};
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -218,8 +219,33 @@ impl Imaging {
         if !matches!(self.bits, 8 | 12 | 16) {
             return bad(format!("bits = {} (expected 8, 12 or 16)", self.bits));
         }
-        if self.white_dn.is_nan() || self.white_dn <= 0.0 {
+        if !(self.white_dn.is_finite() && self.white_dn > 0.0) {
             return bad(format!("white_dn = {} must be positive", self.white_dn));
+        }
+        crate::limits::finite(&[
+            self.black_dn,
+            self.edge_dn,
+            self.background_dn,
+            self.background_variation,
+            self.background_scale_px,
+            self.psf_sigma,
+            self.vignetting,
+            self.shot_gain,
+            self.read_noise,
+            self.gamma,
+        ])
+        .map_err(|m| SimError::Scene(format!("[imaging]: {m}")))?;
+        if self.psf_sigma > MAX_PSF_SIGMA_PX {
+            return bad(format!(
+                "psf_sigma = {} px: at most {MAX_PSF_SIGMA_PX}",
+                self.psf_sigma
+            ));
+        }
+        if self.background_scale_px < MIN_BACKGROUND_SCALE_PX {
+            return bad(format!(
+                "background_scale_px = {} px: at least {MIN_BACKGROUND_SCALE_PX}",
+                self.background_scale_px
+            ));
         }
         for (name, v) in [
             ("black_dn", self.black_dn),
@@ -244,6 +270,30 @@ impl Imaging {
 }
 
 impl Scene {
+    /// The camera (size within [`crate::limits`], finite positive focal lengths, finite
+    /// distortion), the pose (finite) and the board (as [`Board::validate`] requires).
+    fn check(&self) -> Result<(), SimError> {
+        self.camera
+            .check()
+            .map_err(|(f, m)| SimError::Scene(format!("[camera] {f}: {m}")))?;
+        let p = &self.pose;
+        for (key, v) in [
+            ("rvec", p.rvec),
+            ("tvec", p.tvec),
+            ("eye", p.eye),
+            ("target", p.target),
+            ("up", p.up),
+        ] {
+            if let Some(v) = v {
+                crate::limits::finite(&v)
+                    .map_err(|m| SimError::Scene(format!("[pose] {key}: {m}")))?;
+            }
+        }
+        self.board
+            .validate()
+            .map_err(|e| SimError::Scene(format!("[board] {e}")))
+    }
+
     /// The built-in scene.
     pub fn default_scene() -> Scene {
         Scene::parse(DEFAULT_SCENE, "built-in scene").expect("the built-in scene parses")
@@ -260,13 +310,14 @@ impl Scene {
             e => e,
         };
         scene.imaging.check().map_err(named)?;
+        scene.check().map_err(named)?;
         scene.pose.cam_from_board().map_err(named)?;
         Ok(scene)
     }
 
     /// Read a scene file.
     pub fn load(path: &Path) -> Result<Scene, SimError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SimError::Io {
+        let text = crate::limits::read_text(path).map_err(|source| SimError::Io {
             path: path.into(),
             source,
         })?;

@@ -1,0 +1,166 @@
+//! The limits on what hexcal reads (docs/limits.md): every count, size and name in a rig,
+//! board, scene, dataset, correspondences or calibration file is checked against these
+//! before anything is allocated from it, and a refusal names the limit.
+//!
+//! The limits are far beyond any real rig (the paper's rig has 9 devices, 1920×1200 images,
+//! 10 poses and 614 circles per side); they exist so that a typo or a corrupted file is
+//! refused with one line instead of an out-of-memory abort or an hour of work.
+
+/// Board poses of a rig file's `[poses] count`, `--poses`, a correspondences file's `poses`
+/// and a dataset's pose folders.
+pub const MAX_POSES: usize = 10_000;
+
+/// Devices (cameras and projectors together) of a rig, dataset or correspondences file.
+pub const MAX_DEVICES: usize = 256;
+
+/// Width or height of an image, camera or projector raster (px).
+pub const MAX_IMAGE_SIDE: u32 = 65_536;
+
+/// Pixels of an image, camera or projector raster (2²⁸ = 268 435 456).
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 28;
+
+/// Circles on one side of a board.
+pub const MAX_BOARD_CIRCLES: f64 = 100_000.0;
+
+/// The smallest lattice pitch of a board (mm).
+pub const MIN_BOARD_PITCH_MM: f64 = 1.0;
+
+/// Largest |q| or |r| of a lattice position in a view.
+pub const MAX_LATTICE_COORD: i32 = 100_000;
+
+/// Memory one camera's phase decoder may hold (bytes): its frames of one group, phases
+/// and modulations of every group and projector, per-pixel statistics (8 GiB; the paper
+/// rig's 1920×1200 camera with 3 projectors needs about 0.2 GiB).
+pub const MAX_DECODER_BYTES: u64 = 8 << 30;
+
+/// Phase steps N of a sequence.
+pub const MAX_PHASE_STEPS: u32 = 1_000;
+
+/// Frames taken and averaged per pattern (`[timing] repeats`).
+pub const MAX_REPEATS: u32 = 1_000;
+
+/// The longest time any rig-file duration may give (ms): one hour.
+pub const MAX_DURATION_MS: f64 = 3.6e6;
+
+/// The widest blur of a simulated sensor (Gaussian σ, px).
+pub const MAX_PSF_SIGMA_PX: f64 = 100.0;
+
+/// The finest feature of a simulated background (px).
+pub const MIN_BACKGROUND_SCALE_PX: f64 = 1.0;
+
+/// Bytes of a device name (names become folder and file names).
+pub const MAX_NAME_BYTES: usize = 100;
+
+/// Bytes of a text file hexcal reads (rig, board, scene, JSON): 256 MiB.
+pub const MAX_TEXT_BYTES: u64 = 256 << 20;
+
+/// The text of the file at `path`, refused (`InvalidData`, naming the limit) when it holds
+/// more than [`MAX_TEXT_BYTES`]: reading stops there, so `/dev/zero` ends too.
+pub fn read_text(path: &std::path::Path) -> std::io::Result<String> {
+    use std::io::Read;
+    let mut text = String::new();
+    std::fs::File::open(path)?
+        .take(MAX_TEXT_BYTES + 1)
+        .read_to_string(&mut text)?;
+    if text.len() as u64 > MAX_TEXT_BYTES {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("larger than {MAX_TEXT_BYTES} bytes (limits::MAX_TEXT_BYTES)"),
+        ));
+    }
+    Ok(text)
+}
+
+/// `Err` naming the limit when `n` exceeds `max`, e.g. "20000 poses: at most 10000".
+pub fn count(n: usize, max: usize, what: &str) -> Result<(), String> {
+    if n > max {
+        return Err(format!("{n} {what}: at most {max}"));
+    }
+    Ok(())
+}
+
+/// `Err` unless a `width`×`height` image is non-empty and within [`MAX_IMAGE_SIDE`] and
+/// [`MAX_IMAGE_PIXELS`].
+pub fn image_size(width: u32, height: u32) -> Result<(), String> {
+    if width == 0 || height == 0 {
+        return Err(format!("{width}×{height} px is empty"));
+    }
+    if width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+        return Err(format!(
+            "{width}×{height} px: width and height at most {MAX_IMAGE_SIDE}"
+        ));
+    }
+    if u64::from(width) * u64::from(height) > MAX_IMAGE_PIXELS {
+        return Err(format!(
+            "{width}×{height} px: at most {MAX_IMAGE_PIXELS} (2²⁸) pixels"
+        ));
+    }
+    Ok(())
+}
+
+/// `Err` unless every value is finite.
+pub fn finite(values: &[f64]) -> Result<(), String> {
+    match values.iter().find(|v| !v.is_finite()) {
+        Some(v) => Err(format!("{v} is not a finite number")),
+        None => Ok(()),
+    }
+}
+
+/// `Err` unless `v` is finite and in `[0, max]`.
+pub fn non_negative(v: f64, max: f64) -> Result<(), String> {
+    if !(v.is_finite() && (0.0..=max).contains(&v)) {
+        return Err(format!("{v} is not a number in [0, {max}]"));
+    }
+    Ok(())
+}
+
+/// `Err` unless `name` can name a device, and so a folder or file: not empty, at most
+/// [`MAX_NAME_BYTES`], no `/`, `\`, control character, and not `.` or `..`.
+pub fn device_name(name: &str) -> Result<(), String> {
+    if name.is_empty() {
+        return Err("a device needs a name".into());
+    }
+    if name.len() > MAX_NAME_BYTES {
+        return Err(format!(
+            "a name of {} bytes: at most {MAX_NAME_BYTES}",
+            name.len()
+        ));
+    }
+    if name == "."
+        || name == ".."
+        || name
+            .chars()
+            .any(|c| c == '/' || c == '\\' || c.is_control())
+    {
+        return Err(format!(
+            "{name:?} cannot name a folder (no /, \\, control characters, . or ..)"
+        ));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn refusals_name_the_limit() {
+        assert_eq!(
+            count(20_000, MAX_POSES, "poses").unwrap_err(),
+            "20000 poses: at most 10000"
+        );
+        assert!(count(MAX_POSES, MAX_POSES, "poses").is_ok());
+        assert!(image_size(4_294_967_295, 10).unwrap_err().contains("65536"));
+        assert!(image_size(65_536, 65_536).unwrap_err().contains("2²⁸"));
+        assert!(image_size(0, 10).unwrap_err().contains("empty"));
+        assert!(image_size(16_384, 16_384).is_ok());
+        assert!(finite(&[1.0, f64::NAN]).is_err() && finite(&[1.0, -2.0]).is_ok());
+        assert!(non_negative(f64::INFINITY, 10.0).is_err());
+        assert!(non_negative(-1.0, 10.0).is_err() && non_negative(0.0, 10.0).is_ok());
+        for bad in ["", ".", "..", "a/b", "a\\b", "a\nb"] {
+            assert!(device_name(bad).is_err(), "{bad:?}");
+        }
+        assert!(device_name(&"x".repeat(101)).unwrap_err().contains("100"));
+        assert!(device_name("cam 0").is_ok());
+    }
+}
