@@ -286,10 +286,10 @@ impl StackInfo {
     }
 }
 
-impl PoseInfo {
-    /// The first problem of pose `pose`'s `pose.json` in a dataset of `info`: (JSON path,
-    /// what is wrong). Its own pose index, cameras of the dataset, finite non-negative times.
-    pub fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), (String, String)> {
+/// `pose.json` and `captured.json`: its own pose index, cameras of the dataset, finite
+/// non-negative times.
+impl PoseFile for PoseInfo {
+    fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), (String, String)> {
         if self.pose != pose {
             return Err((
                 "pose".into(),

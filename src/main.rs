@@ -392,7 +392,11 @@ fn main() -> ExitCode {
                 e.downcast_ref::<AppError>(),
                 Some(AppError::Interrupted { .. })
             );
-            ExitCode::from(if interrupted { EXIT_INTERRUPTED } else { EXIT_FAILED })
+            ExitCode::from(if interrupted {
+                EXIT_INTERRUPTED
+            } else {
+                EXIT_FAILED
+            })
         }
     }
 }
