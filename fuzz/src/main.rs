@@ -20,8 +20,21 @@ use targets::{Target, TARGETS};
 #[global_allocator]
 static ALLOCATOR: alloc::Capped = alloc::Capped;
 
-/// An input slower than this is a failure (a hang, or work out of proportion to its size).
+/// An input taking more CPU time than this is a failure (a hang, or work out of
+/// proportion to its size). CPU time, not wall time: on a loaded machine a descheduled
+/// process is not a slow input.
 const SLOW: Duration = Duration::from_secs(2);
+
+/// CPU time of this process so far (every thread).
+fn cpu_time() -> Duration {
+    let mut t = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime fills the timespec it is given.
+    unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) };
+    Duration::new(t.tv_sec as u64, t.tv_nsec as u32)
+}
 
 /// Most inputs kept in a target's mutation pool.
 const MAX_POOL: usize = 4096;
@@ -101,10 +114,10 @@ enum Failure {
 /// allocator saves it if it breaks the cap.
 fn run_one(target: &Target, input: &[u8], artifact: &std::ffi::CStr) -> Result<String, Failure> {
     alloc::set_input(input, artifact);
-    let t = Instant::now();
+    let t = cpu_time();
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| (target.run)(input)));
     alloc::clear_input();
-    let took = t.elapsed();
+    let took = cpu_time().saturating_sub(t);
     match result {
         Err(_) => Err(Failure::Panic(
             LAST_PANIC.lock().unwrap_or_else(|e| e.into_inner()).clone(),
@@ -135,7 +148,7 @@ fn alloc_artifact(target: &Target) -> std::ffi::CString {
 fn record(target: &Target, input: &[u8], failure: &Failure) -> String {
     let (kind, what) = match failure {
         Failure::Panic(m) => ("panic", m.clone()),
-        Failure::Slow(d) => ("slow", format!("took {:.1} s", d.as_secs_f64())),
+        Failure::Slow(d) => ("slow", format!("took {:.1} s of CPU", d.as_secs_f64())),
     };
     let hash = input.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
         (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
@@ -206,7 +219,7 @@ fn replay(target: &Target, dirs: &[PathBuf]) -> (usize, Vec<String>) {
         if let Err(f) = run_one(target, &input, &artifact) {
             let what = match f {
                 Failure::Panic(m) => format!("panic: {m}"),
-                Failure::Slow(d) => format!("slow: {:.1} s", d.as_secs_f64()),
+                Failure::Slow(d) => format!("slow: {:.1} s of CPU", d.as_secs_f64()),
             };
             failures.push(format!("{}: {}: {what}", target.name, path.display()));
         }
