@@ -3,7 +3,7 @@
 //! output, with an optional overlay PNG per image for a person to look at.
 //!
 //! Takes image paths (8- or 16-bit, grey or colour PNG/JPEG/TIFF, read by
-//! [`crate::imageio`]) and a board; gives one [`ImageRecord`] per readable image, in input
+//! [`crate::images`]) and a board; gives one [`ImageRecord`] per readable image, in input
 //! order, and an error naming the file for each image that cannot be read. Pixel (0, 0) is
 //! the centre of the top-left pixel (docs/design.md §2).
 

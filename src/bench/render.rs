@@ -76,7 +76,7 @@ impl std::fmt::Display for RenderTimings {
     }
 }
 
-/// Time the stages of [`render`] on a scene, `repeats` times each.
+/// Time the stages of [`crate::sim::render`] on a scene, `repeats` times each.
 pub fn bench_render(scene: &Scene, repeats: usize) -> Result<RenderTimings, SimError> {
     let median = |v: Vec<(f64, Option<f64>)>| {
         let mid = |mut x: Vec<f64>| {

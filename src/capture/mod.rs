@@ -11,7 +11,7 @@
 //! counter not newer than the last accepted) are dropped; any failure names the device,
 //! the pose and the frame. Repeats of a frame are averaged.
 //!
-//! [`dataset`] stores captured poses on disk.
+//! [`crate::dataset`] stores captured poses on disk.
 
 use crate::dataset::{FrameTiming, StackFrame, Timeline};
 use crate::pattern::Sequence;

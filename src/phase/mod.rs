@@ -1,7 +1,7 @@
 //! Multi-projector phase shifting (docs/design.md §6): the decoder that turns one camera's stack into each projector's
 //! (u, v) map, modulation, validity, ambient and lit images.
 //!
-//! Takes the [`Sequence`] and the camera frames in order; gives a [`DecodedStack`] per camera.
+//! Takes the [`crate::pattern::Sequence`] and the camera frames in order; gives a [`DecodedStack`] per camera.
 
 #[cfg(any(test, feature = "bench"))]
 pub mod accuracy;
