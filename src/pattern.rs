@@ -204,8 +204,8 @@ fn ordinal(h: u32) -> String {
 /// Why a sequence is refused.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum SequenceError {
-    /// No projectors.
-    #[error("sequence: no projectors")]
+    /// No projectors, but phase steps or fringe counts: a camera-only pose is one frame.
+    #[error("sequence: without projectors a pose is one plain frame (steps 1, no fringe counts)")]
     NoProjectors,
     /// Too few phase steps.
     #[error("sequence: steps N = {0} is below 3")]
@@ -317,6 +317,26 @@ fn gcd(a: u32, b: u32) -> u32 {
 }
 
 impl Sequence {
+    /// The "sequence" of a rig without projectors: one plain frame per camera per pose
+    /// (a burst of them when the rig file asks for repeats, averaged by the capture), on
+    /// which circles are detected directly.
+    pub fn camera_only() -> Sequence {
+        Sequence {
+            steps: 1,
+            projectors: Vec::new(),
+            column_counts: Vec::new(),
+            row_counts: Vec::new(),
+        }
+    }
+
+    /// Whether this is [`Sequence::camera_only`]: no projectors, one plain frame.
+    pub fn is_camera_only(&self) -> bool {
+        self.projectors.is_empty()
+            && self.steps == 1
+            && self.column_counts.is_empty()
+            && self.row_counts.is_empty()
+    }
+
     /// A sequence with explicit N, frequencies and counts; refused when anything aliases.
     pub fn new(
         steps: u32,
@@ -374,7 +394,10 @@ impl Sequence {
     fn validate(&self) -> Result<(), SequenceError> {
         let n = self.steps;
         if self.projectors.is_empty() {
-            return Err(SequenceError::NoProjectors);
+            return match self.is_camera_only() {
+                true => Ok(()),
+                false => Err(SequenceError::NoProjectors),
+            };
         }
         if n < 3 {
             return Err(SequenceError::TooFewSteps(n));
@@ -536,14 +559,18 @@ impl Sequence {
         self.column_counts.len() + self.row_counts.len()
     }
 
-    /// Total number of frames (groups × N).
+    /// Total number of frames (groups × N; 1 for [`Sequence::camera_only`]).
     pub fn frame_count(&self) -> usize {
-        self.groups() * self.steps as usize
+        match self.is_camera_only() {
+            true => 1,
+            false => self.groups() * self.steps as usize,
+        }
     }
 
-    /// What frame k shows, or `None` past the end.
+    /// What frame k shows, or `None` past the end (and for the plain frame of
+    /// [`Sequence::camera_only`], which shows no pattern).
     pub fn frame(&self, k: usize) -> Option<FrameCode> {
-        if k >= self.frame_count() {
+        if self.is_camera_only() || k >= self.frame_count() {
             return None;
         }
         let n = self.steps as usize;
@@ -666,6 +693,20 @@ mod tests {
             (Direction::Rows, 25, 5, 14)
         );
         assert!(s.frame(90).is_none());
+    }
+
+    #[test]
+    fn camera_only_is_one_plain_frame_and_nothing_else_without_projectors() {
+        let s = Sequence::camera_only();
+        assert_eq!((s.frame_count(), s.projectors().len()), (1, 0));
+        assert!(s.frame(0).is_none());
+        let back: Sequence = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
+        assert_eq!(back, s);
+        // Steps or counts without projectors are refused.
+        for (steps, counts) in [(5, vec![]), (1, counts())] {
+            let e = Sequence::new(steps, vec![], counts.clone(), counts).unwrap_err();
+            assert_eq!(e, SequenceError::NoProjectors);
+        }
     }
 
     fn code(frequency: u32, response: ProjectorResponse) -> ProjectorCode {

@@ -6,7 +6,8 @@ use super::progress::{Event, Outcome};
 use super::AppError;
 use crate::board::Board;
 use crate::calib::bundle::{Device, DeviceKind};
-use crate::calib::solve::{calibrate, CalibrateOptions, Calibration, Correspondences, DeviceInfo};
+use crate::calib::geometric::{calibrate_registering, GeometricParams};
+use crate::calib::solve::{CalibrateOptions, Calibration, Correspondences, DeviceInfo};
 use crate::calib::verify::{verify, PairCheck};
 use crate::correspond::CameraView;
 use crate::dataset::{Dataset, DatasetInfo};
@@ -69,7 +70,9 @@ pub(crate) fn finish(
     let used = views_of(0..held_from.min(all.len()));
     let held = views_of(held_from.min(all.len())..all.len());
     events(&Event::Calibrating { views: used.len() });
-    let cal = calibrate(board, devices, held_from.min(all.len()), &used, options)?;
+    let geometric = GeometricParams::default();
+    let poses = held_from.min(all.len());
+    let cal = calibrate_registering(board, devices, poses, &used, options, &geometric)?;
     let verification = verify_held_out(board, &cal, &held, held_from);
     std::fs::create_dir_all(dir).map_err(AppError::io(dir))?;
     let mut files = crate::report::write_outputs(&cal, dir)?;
@@ -259,7 +262,8 @@ pub fn calibrate_file(
         let names = c.devices.iter().map(|d| d.name.as_str());
         options.bundle.reference = device_index(input, names, name)?;
     }
-    let cal = calibrate(&board, &c.devices, c.poses, &c.views, &options)?;
+    let geometric = GeometricParams::default();
+    let cal = calibrate_registering(&board, &c.devices, c.poses, &c.views, &options, &geometric)?;
     let mut files = crate::report::write_outputs(&cal, out)?;
     let html = out.join("report.html");
     crate::report::html::write_html(

@@ -6,10 +6,11 @@
 
 use crate::board::Board;
 use crate::correspond::{camera_view, CameraView, FitParams, ProjectorMap};
+use crate::dataset::StackReader;
 use crate::dataset::{CameraEntry, Dataset, DatasetInfo};
 use crate::detect::{detect, DetectParams};
 use crate::grid::{build, GridParams};
-use crate::images::{CameraFrame, Pixels};
+use crate::images::{CameraFrame, GrayImage, Pixels};
 use crate::pattern::Sequence;
 use crate::phase::files::decode_dir;
 use crate::phase::{DecodedStack, Decoder, FrameRef};
@@ -33,6 +34,30 @@ pub struct StackResult {
     pub error: Option<String>,
     /// The labelled view (none when the board was not found).
     pub view: Option<CameraView>,
+}
+
+impl StackResult {
+    /// A stack of camera `camera` that gave nothing, and why.
+    fn failed(camera: &str, projectors: usize, error: String) -> StackResult {
+        StackResult {
+            camera: camera.to_string(),
+            circles: 0,
+            points: 0,
+            anchored: false,
+            projector_points: vec![0; projectors],
+            error: Some(error),
+            view: None,
+        }
+    }
+}
+
+/// The stored plain frame of a camera-only pose (`frame-000.png` in `dir`) as a float image.
+fn read_plain_frame(dir: &std::path::Path) -> Result<GrayImage, String> {
+    let stack = StackReader::open(dir).map_err(|e| e.to_string())?;
+    let pixels = stack.frame(0).map_err(|e| e.to_string())?;
+    let (w, h) = (stack.info.width, stack.info.height);
+    float_image(w, h, &Pixels::Gray16(pixels))
+        .ok_or_else(|| format!("{}: frame 0 is not {w}×{h}", dir.display()))
 }
 
 /// `pose-KKK/views.json`: every camera's result for one pose.
@@ -115,24 +140,52 @@ pub fn process_decoded(
     pose: usize,
     first_projector: usize,
 ) -> StackResult {
-    let image = &decoded.ambient;
-    let circles = detect(image, &DetectParams::default());
-    let grid = build(image, &circles, board, &GridParams::default());
     let maps: Vec<ProjectorMap> = decoded
         .projectors
         .iter()
         .enumerate()
         .map(|(p, m)| ProjectorMap::from_decoded(first_projector + p, m))
         .collect();
-    let view = camera_view(
+    let at = ViewAt {
         camera,
         pose,
+        first_projector,
+    };
+    process_image(&decoded.ambient, &decoded.camera, board, &maps, at)
+}
+
+/// Where a processed image belongs: the camera's device index, the pose, and the device
+/// index of projector 0.
+#[derive(Clone, Copy, Debug)]
+pub struct ViewAt {
+    /// The camera's device index.
+    pub camera: usize,
+    /// The board pose.
+    pub pose: usize,
+    /// Device index of projector 0 (the number of cameras).
+    pub first_projector: usize,
+}
+
+/// Detection, grid and, for each of `maps`, the projector fits on one camera's image of the
+/// board: the decoded ambient image, or the plain frame of a camera-only rig (no maps).
+pub fn process_image(
+    image: &GrayImage,
+    name: &str,
+    board: &Board,
+    maps: &[ProjectorMap],
+    at: ViewAt,
+) -> StackResult {
+    let circles = detect(image, &DetectParams::default());
+    let grid = build(image, &circles, board, &GridParams::default());
+    let view = camera_view(
+        at.camera,
+        at.pose,
         &grid,
         &circles,
-        &maps,
+        maps,
         &FitParams::for_board(board),
     );
-    let projector_points = (0..decoded.projectors.len())
+    let projector_points = (0..maps.len())
         .map(|p| {
             view.as_ref().map_or(0, |v| {
                 v.points
@@ -140,14 +193,14 @@ pub fn process_decoded(
                     .filter(|pt| {
                         pt.projectors
                             .iter()
-                            .any(|q| q.projector == first_projector + p)
+                            .any(|q| q.projector == at.first_projector + p)
                     })
                     .count()
             })
         })
         .collect();
     StackResult {
-        camera: decoded.camera.clone(),
+        camera: name.to_string(),
         circles: circles.len(),
         points: grid.points.len(),
         anchored: grid.anchored,
@@ -155,6 +208,38 @@ pub fn process_decoded(
         error: None,
         view,
     }
+}
+
+/// A frame's samples as a linear float image.
+fn float_image(width: u32, height: u32, pixels: &Pixels) -> Option<GrayImage> {
+    let data: Vec<f32> = match pixels {
+        Pixels::Gray8(p) => p.iter().map(|&v| f32::from(v)).collect(),
+        Pixels::Gray16(p) => p.iter().map(|&v| f32::from(v)).collect(),
+    };
+    GrayImage::from_raw(width, height, data)
+}
+
+/// The one plain frame of a camera-only pose (`frames` gives it) through detection and
+/// grid building.
+fn camera_only_worker(frames: &Receiver<CameraFrame>, job: &StackJob) -> StackResult {
+    let failed = |error: String| StackResult::failed(&job.entry.name, 0, error);
+    let Ok(f) = frames.recv() else {
+        return failed("no frame arrived".into());
+    };
+    let Some(image) = float_image(f.width, f.height, &f.pixels) else {
+        return failed(format!(
+            "{} samples for a {}×{} frame",
+            f.pixels.len(),
+            f.width,
+            f.height
+        ));
+    };
+    let at = ViewAt {
+        camera: job.camera,
+        pose: job.pose,
+        first_projector: job.first_projector,
+    };
+    process_image(&image, &job.entry.name, &job.board, &[], at)
 }
 
 /// A decoder of 8- or 16-bit frames, chosen by the first frame.
@@ -177,6 +262,9 @@ pub(crate) struct StackJob {
 
 /// Decode one camera's stack as its frames arrive on `frames`, then process it.
 pub(crate) fn stack_worker(frames: Receiver<CameraFrame>, job: StackJob) -> StackResult {
+    if job.sequence.is_camera_only() {
+        return camera_only_worker(&frames, &job);
+    }
     let StackJob {
         sequence,
         entry,
@@ -186,15 +274,8 @@ pub(crate) fn stack_worker(frames: Receiver<CameraFrame>, job: StackJob) -> Stac
         first_projector,
         finishing,
     } = job;
-    let failed = |error: String| StackResult {
-        camera: entry.name.clone(),
-        circles: 0,
-        points: 0,
-        anchored: false,
-        projector_points: vec![0; sequence.projectors().len()],
-        error: Some(error),
-        view: None,
-    };
+    let failed =
+        |error: String| StackResult::failed(&entry.name, sequence.projectors().len(), error);
     let full_scale = ((1u32 << entry.bits.min(16)) - 1) as f32;
     let mut decoder = None;
     for k in 0..sequence.frame_count() {
@@ -256,20 +337,23 @@ pub fn process_stored(data: &Dataset, board: &Board, k: usize) -> PoseViews {
         .cameras
         .iter()
         .enumerate()
-        .map(
-            |(c, entry)| match decode_dir(&data.stack_dir(k, &entry.name)) {
-                Ok(d) => process_decoded(&d, board, c, k, cameras),
-                Err(e) => StackResult {
-                    camera: entry.name.clone(),
-                    circles: 0,
-                    points: 0,
-                    anchored: false,
-                    projector_points: vec![0; data.info.projectors.len()],
-                    error: Some(e.to_string()),
-                    view: None,
-                },
-            },
-        )
+        .map(|(c, entry)| {
+            let dir = data.stack_dir(k, &entry.name);
+            let at = ViewAt {
+                camera: c,
+                pose: k,
+                first_projector: cameras,
+            };
+            let result = match data.info.sequence.is_camera_only() {
+                true => read_plain_frame(&dir)
+                    .map(|image| process_image(&image, &entry.name, board, &[], at)),
+                false => decode_dir(&dir)
+                    .map(|d| process_decoded(&d, board, c, k, cameras))
+                    .map_err(|e| e.to_string()),
+            };
+            result
+                .unwrap_or_else(|e| StackResult::failed(&entry.name, data.info.projectors.len(), e))
+        })
         .collect();
     PoseViews { pose: k, stacks }
 }

@@ -279,7 +279,8 @@ impl<'e> Stream<'e> {
         k: usize,
         options: &RunOptions,
     ) -> Result<Timeline, AppError> {
-        let keep_stacks = options.keep_stacks;
+        // A camera-only pose is one frame per camera: always kept (docs/dataset.md).
+        let keep_stacks = options.keep_stacks || self.sequence.is_camera_only();
         let (senders, workers) = self.spawn_stack_workers(k)?;
         let (cameras, frames) = (self.cameras(), self.sequence.frame_count());
         let mut writer = self.data.pose_writer(k)?;

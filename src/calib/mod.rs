@@ -1,4 +1,5 @@
-//! Calibration (docs/design.md §7–8): registration of unanchored views ([`views`]), Zhang's
+//! Calibration (docs/design.md §7–8): registration of unanchored views ([`views`] by
+//! projector coordinates, [`geometric`] by a first calibration's predictions), Zhang's
 //! planar initialisation per device ([`zhang`]), the pose graph ([`posegraph`]) and one
 //! bundle adjustment over all devices, board poses and both sides ([`bundle`], with the
 //! circle model of [`circle`]); [`solve::calibrate`] runs them in order.
@@ -9,6 +10,7 @@
 pub mod bundle;
 pub mod circle;
 pub mod diagnostics;
+pub mod geometric;
 pub mod posegraph;
 pub mod solve;
 #[cfg(any(test, feature = "testkit"))]

@@ -16,6 +16,15 @@ use std::collections::HashMap;
 
 pub use crate::correspond::{CameraView, Frame, ProjectorPixel, ViewPoint};
 
+/// What placed an unanchored view on the board.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Evidence {
+    /// Projector coordinates shared with anchored views ([`register`]).
+    Projectors,
+    /// The circles predicted by a first calibration ([`super::geometric`]).
+    Geometry,
+}
+
 /// An unanchored view that registration placed on the board.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Registered {
@@ -23,10 +32,12 @@ pub struct Registered {
     pub camera: usize,
     /// Board pose index.
     pub pose: usize,
-    /// Points matched to anchored points in projector space.
+    /// Points matched to anchored points in projector space (or to predicted circles).
     pub matches: usize,
     /// Matches agreeing with the accepted lattice transform.
     pub agreeing: usize,
+    /// What placed it.
+    pub by: Evidence,
 }
 
 /// An unanchored view left out.
@@ -155,6 +166,7 @@ pub fn register(views: &[CameraView], params: &RegisterParams) -> (Vec<CameraVie
                     pose: v.pose,
                     matches,
                     agreeing: agree,
+                    by: Evidence::Projectors,
                 });
                 out.push(CameraView {
                     frame: Frame::Anchored(map.side),

@@ -318,8 +318,13 @@ impl RigFile {
     /// The phase-shift sequence of a rig file (docs/design.md §6): the default for its projectors
     /// (gamma 1 is linear, others uncorrected) unless `steps` is set; `steps` below 5P means the
     /// projectors' gamma is linearised by hexcal (frequencies 1…P). Fringe counts as given.
+    /// A rig without projectors takes one plain frame per camera per pose
+    /// ([`Sequence::camera_only`]; `[timing] repeats` makes it a burst, averaged).
     pub fn sequence(&self) -> Result<Sequence, SequenceError> {
         let rig = self;
+        if rig.projectors.is_empty() {
+            return Ok(Sequence::camera_only());
+        }
         let p = rig.projectors.len() as u32;
         let linearised = rig.sequence.steps.is_some_and(|n| n < 5 * p);
         let setups: Vec<ProjectorSetup> = rig
@@ -589,6 +594,14 @@ impl RigFile {
     /// `[sequence]`: enough fringe counts, each and the steps within the limits.
     fn check_sequence(&self) -> Result<(), (String, String)> {
         let s = &self.sequence;
+        if self.projectors.is_empty() && *s != SequenceSpec::default() {
+            return Err((
+                "sequence".into(),
+                "a rig without projectors shows no sequence: each pose is one frame per \
+                 camera (a burst with [timing] repeats)"
+                    .into(),
+            ));
+        }
         if s.fringe_counts.len() < 2 {
             return Err((
                 "sequence.fringe_counts".into(),

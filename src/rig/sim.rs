@@ -47,7 +47,8 @@ pub enum SimRigError {
 }
 
 /// Ambient light on white (DN) and the level every projector together adds up to on white
-/// (docs/design.md §9 default stack conditions).
+/// (docs/design.md §9 default stack conditions); a rig without projectors is lit to the
+/// white level by the room.
 const AMBIENT_DN: f64 = 40.0;
 const WHITE_DN: f64 = 235.0;
 
@@ -244,6 +245,11 @@ impl SimWorld {
             board: self.board.clone(),
         };
         let gain = (WHITE_DN - AMBIENT_DN) / self.projectors.len().max(1) as f64;
+        // Without projectors the room light is what lights the board, up to the white level.
+        let ambient = match self.projectors.is_empty() {
+            true => WHITE_DN,
+            false => AMBIENT_DN,
+        };
         let projectors: Vec<StackProjector> = self
             .projectors
             .iter()
@@ -253,7 +259,7 @@ impl SimWorld {
                 gain_dn: gain,
             })
             .collect();
-        StackRenderer::new(&scene, &projectors, AMBIENT_DN, sequence)
+        StackRenderer::new(&scene, &projectors, ambient, sequence)
     }
 }
 
@@ -384,15 +390,13 @@ impl Camera for SimCamera {
 }
 
 impl SimCamera {
-    /// Expose one frame of what the projectors show now.
-    fn expose(&mut self) -> Result<(), DeviceError> {
-        if !self.started {
-            return Err(self.failed("triggered before start"));
+    /// The frame index to render and the sequence shown: pattern k of every projector, or,
+    /// in a rig without projectors, the plain frame (indexed by the camera's counter, so
+    /// the frames of a burst have noise of their own).
+    fn showing(&self, state: &State) -> Result<(usize, Sequence), DeviceError> {
+        if self.world.projectors.is_empty() {
+            return Ok((self.counter as usize, Sequence::camera_only()));
         }
-        if self.faults.stop_after.is_some_and(|n| self.counter >= n) {
-            return Ok(());
-        }
-        let state = self.world.lock().clone();
         let k = match state.slides.first() {
             Some(&Slide::Pattern(k)) if state.slides.iter().all(|s| *s == Slide::Pattern(k)) => k,
             _ => {
@@ -404,13 +408,26 @@ impl SimCamera {
         };
         let sequence = state
             .sequence
-            .as_ref()
+            .clone()
             .ok_or_else(|| self.failed("projectors not prepared"))?;
+        Ok((k, sequence))
+    }
+
+    /// Expose one frame of what the projectors show now.
+    fn expose(&mut self) -> Result<(), DeviceError> {
+        if !self.started {
+            return Err(self.failed("triggered before start"));
+        }
+        if self.faults.stop_after.is_some_and(|n| self.counter >= n) {
+            return Ok(());
+        }
+        let state = self.world.lock().clone();
+        let (k, sequence) = self.showing(&state)?;
         if self.renderer.as_ref().is_none_or(|(p, _)| *p != state.pose) {
             self.renderer = None;
             let r = self
                 .world
-                .stack_renderer(self.index, state.pose, sequence)
+                .stack_renderer(self.index, state.pose, &sequence)
                 .map_err(|e| self.failed(e.to_string()))?;
             self.renderer = Some((state.pose, r));
         }
