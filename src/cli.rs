@@ -212,6 +212,18 @@ pub fn summarise(outcome: &hexcal::app::progress::Outcome, progress: Progress) {
     for e in &cal.excluded {
         println!("not calibrated: {}: {}", e.name, e.reason);
     }
+    let reg = &cal.registration;
+    if reg.unanchored > 0 {
+        println!(
+            "{} of {} unanchored views registered",
+            reg.registered.len(),
+            reg.unanchored
+        );
+    }
+    for u in &reg.unregistered {
+        let camera = &outcome.devices[u.camera].name;
+        println!("unregistered: {camera} pose {}: {}", u.pose, u.reason);
+    }
     if !outcome.verification.is_empty() {
         print!(
             "{}",

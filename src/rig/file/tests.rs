@@ -100,3 +100,21 @@ fn a_real_camera_needs_an_address() {
         + 1;
     assert_eq!(err.line(), Some(header), "{err}");
 }
+
+#[test]
+fn a_rig_without_projectors_takes_one_plain_frame_per_pose() {
+    let text = shipped("sim-cameras.toml");
+    let rig = RigFile::parse(&text, "sim-cameras.toml").unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((rig.cameras.len(), rig.projectors.len()), (8, 0));
+    let sequence = rig.sequence().unwrap();
+    assert!(sequence.is_camera_only());
+    assert_eq!(sequence.frame_count(), 1);
+    // A sequence table has nothing to describe there.
+    let err = refused(
+        &text,
+        "[poses]\n",
+        "[sequence]\nfringe_counts = [20, 21]\n[poses]\n",
+        "[sequence]",
+    );
+    assert_eq!(err.field(), Some("sequence"), "{err}");
+}
