@@ -131,10 +131,9 @@ pub fn place_view(
             .iter()
             .map(|p| ((p.pixel - pt.image).norm(), p))
             .min_by(|a, b| a.0.total_cmp(&b.0));
-        let Some((d, p)) = nearest.filter(|(d, p)| *d <= params.max_distance * p.pitch) else {
+        let Some((_, p)) = nearest.filter(|(d, p)| *d <= params.max_distance * p.pitch) else {
             continue;
         };
-        debug_assert!(d.is_finite());
         matches += 1;
         for rotation in 0..6 {
             let translation = p.hex - pt.hex.rotate(rotation);

@@ -78,6 +78,12 @@ impl<'a, T: image::Primitive> From<&'a image::ImageBuffer<image::Luma<T>, Vec<T>
 /// A stack that does not match its sequence.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum DecodeError {
+    /// The stack of a rig without projectors: one plain frame, no phase to decode.
+    #[error("camera {camera}: a rig without projectors takes one plain frame per pose: nothing to decode")]
+    CameraOnly {
+        /// Camera label.
+        camera: String,
+    },
     /// An empty frame size or a full scale that is not a positive number.
     #[error("camera {camera}: frames of {width}×{height} with full scale {full_scale} cannot be decoded")]
     Format {
@@ -365,6 +371,9 @@ impl<T: Sample> Decoder<T> {
         full_scale: f32,
     ) -> Result<Self, DecodeError> {
         let camera = camera.into();
+        if seq.is_camera_only() {
+            return Err(DecodeError::CameraOnly { camera });
+        }
         if width == 0 || height == 0 || !(full_scale.is_finite() && full_scale > 0.0) {
             return Err(DecodeError::Format {
                 camera,

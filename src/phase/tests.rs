@@ -464,6 +464,12 @@ fn missing_truncated_and_missized_frames_name_camera_and_frame() {
         e.to_string(),
         "camera left-7: frames of 0×48 with full scale 255 cannot be decoded"
     );
+
+    // The plain frame of a rig without projectors has no phase.
+    let e = Decoder::<u8>::new(&Sequence::camera_only(), "left-7", 64, 48, 255.0)
+        .err()
+        .unwrap();
+    assert!(matches!(e, DecodeError::CameraOnly { .. }), "{e}");
 }
 
 #[test]

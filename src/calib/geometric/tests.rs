@@ -4,7 +4,6 @@
 
 use super::*;
 use crate::calib::synthetic::SyntheticRig;
-use crate::calib::views::Evidence;
 use nalgebra::{Translation3, Vector2};
 use rand::{rngs::StdRng, Rng, SeedableRng};
 
