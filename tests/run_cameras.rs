@@ -4,7 +4,8 @@
 //! truth: every camera calibrated within its own standard deviations, every registered
 //! view's labels right, and the stored frames reprocess to the same views.
 //!
-//! A burst of repeats is averaged into each pose's one frame.
+//! The run is stopped after four poses and resumed from its dataset, as after Ctrl-C. A
+//! burst of repeats is averaged into each pose's one frame.
 //!
 //! The rig is a reduced `rigs/sim-cameras.toml` (six 960×600 cameras, three facing each side,
 //! two of each three zoomed) so the test stays small.
@@ -14,12 +15,16 @@ mod cli;
 
 use cli::scratch;
 use hexcal::app::process::{process_stored, PoseViews};
+use hexcal::app::progress::Event;
 use hexcal::app::run::{run, RunOptions};
+use hexcal::app::AppError;
 use hexcal::dataset::Dataset;
 use hexcal::images::Pixels;
 use hexcal::rig::file::RigFile;
 use hexcal::rig::sim::SimWorld;
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 const RIG: &str = r#"
 name = "sim-cameras-small"
@@ -94,6 +99,31 @@ fn a_camera_only_rig_calibrates_to_its_ground_truth() {
     let rig = dir.join("sim-cameras-small.toml");
     std::fs::write(&rig, RIG).unwrap();
     let out = dir.join("data");
+    // Stopped (as by Ctrl-C) when pose 4 is placed: poses 0–3 are kept.
+    let stop = Arc::new(AtomicBool::new(false));
+    let stopped = run(
+        &rig,
+        &out,
+        &RunOptions {
+            held_out: 1,
+            stop: Some(Arc::clone(&stop)),
+            ..RunOptions::default()
+        },
+        &mut |k, w| {
+            stop.store(k == 4, Ordering::SeqCst);
+            w.expect("a simulated rig").place(k);
+            Ok(true)
+        },
+        &mut |_| {},
+    );
+    match stopped {
+        Err(AppError::Interrupted { kept, place_again }) => {
+            assert_eq!((kept, place_again), (vec![0, 1, 2, 3], 4))
+        }
+        other => panic!("not interrupted: {:?}", other.map(|_| ())),
+    }
+    // The same run resumes from the dataset and finishes.
+    let mut log = Vec::new();
     let outcome = run(
         &rig,
         &out,
@@ -105,9 +135,15 @@ fn a_camera_only_rig_calibrates_to_its_ground_truth() {
             w.expect("a simulated rig").place(k);
             Ok(true)
         },
-        &mut |_| {},
+        &mut |e| log.push(e.clone()),
     )
     .unwrap();
+    assert!(
+        log.contains(&Event::Resumed {
+            poses: vec![0, 1, 2, 3]
+        }),
+        "{log:?}"
+    );
     // The rig's ground truth, as the run's simulated world has it.
     let file = RigFile::load(&rig).unwrap();
     let world = SimWorld::new(&file, file.board().unwrap()).unwrap();
