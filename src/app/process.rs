@@ -1,7 +1,8 @@
 //! One camera's stack of one pose through the stages: decode, detect, grid, projector fits.
 //!
 //! Takes the camera's frames as they arrive (or a decoded stack); gives a [`StackResult`]
-//! with the labelled view. `pose-KKK/views.json` ([`PoseViews`]) holds every camera's
+//! with the labelled view. On a rig without projectors the stack is one plain frame, on
+//! which circles are detected directly (no decoding, no projector fits). `pose-KKK/views.json` ([`PoseViews`]) holds every camera's
 //! result of a pose.
 
 use crate::board::Board;

@@ -4,7 +4,8 @@
 //! Takes a [`RigFile`] (devices with ground truth, board poses) and gives boxed
 //! [`Camera`]s and [`Projector`]s sharing one [`SimWorld`]: the board pose the "operator"
 //! placed and what every projector shows. A triggered camera renders frame k of its stack
-//! ([`StackRenderer`], geometry once per pose) when every projector shows pattern k.
+//! ([`StackRenderer`], geometry once per pose) when every projector shows pattern k; in a
+//! rig without projectors, its plain frame of the board lit by the room.
 //! Faults can be injected per camera (stop delivering, drop frames) for the engine's tests.
 
 use super::device::{Camera, CameraConfig, DeviceError, Projector, Slide};
