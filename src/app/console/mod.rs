@@ -49,7 +49,7 @@ struct Shared {
     state: Mutex<State>,
     snapshot: Mutex<Arc<String>>,
     pngs: Mutex<Vec<Option<Arc<Vec<u8>>>>>,
-    hub: Mutex<Vec<Sender<Arc<String>>>>,
+    hub: Mutex<Vec<Sender<()>>>,
     capture: Sender<()>,
     closed: AtomicBool,
 }
@@ -63,7 +63,7 @@ impl Shared {
         lock(&self.pngs).get(camera).cloned().flatten()
     }
 
-    fn lock_hub(&self) -> MutexGuard<'_, Vec<Sender<Arc<String>>>> {
+    fn lock_hub(&self) -> MutexGuard<'_, Vec<Sender<()>>> {
         lock(&self.hub)
     }
 
@@ -79,8 +79,8 @@ impl Shared {
         }
     }
 
-    /// Judge, number and send the state to every open page (a page that is behind misses
-    /// this one and gets the next: each event is the whole state).
+    /// Judge and number the state, and tell every open page it changed (a page that has
+    /// not yet read the last change reads this one with it: each event is the whole state).
     fn publish(&self, state: &mut State) {
         state.judge();
         state.version += 1;
@@ -88,8 +88,8 @@ impl Shared {
             serde_json::to_string(&*state)
                 .unwrap_or_else(|e| format!("{{\"status\":\"error\",\"message\":\"{e}\"}}")),
         );
-        *lock(&self.snapshot) = Arc::clone(&json);
-        lock(&self.hub).retain(|tx| match tx.try_send(Arc::clone(&json)) {
+        *lock(&self.snapshot) = json;
+        lock(&self.hub).retain(|tx| match tx.try_send(()) {
             Ok(()) | Err(TrySendError::Full(_)) => true,
             Err(TrySendError::Disconnected(_)) => false,
         });

@@ -3,7 +3,7 @@
 //!
 //! Routes: `GET /` the page (everything it needs is in it: no CDN, no other file);
 //! `GET /state` the state as JSON; `GET /events` server-sent events, one whole state per
-//! change; `GET /thumb/C.png` camera C's latest thumbnail; `POST /capture` the capture
+//! change (coalesced when they come faster than a page reads); `GET /thumb/C.png` camera C's latest thumbnail; `POST /capture` the capture
 //! button (refused with 409 unless the run waits for the board). A page that goes away
 //! only ends its own thread: nothing the server does can block or fail the run.
 
@@ -81,10 +81,11 @@ fn respond(request: Request, shared: &Arc<Shared>) -> std::io::Result<()> {
     }
 }
 
-/// A page's event stream, in a thread of its own: the current state first, then every
-/// change; it ends when the page goes away or the console closes.
+/// A page's event stream, in a thread of its own: the current state first, then the newest
+/// state after every change (changes that come faster than the page reads are coalesced, so
+/// the last one is never lost); it ends when the page goes away or the console closes.
 fn events(request: Request, shared: &Arc<Shared>) -> std::io::Result<()> {
-    let (tx, rx) = bounded::<Arc<String>>(8);
+    let (tx, rx) = bounded::<()>(1);
     {
         let mut hub = shared.lock_hub();
         if hub.len() >= MAX_STREAMS {
@@ -93,29 +94,36 @@ fn events(request: Request, shared: &Arc<Shared>) -> std::io::Result<()> {
         }
         hub.push(tx);
     }
-    let first = shared.snapshot();
+    let shared = Arc::clone(shared);
     let spawned = std::thread::Builder::new()
         .name("console page".into())
         .spawn(move || {
             let mut w = request.into_writer();
-            let _ = stream(&mut *w, &first, &rx);
+            let _ = stream(&mut *w, &shared, &rx);
         });
     spawned.map(|_| ())
 }
 
 fn stream(
     w: &mut dyn Write,
-    first: &str,
-    rx: &crossbeam_channel::Receiver<Arc<String>>,
+    shared: &Shared,
+    changed: &crossbeam_channel::Receiver<()>,
 ) -> std::io::Result<()> {
     w.write_all(
         b"HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\nCache-Control: no-store\r\n\
           Connection: close\r\n\r\n",
     )?;
-    send(w, first)?;
+    let mut last = shared.snapshot();
+    send(w, &last)?;
     loop {
-        match rx.recv_timeout(KEEP_ALIVE) {
-            Ok(state) => send(w, &state)?,
+        match changed.recv_timeout(KEEP_ALIVE) {
+            Ok(()) => {
+                let now = shared.snapshot();
+                if !Arc::ptr_eq(&now, &last) {
+                    send(w, &now)?;
+                    last = now;
+                }
+            }
             Err(RecvTimeoutError::Timeout) => {
                 w.write_all(b": keep-alive\n\n")?;
                 w.flush()?;

@@ -103,8 +103,6 @@ fn serves_the_page_state_and_events_and_takes_presses_only_when_waiting() {
         last = next_state(&mut other);
     }
     assert_eq!(last["status"], "capturing");
-    drop(console);
-    assert!(TcpStream::connect(url.trim_start_matches("http://").trim_end_matches('/')).is_err());
 }
 
 #[test]
