@@ -296,23 +296,10 @@ fn count_colours(png: &[u8], [x0, y0, w, h]: [u32; 4]) -> (usize, usize, usize, 
     (green, lime, greys.len(), sd)
 }
 
-#[test]
-fn console_guides_a_run_in_a_real_browser() {
-    assert!(
-        Path::new(CHROMIUM).exists(),
-        "{CHROMIUM} not found: install the Debian package `chromium` (scripts/test.sh lists it)"
-    );
-    let dir = scratch("console-browser");
-    let rig = dir.join("rig.toml");
-    std::fs::write(&rig, RIG).unwrap();
-    let (mut run, mut stdin, url, stderr) = start_run(&rig, &dir.join("data"));
-    let browser = start_chromium(&dir.join("profile"));
-    let mut page = Page::attach(&dir.join("profile"));
-    page.call("Page.navigate", json!({"url": url}));
-
-    let first = page.wait("the capture button", &|v| v["capture"] == true);
-    assert_eq!(first["sign"], "NOT DONE", "{first}");
-    assert_eq!(first["cameras"].as_array().unwrap().len(), 2, "{first}");
+/// Click Capture until the sign reads DONE; after each click, wait for every camera's
+/// thumbnail and overlay of that pose and check the poses-seen counts went up. Gives the
+/// poses captured.
+fn capture_until_done(page: &mut Page) -> usize {
     let mut pose = 0;
     let mut seen_before = 0;
     loop {
@@ -355,13 +342,17 @@ fn console_guides_a_run_in_a_real_browser() {
         }
         assert!(pose < 4, "not done after {pose} poses: {seen}");
     }
-    assert!(pose >= 3, "done after {pose} poses, before 3 per device");
+    pose
+}
+
+/// Screenshot the page into `file` and check what it shows: a green sign, lime circles over
+/// the first thumbnail and a grey picture under them.
+fn check_screenshot(page: &mut Page, file: &Path) {
     let shot = page.call("Page.captureScreenshot", json!({"format": "png"}));
     let png = data_encoding::BASE64
         .decode(shot["data"].as_str().unwrap().as_bytes())
         .unwrap();
-    let file = dir.join("console.png");
-    std::fs::write(&file, &png).unwrap();
+    std::fs::write(file, &png).unwrap();
     let rect = |page: &mut Page, sel: &str| -> [u32; 4] {
         let r = page.eval(&format!(
             "(() => {{ const r = document.querySelector('{sel}').getBoundingClientRect(); \
@@ -369,8 +360,8 @@ fn console_guides_a_run_in_a_real_browser() {
         ));
         std::array::from_fn(|i| r[i].as_f64().unwrap().round() as u32)
     };
-    let sign = rect(&mut page, "#sign");
-    let thumb = rect(&mut page, "#cameras figure canvas");
+    let sign = rect(page, "#sign");
+    let thumb = rect(page, "#cameras figure canvas");
     let (green, ..) = count_colours(&png, sign);
     let (_, lime, grey, sd) = count_colours(&png, thumb);
     let area = |r: [u32; 4]| (r[2] * r[3]) as usize;
@@ -390,6 +381,28 @@ fn console_guides_a_run_in_a_real_browser() {
         grey > area(thumb) / 10,
         "no camera picture in the thumbnail: {grey} px"
     );
+}
+
+#[test]
+fn console_guides_a_run_in_a_real_browser() {
+    assert!(
+        Path::new(CHROMIUM).exists(),
+        "{CHROMIUM} not found: install the Debian package `chromium` (scripts/test.sh lists it)"
+    );
+    let dir = scratch("console-browser");
+    let rig = dir.join("rig.toml");
+    std::fs::write(&rig, RIG).unwrap();
+    let (mut run, mut stdin, url, stderr) = start_run(&rig, &dir.join("data"));
+    let browser = start_chromium(&dir.join("profile"));
+    let mut page = Page::attach(&dir.join("profile"));
+    page.call("Page.navigate", json!({"url": url}));
+
+    let first = page.wait("the capture button", &|v| v["capture"] == true);
+    assert_eq!(first["sign"], "NOT DONE", "{first}");
+    assert_eq!(first["cameras"].as_array().unwrap().len(), 2, "{first}");
+    let pose = capture_until_done(&mut page);
+    assert!(pose >= 3, "done after {pose} poses, before 3 per device");
+    check_screenshot(&mut page, &dir.join("console.png"));
 
     // Closing the browser harms nothing: Enter finishes the run as without a console.
     drop(page);
