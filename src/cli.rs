@@ -42,11 +42,13 @@ fn operator_lines() -> Receiver<bool> {
 
 /// Puts the board at pose k: a simulated world's pose when the rig is simulated; then, unless
 /// `auto` (or a simulated world placed it and `sim_places` says that is enough), waits for
-/// the operator's Enter (end of input, or `stop` set, ends the capture).
+/// the operator's Enter or a press of the console's capture `button` (end of input, or
+/// `stop` set, ends the capture).
 fn placer(
     auto: bool,
     sim_places: bool,
     stop: Option<Arc<AtomicBool>>,
+    button: Option<Receiver<()>>,
 ) -> impl FnMut(usize, Option<&SimWorld>) -> Result<bool, AppError> {
     let mut lines = None;
     move |k, world| {
@@ -64,6 +66,8 @@ fn placer(
         }
         eprintln!("pose {k}: place the board, then press Enter (end of input stops)");
         let lines = lines.get_or_insert_with(operator_lines);
+        // A press from before this pose waited is stale.
+        while button.as_ref().is_some_and(|b| b.try_recv().is_ok()) {}
         loop {
             match lines.recv_timeout(Duration::from_millis(100)) {
                 Ok(more) => return Ok(more),
@@ -71,6 +75,9 @@ fn placer(
                 Err(RecvTimeoutError::Timeout) => {
                     if stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst)) {
                         return Ok(false);
+                    }
+                    if button.as_ref().is_some_and(|b| b.try_recv().is_ok()) {
+                        return Ok(true);
                     }
                 }
             }
@@ -84,7 +91,7 @@ pub fn capture(rig: &Path, out: &Path, poses: Option<usize>, auto: bool) -> anyh
     let poses = poses
         .or(file.poses.map(|p| p.count))
         .context("say how many poses with --poses (the rig file has no [poses] table)")?;
-    let mut place = placer(auto, true, None);
+    let mut place = placer(auto, true, None, None);
     let mut log = |line: &str| eprintln!("{line}");
     let summary = hexcal::app::capture::capture_dataset(rig, out, poses, &mut place, &mut log)
         .map_err(anyhow::Error::msg)?;
@@ -167,17 +174,36 @@ pub fn printer(mode: Progress) -> impl FnMut(&hexcal::app::progress::Event) {
     }
 }
 
-/// `hexcal run`: the one-button calibration.
+/// `hexcal run`: the one-button calibration, with the operator console on `console`'s
+/// address if given.
 pub fn run(
     rig: &Path,
     out: &Path,
     options: &hexcal::app::run::RunOptions,
-    auto: bool,
+    (auto, console): (bool, Option<&str>),
     progress: Progress,
 ) -> anyhow::Result<()> {
-    let mut place = placer(auto, false, options.stop.clone());
+    use hexcal::app::console::Console;
+    let mut console = console
+        .map(|addr| Console::start(addr, out, auto))
+        .transpose()?;
+    let mut options = options.clone();
+    if let Some(c) = &console {
+        eprintln!("console: {} (open it in a browser)", c.url());
+        options.frame_tap = Some(c.frame_tap());
+        options.settle_each_pose = true;
+    }
+    let button = console.as_ref().map(Console::captures);
+    let mut place = placer(auto, false, options.stop.clone(), button);
+    let mut print = printer(progress);
+    let mut events = |e: &hexcal::app::progress::Event| {
+        if let Some(c) = console.as_mut() {
+            c.event(e);
+        }
+        print(e);
+    };
     let t = std::time::Instant::now();
-    let outcome = hexcal::app::run::run(rig, out, options, &mut place, &mut printer(progress))?;
+    let outcome = hexcal::app::run::run(rig, out, &options, &mut place, &mut events)?;
     summarise(&outcome, progress);
     if progress != Progress::Json {
         match peak_memory_mib() {

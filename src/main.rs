@@ -195,6 +195,10 @@ enum Command {
         /// Progress as JSON lines on stdout.
         #[arg(long)]
         json: bool,
+        /// Serve the operator console, a web page of live thumbnails, coverage and a
+        /// done sign, on ADDR (default 127.0.0.1:8765; port 0 picks a free one).
+        #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+        console: Option<String>,
     },
     /// List the cameras, monitors and serial ports this machine has (rig-file addresses).
     Devices,
@@ -285,7 +289,7 @@ fn run(
     rig: &Path,
     out: &Path,
     options: &hexcal::app::run::RunOptions,
-    auto: bool,
+    (auto, console): (bool, Option<&str>),
     progress: cli::Progress,
 ) -> anyhow::Result<Finished> {
     let file = hexcal::rig::file::RigFile::load(rig)?;
@@ -293,7 +297,7 @@ fn run(
         check_poses(poses)?;
         hexcal::app::calibrate::check_held_out(poses, options.held_out)?;
     }
-    cli::run(rig, out, options, auto, progress)?;
+    cli::run(rig, out, options, (auto, console), progress)?;
     let missing = hexcal::app::calibrate::uncalibrated(out)?;
     Ok(match missing.is_empty() {
         true => Finished::Done,
@@ -426,12 +430,14 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             keep_stacks,
             quiet,
             json,
+            console,
         } => {
             let options = hexcal::app::run::RunOptions {
                 poses,
                 held_out,
                 keep_stacks,
                 stop: Some(cli::stop_flag()?),
+                ..Default::default()
             };
             let progress = if json {
                 cli::Progress::Json
@@ -440,7 +446,7 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             } else {
                 cli::Progress::Human
             };
-            return run(&rig, &out, &options, auto, progress);
+            return run(&rig, &out, &options, (auto, console.as_deref()), progress);
         }
         Command::Calibrate {
             input,

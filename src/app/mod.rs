@@ -5,11 +5,13 @@
 //! - [`capture`]: a rig's poses into a dataset folder;
 //! - [`calibrate`]: a dataset folder or a correspondences file to a calibration;
 //! - [`detect`]: circles and labelled lattice points of image files, with overlays;
+//! - [`console`]: the operator console of `run --console` (a local web page);
 //! - [`process`]: one camera's stack through the stages; [`truth`]: a calibration against a
 //!   simulated rig's ground truth.
 
 pub mod calibrate;
 pub mod capture;
+pub mod console;
 pub mod detect;
 mod overlay;
 pub mod process;

@@ -39,6 +39,24 @@ pub struct RunOptions {
     /// Set (e.g. by Ctrl-C) to stop capturing: the pose being captured is dropped, every
     /// pose already captured is finished, and the run ends with [`AppError::Interrupted`].
     pub stop: Option<Arc<AtomicBool>>,
+    /// Sees every captured frame (the operator console's thumbnails).
+    pub frame_tap: Option<FrameTap>,
+    /// Finish processing each pose before the board is placed for the next, so a watcher
+    /// (the operator console) shows what it gave first.
+    pub settle_each_pose: bool,
+}
+
+/// What a [`FrameTap`] calls: pose index and frame.
+pub type TapFn = dyn Fn(usize, &crate::dataset::StackFrame) + Send + Sync;
+
+/// Called with every captured frame and its pose, on the capture thread (keep it quick).
+#[derive(Clone)]
+pub struct FrameTap(pub Arc<TapFn>);
+
+impl std::fmt::Debug for FrameTap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("FrameTap")
+    }
 }
 
 impl RunOptions {
@@ -117,6 +135,9 @@ pub fn run(
     let mut interrupted = None;
     let todo: Vec<usize> = (0..poses).filter(|&k| stream.all[k].is_none()).collect();
     for k in todo {
+        if options.settle_each_pose {
+            stream.drain()?;
+        }
         (stream.events)(&Event::PoseStarted { pose: k, of: poses });
         if options.stopped() || !place(k, world.as_deref())? || options.stopped() {
             interrupted = options.stopped().then_some(k);
@@ -292,6 +313,9 @@ impl<'e> Stream<'e> {
             }
             if keep_stacks {
                 writer.write(&f)?;
+            }
+            if let Some(tap) = &options.frame_tap {
+                (tap.0)(k, &f);
             }
             if f.camera == cameras - 1 && (f.index + 1) * 10 / frames > last {
                 last = (f.index + 1) * 10 / frames;

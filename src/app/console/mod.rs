@@ -1,0 +1,325 @@
+//! The operator console (`hexcal run --console [ADDR]`): a local web page that shows, while
+//! a run goes on, one thumbnail per camera with its labelled circles and lattice drawn over
+//! it, per device the poses seen, a coverage map of its image and the range of board tilts,
+//! a big done / not-done sign, and a capture button.
+//!
+//! Takes the run's progress events, its captured frames (through a [`FrameTap`]) and the
+//! processed poses the run writes to its dataset (`pose-KKK/views.json`); gives the page
+//! (served from the binary, no outside file or network) and the capture button's presses.
+//! The page follows the run through server-sent events; pages come and go as they like.
+
+mod server;
+pub mod state;
+pub mod stats;
+pub mod thumbs;
+
+use super::process::PoseViews;
+use super::progress::Event;
+use super::run::FrameTap;
+use crate::board::Board;
+use crate::calib::solve::DeviceInfo;
+use crate::dataset::Dataset;
+use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
+use state::{CameraPanel, State};
+use stats::{observations, DeviceStats, Overlay};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use thumbs::Thumbs;
+
+/// Why the console could not start.
+#[derive(Debug, thiserror::Error)]
+#[error("console: cannot listen on {addr}: {reason}")]
+pub struct ConsoleError {
+    /// The address asked for.
+    pub addr: String,
+    /// Why not.
+    pub reason: String,
+}
+
+/// A mutex that a panicked holder leaves usable (the console's data stays consistent field
+/// by field, and the run must go on).
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// What the server threads and the run share.
+struct Shared {
+    state: Mutex<State>,
+    snapshot: Mutex<Arc<String>>,
+    pngs: Mutex<Vec<Option<Arc<Vec<u8>>>>>,
+    hub: Mutex<Vec<Sender<()>>>,
+    capture: Sender<()>,
+    closed: AtomicBool,
+}
+
+impl Shared {
+    fn snapshot(&self) -> Arc<String> {
+        Arc::clone(&lock(&self.snapshot))
+    }
+
+    fn thumbnail(&self, camera: usize) -> Option<Arc<Vec<u8>>> {
+        lock(&self.pngs).get(camera).cloned().flatten()
+    }
+
+    fn lock_hub(&self) -> MutexGuard<'_, Vec<Sender<()>>> {
+        lock(&self.hub)
+    }
+
+    /// The capture button: taken when the run waits for the board and places by hand.
+    fn press_capture(&self) -> Result<(), String> {
+        let s = lock(&self.state);
+        if s.auto || s.status != "waiting" {
+            return Err(format!("not waiting for the board ({})", s.status));
+        }
+        match self.capture.try_send(()) {
+            Ok(()) | Err(TrySendError::Full(())) => Ok(()),
+            Err(TrySendError::Disconnected(())) => Err("the run no longer listens".into()),
+        }
+    }
+
+    /// Judge and number the state, and tell every open page it changed (a page that has
+    /// not yet read the last change reads this one with it: each event is the whole state).
+    fn publish(&self, state: &mut State) {
+        state.judge();
+        state.version += 1;
+        let json = Arc::new(
+            serde_json::to_string(&*state)
+                .unwrap_or_else(|e| format!("{{\"status\":\"error\",\"message\":\"{e}\"}}")),
+        );
+        *lock(&self.snapshot) = json;
+        lock(&self.hub).retain(|tx| match tx.try_send(()) {
+            Ok(()) | Err(TrySendError::Full(_)) => true,
+            Err(TrySendError::Disconnected(_)) => false,
+        });
+    }
+}
+
+/// The running console: its server, and what it learnt of the run so far.
+pub struct Console {
+    shared: Arc<Shared>,
+    server: Arc<tiny_http::Server>,
+    thread: Option<JoinHandle<()>>,
+    thumbs: Arc<Mutex<Thumbs>>,
+    captures: Receiver<()>,
+    url: String,
+    out: PathBuf,
+    data: Option<(Dataset, Board)>,
+    pending: Vec<(usize, bool)>,
+}
+
+impl Console {
+    /// Serve the console on `addr` (e.g. 127.0.0.1:8765; port 0 picks a free one) for the
+    /// run whose dataset is `out`; `auto`: the run places poses itself (no capture button).
+    pub fn start(addr: &str, out: &Path, auto: bool) -> Result<Console, ConsoleError> {
+        let fail = |reason: String| ConsoleError {
+            addr: addr.to_string(),
+            reason,
+        };
+        let server = tiny_http::Server::http(addr).map_err(|e| fail(e.to_string()))?;
+        let url = match server.server_addr().to_ip() {
+            Some(a) => format!("http://{a}/"),
+            None => return Err(fail("not an IP address".into())),
+        };
+        let (capture, captures) = bounded(1);
+        let state = State {
+            status: "starting".into(),
+            message: "opening the rig".into(),
+            auto,
+            ..State::default()
+        };
+        let shared = Arc::new(Shared {
+            state: Mutex::new(state),
+            snapshot: Mutex::new(Arc::new(String::new())),
+            pngs: Mutex::new(Vec::new()),
+            hub: Mutex::new(Vec::new()),
+            capture,
+            closed: AtomicBool::new(false),
+        });
+        shared.publish(&mut lock(&shared.state));
+        let server = Arc::new(server);
+        let (srv, sh) = (Arc::clone(&server), Arc::clone(&shared));
+        let thread = std::thread::Builder::new()
+            .name("console".into())
+            .spawn(move || server::serve(&srv, &sh))
+            .map_err(|e| fail(e.to_string()))?;
+        Ok(Console {
+            shared,
+            server,
+            thread: Some(thread),
+            thumbs: Arc::new(Mutex::new(Thumbs::default())),
+            captures,
+            url,
+            out: out.to_path_buf(),
+            data: None,
+            pending: Vec::new(),
+        })
+    }
+
+    /// The page's address.
+    pub fn url(&self) -> &str {
+        &self.url
+    }
+
+    /// The capture button's presses (one message per press taken).
+    pub fn captures(&self) -> Receiver<()> {
+        self.captures.clone()
+    }
+
+    /// The tap that makes the thumbnails from the captured frames.
+    pub fn frame_tap(&self) -> FrameTap {
+        let thumbs = Arc::clone(&self.thumbs);
+        FrameTap(Arc::new(move |pose, f| lock(&thumbs).add(pose, f)))
+    }
+
+    /// Take in one of the run's events and update every open page.
+    pub fn event(&mut self, e: &Event) {
+        let shared = Arc::clone(&self.shared);
+        let mut state = lock(&shared.state);
+        self.open_dataset(&mut state);
+        self.apply(e, &mut state);
+        shared.publish(&mut state);
+    }
+
+    fn apply(&mut self, e: &Event, s: &mut State) {
+        match e {
+            Event::PoseStarted { pose, of } => {
+                self.read_pending(s);
+                s.status = "waiting".into();
+                s.pose = Some([*pose, *of]);
+                s.frames = None;
+                s.message = match s.auto {
+                    true => format!("pose {} of {of}", pose + 1),
+                    false => format!(
+                        "Place the board for pose {} of {of}, then press Capture (or Enter)",
+                        pose + 1
+                    ),
+                };
+            }
+            Event::Frames { pose, done, of } => {
+                s.status = "capturing".into();
+                s.frames = Some([*done, *of]);
+                s.message = format!("capturing pose {}: keep the board still", pose + 1);
+            }
+            Event::PoseCaptured { pose, .. } => {
+                self.thumbnails(*pose, s);
+                s.message = format!("pose {} captured; finding the board", pose + 1);
+            }
+            Event::PoseProcessed { pose, held_out, .. } => self.pending.push((*pose, *held_out)),
+            Event::Calibrating { .. } => {
+                self.read_pending(s);
+                s.status = "calibrating".into();
+                s.message = e.to_string();
+            }
+            Event::Finished { .. } => {
+                s.status = "finished".into();
+                s.message = e.to_string();
+            }
+            Event::Interrupted { .. } => {
+                s.status = "stopped".into();
+                s.message = e.to_string();
+            }
+            Event::StackFailed { .. } => s.warnings.push(e.to_string()),
+            _ => s.message = e.to_string(),
+        }
+    }
+
+    /// The dataset (and its board and devices) once the run has created it.
+    fn open_dataset(&mut self, s: &mut State) {
+        if self.data.is_some() || !self.out.join("dataset.json").exists() {
+            return;
+        }
+        let opened = Dataset::open(&self.out)
+            .map_err(|e| e.to_string())
+            .and_then(|d| {
+                let board = Board::resolve(&d.info.board).map_err(|e| e.to_string())?;
+                Ok((d, board))
+            });
+        match opened {
+            Ok((data, board)) => {
+                let devices: Vec<DeviceInfo> = super::calibrate::devices_of(&data.info);
+                s.devices = devices.iter().map(DeviceStats::new).collect();
+                s.cameras = data
+                    .info
+                    .cameras
+                    .iter()
+                    .map(|c| CameraPanel {
+                        name: c.name.clone(),
+                        size: [c.width, c.height],
+                        ..CameraPanel::default()
+                    })
+                    .collect();
+                self.data = Some((data, board));
+            }
+            Err(e) => s.warnings.push(format!("cannot read the dataset: {e}")),
+        }
+    }
+
+    /// Every camera's thumbnail of pose `pose`.
+    fn thumbnails(&self, pose: usize, s: &mut State) {
+        let thumbs = lock(&self.thumbs);
+        let mut pngs = lock(&self.shared.pngs);
+        for (c, panel) in s.cameras.iter_mut().enumerate() {
+            let Some(t) = thumbs.finish(c).filter(|t| t.pose == pose) else {
+                continue;
+            };
+            if pngs.len() <= c {
+                pngs.resize(c + 1, None);
+            }
+            pngs[c] = Some(Arc::new(t.png));
+            panel.thumb = Some(format!("/thumb/{c}.png?pose={pose}"));
+            panel.thumb_pose = Some(pose);
+            panel.thumb_step = t.step;
+        }
+    }
+
+    /// The processed poses whose views the run has written by now.
+    fn read_pending(&mut self, s: &mut State) {
+        let Some((data, board)) = &self.data else {
+            return;
+        };
+        let mut later = Vec::new();
+        for (pose, held_out) in std::mem::take(&mut self.pending) {
+            match data.read_pose_file::<PoseViews>(pose, "views.json") {
+                Ok(Some(v)) => take_views(board, &v, held_out, s),
+                Ok(None) => later.push((pose, held_out)),
+                Err(e) => s.warnings.push(format!("pose {pose}: {e}")),
+            }
+        }
+        self.pending = later;
+    }
+}
+
+/// One processed pose into the panels and device statistics.
+fn take_views(board: &Board, views: &PoseViews, held_out: bool, s: &mut State) {
+    let n = s.devices.len();
+    let mut per_device = vec![(Vec::new(), Vec::new()); n];
+    for (c, stack) in views.stacks.iter().enumerate() {
+        if let Some(panel) = s.cameras.get_mut(c) {
+            panel.overlay = Some(Overlay::of(views.pose, stack.circles, stack.view.as_ref()));
+        }
+        let Some(view) = &stack.view else { continue };
+        for (d, (b, p)) in observations(board, view, n).into_iter().enumerate() {
+            per_device[d].0.extend(b);
+            per_device[d].1.extend(p);
+        }
+    }
+    for (d, (b, p)) in s.devices.iter_mut().zip(per_device) {
+        d.add(&b, &p, held_out);
+    }
+}
+
+impl Drop for Console {
+    fn drop(&mut self) {
+        self.shared.closed.store(true, Ordering::SeqCst);
+        lock(&self.shared.hub).clear();
+        self.server.unblock();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,436 @@
+//! The operator console as a person uses it (issue 19): `hexcal run --console` on a small
+//! simulated rig, its page open in real headless Chromium driven over the DevTools protocol.
+//! The test clicks the page's Capture button like a mouse would, and checks that every
+//! camera's thumbnail appears with the detected circles drawn over it, that the poses-seen
+//! counts go up after each capture, that the sign turns from NOT DONE to DONE, and that a
+//! screenshot shows the green sign and the overlays. It then closes the browser and finishes
+//! the run with Enter on the terminal: the run must end as it would without a console.
+//!
+//! Needs Chromium at /usr/bin/chromium (Debian package `chromium`, in scripts/test.sh).
+
+#[path = "support/cli.rs"]
+mod cli;
+
+use cli::scratch;
+use serde_json::{json, Value};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::Path;
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+const CHROMIUM: &str = "/usr/bin/chromium";
+
+/// Two 960×600 cameras facing the board's front and one projector (30 frames a pose): small
+/// enough for the debug build.
+const RIG: &str = r#"
+name = "sim-console"
+board = "hex600"
+[timing]
+frame_period_ms = 20.0
+[poses]
+count = 5
+yaw_deg = 30.0
+tilt_deg = 20.0
+shift_mm = 40.0
+seed = 5
+[[camera]]
+name = "cam0"
+driver = "sim"
+width = 960
+height = 600
+exposure_ms = 10.0
+sim.intrinsics = { fx = 1200.0, fy = 1200.0, cx = 478.0, cy = 301.0 }
+sim.distortion = { k1 = -0.12, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
+sim.pose = { eye = [0.0, -311.9, 1467.2], target = [0.0, 0.0, 0.0] }
+[[camera]]
+name = "cam1"
+driver = "sim"
+width = 960
+height = 600
+exposure_ms = 10.0
+sim.intrinsics = { fx = 1220.0, fy = 1220.0, cx = 481.0, cy = 299.0 }
+sim.distortion = { k1 = -0.1, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
+sim.pose = { eye = [-860.4, 0.0, 1228.7], target = [0.0, 0.0, 0.0] }
+[[projector]]
+name = "proj0"
+driver = "sim"
+width = 1280
+height = 800
+sim.intrinsics = { fx = 1500.0, fy = 1500.0, cx = 640.0, cy = 740.0 }
+sim.pose = { eye = [335.2, 113.3, 1250.9], target = [0.0, 0.0, 0.0] }
+"#;
+
+/// How long any one step may take in the debug build on a loaded machine.
+const STEP: Duration = Duration::from_secs(240);
+
+/// A child process killed when dropped (a failed test leaves nothing running).
+struct Killed(Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// One GET on 127.0.0.1: the body.
+fn get(addr: &str, path: &str) -> String {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    // Until the server closes (or, if it keeps the connection, goes quiet).
+    let mut all = Vec::new();
+    let _ = s.read_to_end(&mut all);
+    let all = String::from_utf8_lossy(&all);
+    all.split_once("\r\n\r\n")
+        .map_or("", |(_, b)| b)
+        .to_string()
+}
+
+/// A DevTools-protocol session with one page.
+struct Page {
+    ws: tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>,
+    next: u64,
+}
+
+impl Page {
+    /// Attach to the first page of the Chromium whose profile is `profile`.
+    fn attach(profile: &Path) -> Page {
+        let port_file = profile.join("DevToolsActivePort");
+        let start = Instant::now();
+        let port = loop {
+            if let Some(p) = std::fs::read_to_string(&port_file)
+                .ok()
+                .and_then(|t| t.lines().next().and_then(|l| l.trim().parse::<u16>().ok()))
+            {
+                break p;
+            }
+            assert!(
+                start.elapsed() < STEP,
+                "Chromium did not open its DevTools port"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        let targets: Value =
+            serde_json::from_str(&get(&format!("127.0.0.1:{port}"), "/json/list")).unwrap();
+        let url = targets
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|t| t["type"] == "page")
+            .expect("a page target")["webSocketDebuggerUrl"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        let (ws, _) = tungstenite::connect(url).expect("DevTools WebSocket");
+        Page { ws, next: 1 }
+    }
+
+    /// Call a DevTools method; gives its result (events in between are skipped).
+    fn call(&mut self, method: &str, params: Value) -> Value {
+        let id = self.next;
+        self.next += 1;
+        let msg = json!({"id": id, "method": method, "params": params}).to_string();
+        self.ws.send(tungstenite::Message::text(msg)).unwrap();
+        loop {
+            let m = self.ws.read().unwrap();
+            let Ok(text) = m.to_text() else { continue };
+            let v: Value = serde_json::from_str(text).unwrap_or(Value::Null);
+            if v["id"] == id {
+                assert!(v.get("error").is_none(), "{method}: {v}");
+                return v["result"].clone();
+            }
+        }
+    }
+
+    /// Evaluate `expr` in the page; gives its value.
+    fn eval(&mut self, expr: &str) -> Value {
+        let r = self.call(
+            "Runtime.evaluate",
+            json!({"expression": expr, "returnByValue": true}),
+        );
+        r["result"]["value"].clone()
+    }
+
+    /// What an operator reads off the page.
+    fn read(&mut self) -> Value {
+        self.eval(
+            r#"JSON.stringify({
+                sign: document.querySelector('#sign')?.textContent,
+                capture: !!document.querySelector('#capture') && !document.querySelector('#capture').disabled,
+                cameras: [...document.querySelectorAll('#cameras figure')].map(f => ({
+                    name: f.dataset.camera, points: +f.dataset.points, pose: f.dataset.thumbPose,
+                    caption: f.querySelector('figcaption').textContent })),
+                poses: [...document.querySelectorAll('#devices tbody tr')].map(r => +r.dataset.poses),
+                message: document.querySelector('#message')?.textContent })"#,
+        )
+        .as_str()
+        .map(|s| serde_json::from_str(s).unwrap())
+        .unwrap_or(Value::Null)
+    }
+
+    /// Wait until `ok` holds for what the page shows; gives it.
+    fn wait(&mut self, what: &str, ok: &dyn Fn(&Value) -> bool) -> Value {
+        let start = Instant::now();
+        loop {
+            let v = self.read();
+            if ok(&v) {
+                return v;
+            }
+            assert!(
+                start.elapsed() < STEP,
+                "waited for {what}; the page shows {v}"
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+
+    /// Click the Capture button with the mouse, at its centre.
+    fn click_capture(&mut self) {
+        let r = self.eval(
+            "(() => { const r = document.querySelector('#capture').getBoundingClientRect(); \
+             return [r.x + r.width / 2, r.y + r.height / 2]; })()",
+        );
+        let (x, y) = (r[0].as_f64().unwrap(), r[1].as_f64().unwrap());
+        for kind in ["mousePressed", "mouseReleased"] {
+            self.call(
+                "Input.dispatchMouseEvent",
+                json!({"type": kind, "x": x, "y": y, "button": "left", "clickCount": 1}),
+            );
+        }
+    }
+}
+
+/// Start `hexcal run --console` with a free port; gives the process, its stdin, the
+/// console's address and the receiver of its remaining stderr lines.
+fn start_run(rig: &Path, out: &Path) -> (Killed, ChildStdin, String, mpsc::Receiver<String>) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hexcal"))
+        .args([
+            "run",
+            "--held-out",
+            "1",
+            "--console",
+            "127.0.0.1:0",
+            "--rig",
+        ])
+        .arg(rig)
+        .arg("--out")
+        .arg(out)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdin = child.stdin.take().unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            let _ = tx.send(line);
+        }
+    });
+    let url = loop {
+        let line = rx
+            .recv_timeout(STEP)
+            .expect("the console's address on stderr");
+        if let Some(rest) = line.strip_prefix("console: ") {
+            break rest.split_whitespace().next().unwrap().to_string();
+        }
+    };
+    (Killed(child), stdin, url, rx)
+}
+
+fn start_chromium(profile: &Path) -> Killed {
+    let child = Command::new(CHROMIUM)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--hide-scrollbars",
+            "--remote-debugging-port=0",
+            "--window-size=1400,1000",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg("about:blank")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start chromium");
+    Killed(child)
+}
+
+/// In the rectangle (x, y, width, height) of the screenshot: pixels of the sign's green, of
+/// the overlay's lime circles, and of grey (the camera's picture), with the standard
+/// deviation of the grey levels (a picture, not a flat fill).
+fn count_colours(png: &[u8], [x0, y0, w, h]: [u32; 4]) -> (usize, usize, usize, f64) {
+    let shot = image::load_from_memory(png).unwrap().to_rgb8();
+    let (mut green, mut lime, mut greys) = (0, 0, Vec::new());
+    for y in y0..(y0 + h).min(shot.height()) {
+        for x in x0..(x0 + w).min(shot.width()) {
+            let [r, g, b] = shot.get_pixel(x, y).0.map(i32::from);
+            if (r - 30).abs() < 20 && (g - 142).abs() < 20 && (b - 62).abs() < 20 {
+                green += 1;
+            }
+            if g > 200 && r < 140 && b < 120 {
+                lime += 1;
+            }
+            if (r - g).abs() < 8 && (g - b).abs() < 8 {
+                greys.push(f64::from(r));
+            }
+        }
+    }
+    let n = greys.len().max(1) as f64;
+    let mean = greys.iter().sum::<f64>() / n;
+    let sd = (greys.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    (green, lime, greys.len(), sd)
+}
+
+/// Click Capture until the sign reads DONE; after each click, wait for every camera's
+/// thumbnail and overlay of that pose and check the poses-seen counts went up. Gives the
+/// poses captured.
+fn capture_until_done(page: &mut Page) -> usize {
+    let mut pose = 0;
+    let mut seen_before = 0;
+    loop {
+        page.click_capture();
+        // After the capture: this pose's thumbnail and overlay in every camera, the
+        // button back, and the poses-seen counts up.
+        let want = pose.to_string();
+        let caption = format!(": pose {}:", pose + 1);
+        let seen = page.wait(&format!("pose {pose} shown"), &|v| {
+            v["capture"] == true
+                && v["cameras"].as_array().unwrap().iter().all(|c| {
+                    c["pose"] == want.as_str()
+                        && c["caption"].as_str().unwrap_or("").contains(&caption)
+                })
+        });
+        let cameras = seen["cameras"].as_array().unwrap();
+        assert!(
+            cameras
+                .iter()
+                .any(|c| c["points"].as_u64().unwrap_or(0) > 50),
+            "no camera shows the board's circles: {seen}"
+        );
+        let poses: Vec<u64> = seen["poses"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p.as_u64().unwrap())
+            .collect();
+        assert_eq!(poses.len(), 3, "{seen}");
+        assert!(poses.iter().all(|&n| n <= pose as u64 + 1), "{seen}");
+        let total: u64 = poses.iter().sum();
+        assert!(
+            total > seen_before,
+            "counts did not go up after pose {pose}: {seen}"
+        );
+        seen_before = total;
+        pose += 1;
+        if seen["sign"] == "DONE" {
+            break;
+        }
+        assert!(pose < 4, "not done after {pose} poses: {seen}");
+    }
+    pose
+}
+
+/// Screenshot the page into `file` and check what it shows: a green sign, lime circles over
+/// the first thumbnail and a grey picture under them.
+fn check_screenshot(page: &mut Page, file: &Path) {
+    let shot = page.call("Page.captureScreenshot", json!({"format": "png"}));
+    let png = data_encoding::BASE64
+        .decode(shot["data"].as_str().unwrap().as_bytes())
+        .unwrap();
+    std::fs::write(file, &png).unwrap();
+    let rect = |page: &mut Page, sel: &str| -> [u32; 4] {
+        let r = page.eval(&format!(
+            "(() => {{ const r = document.querySelector('{sel}').getBoundingClientRect(); \
+             return [r.x, r.y, r.width, r.height]; }})()"
+        ));
+        std::array::from_fn(|i| r[i].as_f64().unwrap().round() as u32)
+    };
+    let sign = rect(page, "#sign");
+    let thumb = rect(page, "#cameras figure canvas");
+    let (green, ..) = count_colours(&png, sign);
+    let (_, lime, grey, sd) = count_colours(&png, thumb);
+    let area = |r: [u32; 4]| (r[2] * r[3]) as usize;
+    eprintln!(
+        "screenshot {}: sign {green} of {} px green; first thumbnail {lime} px of circles, \
+         {grey} px of grey picture (levels ± {sd:.1}) of {} px",
+        file.display(),
+        area(sign),
+        area(thumb)
+    );
+    assert!(
+        green > area(sign) / 2,
+        "the DONE sign is not green: {green} px"
+    );
+    assert!(lime > 300, "no circles drawn over the thumbnail: {lime} px");
+    assert!(
+        grey > area(thumb) / 10,
+        "no camera picture in the thumbnail: {grey} px"
+    );
+}
+
+#[test]
+fn console_guides_a_run_in_a_real_browser() {
+    assert!(
+        Path::new(CHROMIUM).exists(),
+        "{CHROMIUM} not found: install the Debian package `chromium` (scripts/test.sh lists it)"
+    );
+    let dir = scratch("console-browser");
+    let rig = dir.join("rig.toml");
+    std::fs::write(&rig, RIG).unwrap();
+    let (mut run, mut stdin, url, stderr) = start_run(&rig, &dir.join("data"));
+    let browser = start_chromium(&dir.join("profile"));
+    let mut page = Page::attach(&dir.join("profile"));
+    page.call("Page.navigate", json!({"url": url}));
+
+    let first = page.wait("the capture button", &|v| v["capture"] == true);
+    assert_eq!(first["sign"], "NOT DONE", "{first}");
+    assert_eq!(first["cameras"].as_array().unwrap().len(), 2, "{first}");
+    let pose = capture_until_done(&mut page);
+    assert!(pose >= 3, "done after {pose} poses, before 3 per device");
+    check_screenshot(&mut page, &dir.join("console.png"));
+
+    // Closing the browser harms nothing: Enter finishes the run as without a console.
+    drop(page);
+    drop(browser);
+    for _ in pose..5 {
+        writeln!(stdin,).unwrap();
+    }
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = run.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(start.elapsed() < STEP * 2, "the run did not finish");
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let lines: Vec<String> = stderr.try_iter().collect();
+    let mut out = String::new();
+    run.0
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut out)
+        .unwrap();
+    assert!(status.success(), "{status}: {}\n{out}", lines.join("\n"));
+    assert!(
+        lines.iter().any(|l| l.starts_with("done: ")),
+        "{}",
+        lines.join("\n")
+    );
+    assert!(out.contains("proj0"), "{out}");
+}
