@@ -4,10 +4,12 @@
 //!
 //! The projector pixel at an ellipse centre e comes from a least-squares fit of the decoded
 //! u(x, y) and v(x, y) over the valid pixels of the circle and its labelled neighbours (one
-//! planar patch, ≈ 7× a circle's pixels), evaluated at e. A marker ring's band is left out
-//! of a ringed circle's pixels: its white inside and outside the ring serves as any other. The fit is quadratic in (x − e):
+//! planar patch, ≈ 7× a circle's pixels), evaluated at e. The fit is quadratic in (x − e):
 //! lens distortion curves the camera→projector map, and a plain plane or homography over
 //! the patch is biased by up to 0.2 projector px in the corners of a k1 = −0.3 lens.
+//! A ringed (marker) circle gives no projector observation unless [`FitParams::ringed`] is
+//! set; then the ring's band is left out of its pixels and its white inside and outside the
+//! ring serves as any other.
 
 use crate::board::{Hex, Side};
 use crate::grid::Grid;
@@ -147,6 +149,11 @@ pub struct FitParams {
     pub ring: [f64; 2],
     /// Widening of the ring band on either side (px): the blur's reach.
     pub ring_margin: f64,
+    /// Whether ringed circles give projector observations at all. Off by default: on
+    /// rendered stacks their projector pixels err 1.6–1.8× as much as plain circles' (the
+    /// blurred ring reaches the few pixels left), and a run that uses them calibrates worse
+    /// (docs/design.md §7, "Ringed circles").
+    pub ringed: bool,
 }
 
 impl Default for FitParams {
@@ -157,6 +164,7 @@ impl Default for FitParams {
             min_own_valid: 0.8,
             ring: [0.45, 0.75],
             ring_margin: 1.0,
+            ringed: false,
         }
     }
 }
@@ -285,7 +293,8 @@ pub fn camera_view(
                         .iter()
                         .filter(|&&(x, y)| m.valid[(y * m.width + x) as usize])
                         .count();
-                    if own_valid == 0
+                    if (p.ringed && !params.ringed)
+                        || own_valid == 0
                         || (own_valid as f64) < params.min_own_valid * own_px.len() as f64
                     {
                         return None;

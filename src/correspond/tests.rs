@@ -148,7 +148,10 @@ fn projector_pixels_at_ellipse_centres_match_the_geometry() {
         &grid,
         &circles,
         &[map],
-        &FitParams::for_board(&scene.board),
+        &FitParams {
+            ringed: true,
+            ..FitParams::for_board(&scene.board)
+        },
     )
     .unwrap();
     assert_eq!(

@@ -207,7 +207,10 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> (Vec<CircleError
         &grid,
         &circles,
         &maps,
-        &FitParams::for_board(&scene.board),
+        &FitParams {
+            ringed: true,
+            ..FitParams::for_board(&scene.board)
+        },
     )
     .unwrap();
     let pairs = lit_pairs(&renderer, &grid, &circles, &view);
