@@ -51,6 +51,7 @@ macro_rules! eprint {
 #[cfg(feature = "bench")]
 mod benchcmd;
 mod cli;
+mod cli_script;
 
 /// Exit status of a command that failed (refused input or any other error).
 const EXIT_FAILED: u8 = 1;
@@ -195,6 +196,10 @@ enum Command {
         /// Progress as JSON lines on stdout.
         #[arg(long)]
         json: bool,
+        /// Print the timeline (the script's steps, planned start times, expected duration)
+        /// without touching a device.
+        #[arg(long)]
+        dry_run: bool,
     },
     /// List the cameras, monitors and serial ports this machine has (rig-file addresses).
     Devices,
@@ -289,7 +294,17 @@ fn run(
     progress: cli::Progress,
 ) -> anyhow::Result<Finished> {
     let file = hexcal::rig::file::RigFile::load(rig)?;
-    if let Some(poses) = options.poses.or(file.poses.as_ref().map(|p| p.count)) {
+    if !file.script.is_empty() && options.poses.is_some() {
+        anyhow::bail!(
+            "{}: its script decides the poses: drop --poses",
+            rig.display()
+        );
+    }
+    let script = hexcal::app::script::plan_of(&file)?.map(|p| p.captures);
+    if let Some(poses) = script
+        .or(options.poses)
+        .or(file.poses.as_ref().map(|p| p.count))
+    {
         check_poses(poses)?;
         hexcal::app::calibrate::check_held_out(poses, options.held_out)?;
     }
@@ -426,7 +441,12 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             keep_stacks,
             quiet,
             json,
+            dry_run,
         } => {
+            if dry_run {
+                print!("{}", hexcal::app::script::timeline(&rig)?);
+                return Ok(Finished::Done);
+            }
             let options = hexcal::app::run::RunOptions {
                 poses,
                 held_out,

@@ -5,6 +5,8 @@
 //! - [`capture`]: a rig's poses into a dataset folder;
 //! - [`calibrate`]: a dataset folder or a correspondences file to a calibration;
 //! - [`detect`]: circles and labelled lattice points of image files, with overlays;
+//! - [`script`]: a rig file's capture script (positioner moves, waits, prompts, timed
+//!   captures) driving `run`, with its timeline and step timing;
 //! - [`process`]: one camera's stack through the stages; [`truth`]: a calibration against a
 //!   simulated rig's ground truth.
 
@@ -15,6 +17,7 @@ mod overlay;
 pub mod process;
 pub mod progress;
 pub mod run;
+pub mod script;
 pub mod truth;
 
 use std::path::PathBuf;
@@ -75,6 +78,9 @@ pub enum AppError {
         /// The pose to place again.
         place_again: usize,
     },
+    /// A capture script's step.
+    #[error("script: {0}")]
+    Script(#[from] script::ScriptError),
     /// A worker thread could not be started.
     #[error("cannot start a thread: {0}")]
     Spawn(std::io::Error),

@@ -45,6 +45,20 @@ impl RunOptions {
     fn stopped(&self) -> bool {
         self.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst))
     }
+
+    /// The rig file's `pose_pause_s` after the board is placed (it settles before the
+    /// capture); `false` when stopped meanwhile.
+    fn pause(&self, seconds: f64) -> bool {
+        let until = std::time::Instant::now() + std::time::Duration::from_secs_f64(seconds);
+        while !self.stopped() {
+            let left = until.saturating_duration_since(std::time::Instant::now());
+            if left.is_zero() {
+                return true;
+            }
+            std::thread::sleep(left.min(std::time::Duration::from_millis(20)));
+        }
+        false
+    }
 }
 /// Per-device coverage as poses come in.
 struct Coverage {
@@ -115,10 +129,20 @@ pub fn run(
     let mut session = Session::start(opened.devices, &opened.sequence)?;
     let mut timelines = Vec::new();
     let mut interrupted = None;
+    let mut failed = None;
+    let pause = rig.timing.pose_pause_s;
     let todo: Vec<usize> = (0..poses).filter(|&k| stream.all[k].is_none()).collect();
     for k in todo {
         (stream.events)(&Event::PoseStarted { pose: k, of: poses });
-        if options.stopped() || !place(k, world.as_deref())? || options.stopped() {
+        let placed = match place(k, world.as_deref()) {
+            Ok(placed) => placed && options.pause(pause),
+            // Every pose already captured is finished before the error is told.
+            Err(e) => {
+                failed = Some(e);
+                break;
+            }
+        };
+        if options.stopped() || !placed || options.stopped() {
             interrupted = options.stopped().then_some(k);
             break;
         }
@@ -128,11 +152,17 @@ pub fn run(
                 interrupted = Some(k);
                 break;
             }
-            Err(e) => return Err(e),
+            Err(e) => {
+                failed = Some(e);
+                break;
+            }
         }
     }
     stream.drain()?;
     session.finish()?;
+    if let Some(e) = failed {
+        return Err(e);
+    }
     if let Some(place_again) = interrupted {
         let kept = stream.data.completed()?;
         (stream.events)(&Event::Interrupted {
