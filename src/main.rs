@@ -444,7 +444,8 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             dry_run,
         } => {
             if dry_run {
-                print!("{}", hexcal::app::script::timeline(&rig)?);
+                let timeline = hexcal::app::script::timeline(&rig).map_err(anyhow::Error::msg)?;
+                print!("{timeline}");
                 return Ok(Finished::Done);
             }
             let options = hexcal::app::run::RunOptions {

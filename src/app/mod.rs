@@ -78,9 +78,9 @@ pub enum AppError {
         /// The pose to place again.
         place_again: usize,
     },
-    /// A capture script's step.
+    /// A capture script's step (told in one line: not a source of this error).
     #[error("script: {0}")]
-    Script(#[from] script::ScriptError),
+    Script(script::ScriptError),
     /// A worker thread could not be started.
     #[error("cannot start a thread: {0}")]
     Spawn(std::io::Error),

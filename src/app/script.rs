@@ -58,6 +58,12 @@ pub enum ScriptError {
     },
 }
 
+impl From<ScriptError> for AppError {
+    fn from(e: ScriptError) -> AppError {
+        AppError::Script(e)
+    }
+}
+
 /// One step as it ran.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StepRecord {
@@ -439,6 +445,7 @@ impl<'a> ScriptRun<'a> {
             Action::Move { .. } => "move",
         };
         let r = self.open_record(i, kind);
+        self.save()?;
         let ended = match &step.action {
             Action::Wait { seconds } => {
                 let until = self.session.steps[r].start_s + seconds;
