@@ -446,3 +446,29 @@ impl<'e> Stream<'e> {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn the_pose_pause_waits_and_ctrl_c_cuts_it_short() {
+        let stop = Arc::new(AtomicBool::new(false));
+        let options = RunOptions {
+            stop: Some(Arc::clone(&stop)),
+            ..RunOptions::default()
+        };
+        let t = Instant::now();
+        assert!(options.pause(0.15));
+        assert!(t.elapsed() >= Duration::from_millis(150));
+        let flag = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(50));
+            flag.store(true, Ordering::SeqCst);
+        });
+        let t = Instant::now();
+        assert!(!options.pause(600.0));
+        assert!(t.elapsed() < Duration::from_secs(60));
+    }
+}
