@@ -329,3 +329,17 @@ fn templates_fill_and_numbers_print_plainly() {
     assert_eq!(format_number(-7.5), "-7.5");
     assert_eq!(format_number(1.0 / 3.0), "0.333333");
 }
+
+#[test]
+fn shipped_scripted_rigs_load_and_unroll() {
+    let rigs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("rigs");
+    let sim = RigFile::load(rigs.join("sim-turntable.toml")).unwrap_or_else(|e| panic!("{e}"));
+    assert!(sim.poses.is_none() && sim.has_sim_stage());
+    let plan = sim.script_plan(1.0).unwrap().unwrap();
+    assert_eq!(plan.captures, 10);
+    let example =
+        RigFile::load(rigs.join("turntable-example.toml")).unwrap_or_else(|e| panic!("{e}"));
+    let plan = example.script_plan(1.0).unwrap().unwrap();
+    // 3 tilts × 4 angles on the stage, 4 hand-held, 1 held out.
+    assert_eq!(plan.captures, 17);
+}
