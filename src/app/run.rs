@@ -127,43 +127,21 @@ pub fn run(
     let mut stream = Stream::new(data, &opened, poses, held_from, events);
     stream.resume()?;
     let mut session = Session::start(opened.devices, &opened.sequence)?;
-    let mut timelines = Vec::new();
-    let mut interrupted = None;
-    let mut failed = None;
-    let pause = rig.timing.pose_pause_s;
-    let todo: Vec<usize> = (0..poses).filter(|&k| stream.all[k].is_none()).collect();
-    for k in todo {
-        (stream.events)(&Event::PoseStarted { pose: k, of: poses });
-        let placed = match place(k, world.as_deref()) {
-            Ok(placed) => placed && options.pause(pause),
-            // Every pose already captured is finished before the error is told.
-            Err(e) => {
-                failed = Some(e);
-                break;
-            }
-        };
-        if options.stopped() || !placed || options.stopped() {
-            interrupted = options.stopped().then_some(k);
-            break;
-        }
-        match stream.capture_pose(&mut session, k, options) {
-            Ok(timeline) => timelines.push((k, timeline)),
-            Err(_) if options.stopped() => {
-                interrupted = Some(k);
-                break;
-            }
-            Err(e) => {
-                failed = Some(e);
-                break;
-            }
-        }
-    }
+    let captured = capture_todo(
+        &mut stream,
+        &mut session,
+        place,
+        world.as_deref(),
+        options,
+        poses,
+        rig.timing.pose_pause_s,
+    );
     stream.drain()?;
     session.finish()?;
-    if let Some(e) = failed {
+    if let Some(e) = captured.failed {
         return Err(e);
     }
-    if let Some(place_again) = interrupted {
+    if let Some(place_again) = captured.interrupted {
         let kept = stream.data.completed()?;
         (stream.events)(&Event::Interrupted {
             kept: kept.clone(),
@@ -191,7 +169,7 @@ pub fn run(
         &warnings,
         events,
     )?;
-    outcome.timelines = timelines;
+    outcome.timelines = captured.timelines;
     outcome.warnings = warnings;
     if let Some(w) = &world {
         outcome.truth = check_truth(&outcome.calibration, w);
@@ -201,6 +179,58 @@ pub fn run(
         outcome.files.push(path);
     }
     Ok(outcome)
+}
+
+/// How the capture of the poses still to do ended.
+#[derive(Default)]
+struct Captured {
+    /// Each captured pose's timeline.
+    timelines: Vec<(usize, Timeline)>,
+    /// The pose the capture stopped at (Ctrl-C).
+    interrupted: Option<usize>,
+    /// An error, told once every pose already captured is finished.
+    failed: Option<AppError>,
+}
+
+/// Place and capture every pose of `poses` not yet in the dataset, each left to settle for
+/// `pause` seconds after it is placed; stops at Ctrl-C, a refused placement or an error.
+fn capture_todo(
+    stream: &mut Stream<'_>,
+    session: &mut Session,
+    place: &mut PlaceBoard,
+    world: Option<&crate::rig::sim::SimWorld>,
+    options: &RunOptions,
+    poses: usize,
+    pause: f64,
+) -> Captured {
+    let mut c = Captured::default();
+    let todo: Vec<usize> = (0..poses).filter(|&k| stream.all[k].is_none()).collect();
+    for k in todo {
+        (stream.events)(&Event::PoseStarted { pose: k, of: poses });
+        let placed = match place(k, world) {
+            Ok(placed) => placed && options.pause(pause),
+            Err(e) => {
+                c.failed = Some(e);
+                break;
+            }
+        };
+        if options.stopped() || !placed || options.stopped() {
+            c.interrupted = options.stopped().then_some(k);
+            break;
+        }
+        match stream.capture_pose(session, k, options) {
+            Ok(timeline) => c.timelines.push((k, timeline)),
+            Err(_) if options.stopped() => {
+                c.interrupted = Some(k);
+                break;
+            }
+            Err(e) => {
+                c.failed = Some(e);
+                break;
+            }
+        }
+    }
+    c
 }
 
 /// One pose's decoding threads: the frame senders (camera order) and the threads.
