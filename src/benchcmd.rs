@@ -29,6 +29,13 @@ pub enum Bench {
         #[arg(long, default_value = "rigs/sim-paper.toml")]
         rig: PathBuf,
     },
+    /// Step-timing jitter of a rig file's capture script on its simulated devices (the
+    /// stage on a pty, waits, timed captures), captures taking no time.
+    Script {
+        /// The rig file.
+        #[arg(long, default_value = "rigs/sim-turntable.toml")]
+        rig: PathBuf,
+    },
     /// Frames per second through a GigE Vision camera on loopback (the in-process Aravis
     /// fake camera serving known frames, each checked); needs `--features loopback`.
     Aravis {
@@ -106,6 +113,7 @@ pub enum Bench {
 pub fn run(what: Bench) -> anyhow::Result<()> {
     match what {
         Bench::Capture { rig } => bench_capture(&rig)?,
+        Bench::Script { rig } => bench_script(&rig)?,
         Bench::Aravis {
             width,
             height,
@@ -278,6 +286,30 @@ fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
 }
 
 /// `hexcal bench capture`: one simulated pose through the engine, frames discarded.
+/// `hexcal bench script`: the script's step timing, per kind of step.
+fn bench_script(rig_path: &Path) -> anyhow::Result<()> {
+    let scratch = std::env::temp_dir().join(format!("hexcal-bench-script-{}", std::process::id()));
+    let b = hexcal::bench::script::bench_script(rig_path, &scratch);
+    let _ = std::fs::remove_dir_all(&scratch);
+    let b = b?;
+    println!("{}", b.jitter);
+    println!(
+        "{:<8} {:>6} {:>14} {:>14} {:>18}",
+        "step", "count", "late mean ms", "late max ms", "overrun mean ms"
+    );
+    for k in &b.kinds {
+        println!(
+            "{:<8} {:>6} {:>14.3} {:>14.3} {:>18.3}",
+            k.kind,
+            k.steps,
+            1e3 * k.late_mean_s,
+            1e3 * k.late_max_s,
+            1e3 * k.overrun_mean_s
+        );
+    }
+    Ok(())
+}
+
 pub fn bench_capture(rig_path: &Path) -> anyhow::Result<()> {
     use hexcal::capture::Session;
     let rig = hexcal::rig::file::RigFile::load(rig_path)?;

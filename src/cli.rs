@@ -25,7 +25,7 @@ pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
 
 /// The operator's lines (`true` per line, `false` at the end of input), read in a thread of
 /// their own so that a wait for Enter still sees Ctrl-C.
-fn operator_lines() -> Receiver<bool> {
+pub fn operator_lines() -> Receiver<bool> {
     let (tx, rx) = crossbeam_channel::bounded(1);
     std::thread::spawn(move || loop {
         let mut line = String::new();
@@ -194,17 +194,32 @@ pub fn run(
         options.settle_each_pose = true;
     }
     let button = console.as_ref().map(Console::captures);
-    let mut place = placer(auto, false, options.stop.clone(), button);
-    let mut print = printer(progress);
-    let mut events = |e: &hexcal::app::progress::Event| {
+    let mut show = |e: &hexcal::app::progress::Event| {
         if let Some(c) = console.as_mut() {
             c.event(e);
         }
-        print(e);
     };
     let t = std::time::Instant::now();
-    let outcome = hexcal::app::run::run(rig, out, &options, &mut place, &mut events)?;
+    let file = hexcal::rig::file::RigFile::load(rig)?;
+    let (outcome, jitter) = match hexcal::app::script::plan_of(&file)? {
+        Some(plan) => {
+            crate::cli_script::run(file, plan, (rig, out), &options, progress, &mut show)?
+        }
+        None => {
+            let mut place = placer(auto, false, options.stop.clone(), button);
+            let mut print = printer(progress);
+            let mut events = |e: &hexcal::app::progress::Event| {
+                show(e);
+                print(e);
+            };
+            let outcome = hexcal::app::run::run(rig, out, &options, &mut place, &mut events)?;
+            (outcome, None)
+        }
+    };
     summarise(&outcome, progress);
+    if let (Some(j), true) = (jitter, progress != Progress::Json) {
+        println!("{j}");
+    }
     if progress != Progress::Json {
         match peak_memory_mib() {
             Some(mib) => println!(

@@ -51,6 +51,7 @@ macro_rules! eprint {
 #[cfg(feature = "bench")]
 mod benchcmd;
 mod cli;
+mod cli_script;
 
 /// Exit status of a command that failed (refused input or any other error).
 const EXIT_FAILED: u8 = 1;
@@ -199,6 +200,10 @@ enum Command {
         /// done sign, on ADDR (default 127.0.0.1:8765; port 0 picks a free one).
         #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
         console: Option<String>,
+        /// Print the timeline (the script's steps, planned start times, expected duration)
+        /// without touching a device.
+        #[arg(long)]
+        dry_run: bool,
     },
     /// List the cameras, monitors and serial ports this machine has (rig-file addresses).
     Devices,
@@ -293,7 +298,17 @@ fn run(
     progress: cli::Progress,
 ) -> anyhow::Result<Finished> {
     let file = hexcal::rig::file::RigFile::load(rig)?;
-    if let Some(poses) = options.poses.or(file.poses.as_ref().map(|p| p.count)) {
+    if !file.script.is_empty() && options.poses.is_some() {
+        anyhow::bail!(
+            "{}: its script decides the poses: drop --poses",
+            rig.display()
+        );
+    }
+    let script = hexcal::app::script::plan_of(&file)?.map(|p| p.captures);
+    if let Some(poses) = script
+        .or(options.poses)
+        .or(file.poses.as_ref().map(|p| p.count))
+    {
         check_poses(poses)?;
         hexcal::app::calibrate::check_held_out(poses, options.held_out)?;
     }
@@ -431,7 +446,13 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             quiet,
             json,
             console,
+            dry_run,
         } => {
+            if dry_run {
+                let timeline = hexcal::app::script::timeline(&rig).map_err(anyhow::Error::msg)?;
+                print!("{timeline}");
+                return Ok(Finished::Done);
+            }
             let options = hexcal::app::run::RunOptions {
                 poses,
                 held_out,

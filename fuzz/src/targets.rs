@@ -141,6 +141,8 @@ fn rig(data: &[u8]) -> String {
         let _ = rig.board();
     }
     let sequence = rig.sequence();
+    // A capture script unrolls with its planned times.
+    let _ = hexcal::app::script::plan_of(&rig);
     if let Ok(s) = &sequence {
         let info = rig.dataset_info(s);
         if let Err((at, what)) = info.check() {

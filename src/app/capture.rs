@@ -63,7 +63,8 @@ pub fn capture_dataset(
     place: &mut PlaceBoard,
     log: &mut dyn FnMut(&str),
 ) -> Result<CaptureSummary, AppError> {
-    let Prepared { opened, data, .. } = prepare(rig_path, out)?;
+    let Prepared { rig, opened, data } = prepare(rig_path, out)?;
+    let pause = std::time::Duration::from_secs_f64(rig.timing.pose_pause_s);
     data.remove_stale_temporaries()?;
     finish_leftovers(&data, poses, log)?;
     let done = data.completed()?;
@@ -79,6 +80,8 @@ pub fn capture_dataset(
         if !place(k, world.as_deref())? {
             break;
         }
+        // The board settles after it is placed.
+        std::thread::sleep(pause);
         let mut writer = data.pose_writer(k)?;
         let timeline = session.capture_pose(k, &mut |f| Ok(writer.write(&f)?))?;
         let info = writer.finish(&timeline)?;

@@ -6,6 +6,8 @@
 //! - [`calibrate`]: a dataset folder or a correspondences file to a calibration;
 //! - [`detect`]: circles and labelled lattice points of image files, with overlays;
 //! - [`console`]: the operator console of `run --console` (a local web page);
+//! - [`script`]: a rig file's capture script (positioner moves, waits, prompts, timed
+//!   captures) driving `run`, with its timeline and step timing;
 //! - [`process`]: one camera's stack through the stages; [`truth`]: a calibration against a
 //!   simulated rig's ground truth.
 
@@ -17,6 +19,7 @@ mod overlay;
 pub mod process;
 pub mod progress;
 pub mod run;
+pub mod script;
 pub mod truth;
 
 use std::path::PathBuf;
@@ -77,6 +80,9 @@ pub enum AppError {
         /// The pose to place again.
         place_again: usize,
     },
+    /// A capture script's step (told in one line: not a source of this error).
+    #[error("script: {0}")]
+    Script(script::ScriptError),
     /// A worker thread could not be started.
     #[error("cannot start a thread: {0}")]
     Spawn(std::io::Error),

@@ -63,6 +63,20 @@ impl RunOptions {
     fn stopped(&self) -> bool {
         self.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst))
     }
+
+    /// The rig file's `pose_pause_s` after the board is placed (it settles before the
+    /// capture); `false` when stopped meanwhile.
+    fn pause(&self, seconds: f64) -> bool {
+        let until = std::time::Instant::now() + std::time::Duration::from_secs_f64(seconds);
+        while !self.stopped() {
+            let left = until.saturating_duration_since(std::time::Instant::now());
+            if left.is_zero() {
+                return true;
+            }
+            std::thread::sleep(left.min(std::time::Duration::from_millis(20)));
+        }
+        false
+    }
 }
 /// Per-device coverage as poses come in.
 struct Coverage {
@@ -131,30 +145,21 @@ pub fn run(
     let mut stream = Stream::new(data, &opened, poses, held_from, events);
     stream.resume()?;
     let mut session = Session::start(opened.devices, &opened.sequence)?;
-    let mut timelines = Vec::new();
-    let mut interrupted = None;
-    let todo: Vec<usize> = (0..poses).filter(|&k| stream.all[k].is_none()).collect();
-    for k in todo {
-        if options.settle_each_pose {
-            stream.drain()?;
-        }
-        (stream.events)(&Event::PoseStarted { pose: k, of: poses });
-        if options.stopped() || !place(k, world.as_deref())? || options.stopped() {
-            interrupted = options.stopped().then_some(k);
-            break;
-        }
-        match stream.capture_pose(&mut session, k, options) {
-            Ok(timeline) => timelines.push((k, timeline)),
-            Err(_) if options.stopped() => {
-                interrupted = Some(k);
-                break;
-            }
-            Err(e) => return Err(e),
-        }
-    }
+    let captured = capture_todo(
+        &mut stream,
+        &mut session,
+        place,
+        world.as_deref(),
+        options,
+        poses,
+        rig.timing.pose_pause_s,
+    );
     stream.drain()?;
     session.finish()?;
-    if let Some(place_again) = interrupted {
+    if let Some(e) = captured.failed {
+        return Err(e);
+    }
+    if let Some(place_again) = captured.interrupted {
         let kept = stream.data.completed()?;
         (stream.events)(&Event::Interrupted {
             kept: kept.clone(),
@@ -182,7 +187,7 @@ pub fn run(
         &warnings,
         events,
     )?;
-    outcome.timelines = timelines;
+    outcome.timelines = captured.timelines;
     outcome.warnings = warnings;
     if let Some(w) = &world {
         outcome.truth = check_truth(&outcome.calibration, w);
@@ -192,6 +197,64 @@ pub fn run(
         outcome.files.push(path);
     }
     Ok(outcome)
+}
+
+/// How the capture of the poses still to do ended.
+#[derive(Default)]
+struct Captured {
+    /// Each captured pose's timeline.
+    timelines: Vec<(usize, Timeline)>,
+    /// The pose the capture stopped at (Ctrl-C).
+    interrupted: Option<usize>,
+    /// An error, told once every pose already captured is finished.
+    failed: Option<AppError>,
+}
+
+/// Place and capture every pose of `poses` not yet in the dataset, each left to settle for
+/// `pause` seconds after it is placed; stops at Ctrl-C, a refused placement or an error.
+fn capture_todo(
+    stream: &mut Stream<'_>,
+    session: &mut Session,
+    place: &mut PlaceBoard,
+    world: Option<&crate::rig::sim::SimWorld>,
+    options: &RunOptions,
+    poses: usize,
+    pause: f64,
+) -> Captured {
+    let mut c = Captured::default();
+    let todo: Vec<usize> = (0..poses).filter(|&k| stream.all[k].is_none()).collect();
+    for k in todo {
+        if options.settle_each_pose {
+            if let Err(e) = stream.drain() {
+                c.failed = Some(e);
+                break;
+            }
+        }
+        (stream.events)(&Event::PoseStarted { pose: k, of: poses });
+        let placed = match place(k, world) {
+            Ok(placed) => placed && options.pause(pause),
+            Err(e) => {
+                c.failed = Some(e);
+                break;
+            }
+        };
+        if options.stopped() || !placed || options.stopped() {
+            c.interrupted = options.stopped().then_some(k);
+            break;
+        }
+        match stream.capture_pose(session, k, options) {
+            Ok(timeline) => c.timelines.push((k, timeline)),
+            Err(_) if options.stopped() => {
+                c.interrupted = Some(k);
+                break;
+            }
+            Err(e) => {
+                c.failed = Some(e);
+                break;
+            }
+        }
+    }
+    c
 }
 
 /// One pose's decoding threads: the frame senders (camera order) and the threads.
@@ -439,5 +502,31 @@ impl<'e> Stream<'e> {
             .and_then(|()| self.data.complete(&p.info))?;
         self.all[k] = Some(p.views);
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn the_pose_pause_waits_and_ctrl_c_cuts_it_short() {
+        let stop = Arc::new(AtomicBool::new(false));
+        let options = RunOptions {
+            stop: Some(Arc::clone(&stop)),
+            ..RunOptions::default()
+        };
+        let t = Instant::now();
+        assert!(options.pause(0.15));
+        assert!(t.elapsed() >= Duration::from_millis(150));
+        let flag = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(50));
+            flag.store(true, Ordering::SeqCst);
+        });
+        let t = Instant::now();
+        assert!(!options.pause(600.0));
+        assert!(t.elapsed() < Duration::from_secs(60));
     }
 }

@@ -4,3 +4,4 @@
 pub mod decode;
 pub mod detect_grid;
 pub mod render;
+pub mod script;

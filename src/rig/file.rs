@@ -236,6 +236,12 @@ pub struct RigFile {
     /// Board poses of a simulated rig.
     #[serde(default)]
     pub poses: Option<PosesSpec>,
+    /// Positioners that move the board (docs/rig-file.md, "Scripts and positioners").
+    #[serde(rename = "positioner", default)]
+    pub positioners: Vec<super::script::PositionerSpec>,
+    /// The capture script: steps run in order by `hexcal run`.
+    #[serde(default)]
+    pub script: Vec<super::script::StepSpec>,
     /// The folder of the rig file (board files are relative to it); "." for parsed text.
     #[serde(skip, default = "current_folder")]
     pub base: PathBuf,
@@ -459,7 +465,9 @@ impl RigFile {
         }
         self.check_trigger(&lines)?;
         self.check_sequence()?;
-        self.check_poses()
+        self.check_poses()?;
+        let simulated = self.cameras.iter().any(|c| c.driver == CameraDriver::Sim);
+        self.check_script(simulated)
     }
 
     /// `[timing]`: durations finite, positive where they must be, at most an hour.
@@ -631,8 +639,12 @@ impl RigFile {
     /// absent poses among them.
     fn check_poses(&self) -> Result<(), (String, String)> {
         let simulated = self.cameras.iter().any(|c| c.driver == CameraDriver::Sim);
-        if simulated && self.poses.is_none() {
-            return Err(("poses".into(), "a simulated rig needs board poses".into()));
+        if simulated && self.poses.is_none() && !self.has_sim_stage() {
+            return Err((
+                "poses".into(),
+                "a simulated rig needs board poses (or a sim positioner that moves the board)"
+                    .into(),
+            ));
         }
         let Some(p) = &self.poses else {
             return Ok(());

@@ -1,6 +1,7 @@
 //! The rig (docs/design.md §11, §13): rig files, the device traits every driver implements, and
 //! the drivers — the serial trigger controller ([`trigger`]), which pulses the cameras'
-//! trigger lines and reports each frame's controller timestamp, and the simulated rig.
+//! trigger lines and reports each frame's controller timestamp, the positioners that move
+//! the board for capture scripts ([`positioner`], [`script`]), and the simulated rig.
 
 #[cfg(feature = "aravis")]
 pub mod aravis;
@@ -8,6 +9,8 @@ pub mod device;
 pub mod discover;
 pub mod file;
 pub mod open;
+pub mod positioner;
+pub mod script;
 pub mod sim;
 pub mod trigger;
 #[cfg(feature = "v4l2")]

@@ -87,7 +87,23 @@ pub struct SimWorld {
     state: Mutex<State>,
     /// Trigger pulses on the cameras' lines so far (see [`WiredTrigger`]).
     pulses: std::sync::atomic::AtomicU64,
+    /// Where a simulated positioner holds the board, when one does.
+    mount: MountSlot,
 }
+
+/// The slot of a [`BoardMount`] (Debug shows whether something holds the board).
+#[derive(Default)]
+struct MountSlot(Mutex<Option<BoardMount>>);
+
+impl std::fmt::Debug for MountSlot {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let held = self.0.lock().map(|m| m.is_some()).unwrap_or(false);
+        write!(f, "{}", if held { "mounted" } else { "free" })
+    }
+}
+
+/// Where the board is now (T_rig_board), read from whatever holds it (a simulated stage).
+pub type BoardMount = Box<dyn Fn() -> Isometry3<f64> + Send + Sync>;
 
 /// T_device_rig of a device at `eye` looking at `target` (rig y up, image y down).
 pub fn look_at(l: &LookAt) -> Result<Isometry3<f64>, SimError> {
@@ -168,10 +184,14 @@ impl SimWorld {
             .filter(|p| p.driver == ProjectorDriver::Sim)
             .map(|p| device(&p.name, p.sim.as_ref(), p.width, p.height))
             .collect::<Result<Vec<_>, _>>()?;
-        let poses = rig.poses.as_ref().ok_or(SimRigError::NoPoses)?;
+        let poses = match &rig.poses {
+            Some(p) => board_poses(p),
+            None if rig.has_sim_stage() => Vec::new(),
+            None => return Err(SimRigError::NoPoses),
+        };
         Ok(SimWorld {
             board,
-            board_poses: board_poses(poses),
+            board_poses: poses,
             state: Mutex::new(State {
                 pose: 0,
                 slides: vec![Slide::Black; projectors.len()],
@@ -181,7 +201,22 @@ impl SimWorld {
             projectors,
             imaging: Imaging::default(),
             pulses: std::sync::atomic::AtomicU64::new(0),
+            mount: MountSlot::default(),
         })
+    }
+
+    /// From now on the board is where `mount` says (a simulated positioner holds it),
+    /// whatever pose is placed.
+    pub fn mount(&self, mount: BoardMount) {
+        *self.mount.0.lock().unwrap_or_else(|e| e.into_inner()) = Some(mount);
+    }
+
+    /// T_rig_board at pose `pose`: where the mount holds it, else the `[poses]` pose.
+    pub fn board_at(&self, pose: usize) -> Option<Isometry3<f64>> {
+        match &*self.mount.0.lock().unwrap_or_else(|e| e.into_inner()) {
+            Some(m) => Some(m()),
+            None => self.board_poses.get(pose).copied(),
+        }
     }
 
     /// Place the board at pose `pose` (what the operator does between poses).
@@ -228,8 +263,25 @@ impl SimWorld {
         pose: usize,
         sequence: &Sequence,
     ) -> Result<StackRenderer, SimError> {
+        let board = self.board_at(pose).ok_or_else(|| {
+            SimError::Scene(format!(
+                "pose {pose}: the simulated rig has {} board poses and nothing holds the board",
+                self.board_poses.len()
+            ))
+        })?;
+        self.stack_renderer_at(c, pose, board, sequence)
+    }
+
+    /// The stack renderer of camera `c` with the board at `board` (T_rig_board) for pose
+    /// `pose` (its noise seed).
+    pub fn stack_renderer_at(
+        &self,
+        c: usize,
+        pose: usize,
+        board: Isometry3<f64>,
+        sequence: &Sequence,
+    ) -> Result<StackRenderer, SimError> {
         let cam = &self.cameras[c];
-        let board = self.board_poses[pose];
         let cam_from_board = cam.pose * board;
         let r = cam_from_board.rotation.scaled_axis();
         let t = cam_from_board.translation.vector;
@@ -277,7 +329,7 @@ pub struct Faults {
 pub struct SimCamera {
     world: Arc<SimWorld>,
     index: usize,
-    renderer: Option<(usize, StackRenderer)>,
+    renderer: Option<(usize, Isometry3<f64>, StackRenderer)>,
     pending: VecDeque<CameraFrame>,
     counter: u64,
     exposure_us: f64,
@@ -424,15 +476,26 @@ impl SimCamera {
         }
         let state = self.world.lock().clone();
         let (k, sequence) = self.showing(&state)?;
-        if self.renderer.as_ref().is_none_or(|(p, _)| *p != state.pose) {
+        let board = self.world.board_at(state.pose).ok_or_else(|| {
+            self.failed(format!(
+                "pose {}: no board pose (the rig has {})",
+                state.pose,
+                self.world.board_poses.len()
+            ))
+        })?;
+        if self
+            .renderer
+            .as_ref()
+            .is_none_or(|(p, b, _)| *p != state.pose || *b != board)
+        {
             self.renderer = None;
             let r = self
                 .world
-                .stack_renderer(self.index, state.pose, &sequence)
+                .stack_renderer_at(self.index, state.pose, board, &sequence)
                 .map_err(|e| self.failed(e.to_string()))?;
-            self.renderer = Some((state.pose, r));
+            self.renderer = Some((state.pose, board, r));
         }
-        let Some((_, renderer)) = &self.renderer else {
+        let Some((_, _, renderer)) = &self.renderer else {
             unreachable!("set above")
         };
         let frame = renderer.frame(k);

@@ -1,0 +1,60 @@
+//! `hexcal run` on a rig file with a capture script: the script places every pose, the
+//! operator's Enter answers its prompts, and its step timing is printed at the end.
+
+use crate::cli::{operator_lines, printer, Progress};
+use hexcal::app::progress::{Event, Outcome};
+use hexcal::app::run::RunOptions;
+use hexcal::app::script::{Jitter, ScriptRun};
+use hexcal::rig::file::RigFile;
+use hexcal::rig::script::{Action, Plan};
+use std::cell::RefCell;
+use std::path::Path;
+
+/// Run the rig file `rig` (read as `file`, its script unrolled as `plan`) into `out`;
+/// `show` hears every event too (the operator console).
+pub fn run(
+    file: RigFile,
+    plan: Plan,
+    (rig, out): (&Path, &Path),
+    options: &RunOptions,
+    progress: Progress,
+    show: &mut dyn FnMut(&Event),
+) -> anyhow::Result<(Outcome, Option<Jitter>)> {
+    let prompts = plan
+        .steps
+        .iter()
+        .any(|s| matches!(s.action, Action::Prompt { .. }));
+    // Enter is read only when the script prompts (an unattended run leaves stdin alone).
+    let operator = match prompts {
+        true => operator_lines(),
+        false => crossbeam_channel::never(),
+    };
+    let options = RunOptions {
+        poses: Some(plan.captures),
+        ..options.clone()
+    };
+    let mut say = |line: &str| match progress {
+        Progress::Json => println!("{}", serde_json::json!({"event": "script", "say": line})),
+        _ => eprintln!("{line}"),
+    };
+    let script = RefCell::new(ScriptRun::new(
+        file,
+        plan,
+        out,
+        operator,
+        options.stop.clone(),
+        &mut say,
+    ));
+    let mut print = printer(progress);
+    let mut events = |e: &Event| {
+        script.borrow_mut().event(e);
+        show(e);
+        print(e);
+    };
+    let mut place =
+        |k, world: Option<&hexcal::rig::sim::SimWorld>| script.borrow_mut().place(k, world);
+    let outcome = hexcal::app::run::run(rig, out, &options, &mut place, &mut events);
+    let jitter = script.into_inner().finish();
+    let outcome = outcome?;
+    Ok((outcome, jitter?))
+}
