@@ -124,14 +124,20 @@ enum Command {
         /// Estimate the board's bend (bowl and two saddles).
         #[arg(long)]
         refine_flatness: bool,
+        /// Export the pair FIRST,SECOND as a rectified stereo pair (stereo/FIRST-SECOND.yml);
+        /// repeatable.
+        #[arg(long, value_name = "FIRST,SECOND")]
+        stereo: Vec<String>,
     },
     /// Check a calibration on held-out board poses: triangulate them from camera pairs and
     /// camera–projector pairs, report length errors and flatness against the board.
     Verify {
-        /// The calibration file (`calibration.json` of `hexcal calibrate`).
+        /// The calibration file (`calibration.json` of `hexcal calibrate`); by default the
+        /// one in the folder given.
         #[arg(long)]
-        calibration: PathBuf,
-        /// Correspondences of the held-out poses.
+        calibration: Option<PathBuf>,
+        /// Correspondences of the held-out poses, or a calibration folder or a run's folder
+        /// (its held-out.json).
         input: PathBuf,
     },
     /// Detect the board's circles in images and label them with lattice positions (JSON).
@@ -195,6 +201,10 @@ enum Command {
         /// Progress as JSON lines on stdout.
         #[arg(long)]
         json: bool,
+        /// Export the pair FIRST,SECOND as a rectified stereo pair (stereo/FIRST-SECOND.yml);
+        /// repeatable.
+        #[arg(long, value_name = "FIRST,SECOND")]
+        stereo: Vec<String>,
     },
     /// List the cameras, monitors and serial ports this machine has (rig-file addresses).
     Devices,
@@ -231,6 +241,7 @@ fn calibrate(
     reference: Option<&str>,
     options: CalibrateOptions,
     held_out: usize,
+    stereo: &[String],
 ) -> anyhow::Result<Finished> {
     use hexcal::app::calibrate::{calibrate_dataset, calibrate_file, device_index};
     if input.is_dir() {
@@ -243,11 +254,11 @@ fn calibrate(
             options.bundle.reference = device_index(input, names, name)?;
         }
         let mut printer = cli::printer(cli::Progress::Human);
-        let outcome = calibrate_dataset(input, out, held_out, &options, &mut printer)?;
+        let outcome = calibrate_dataset(input, out, held_out, &options, stereo, &mut printer)?;
         cli::summarise(&outcome, cli::Progress::Human);
         return Ok(finished(&outcome.calibration));
     }
-    let done = calibrate_file(input, out, reference, options)?;
+    let done = calibrate_file(input, out, reference, options, stereo)?;
     let cal = &done.calibration;
     print!(
         "{}",
@@ -265,6 +276,9 @@ fn calibrate(
     }
     for e in &cal.excluded {
         println!("not calibrated: {}: {}", e.name, e.reason);
+    }
+    for (name, px) in done.radtan.iter().filter(|(_, px)| *px > 0.0) {
+        println!("camchain.yaml: {name} refitted to radtan, largest deviation {px:.4} px");
     }
     println!("wrote {} files to {}", done.files.len(), out.display());
     Ok(finished(cal))
@@ -426,12 +440,14 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             keep_stacks,
             quiet,
             json,
+            stereo,
         } => {
             let options = hexcal::app::run::RunOptions {
                 poses,
                 held_out,
                 keep_stacks,
                 stop: Some(cli::stop_flag()?),
+                stereo,
             };
             let progress = if json {
                 cli::Progress::Json
@@ -449,11 +465,19 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             fix_k3,
             refine_flatness,
             held_out,
+            stereo,
         } => {
             let mut options = CalibrateOptions::default();
             options.bundle.fix_k3 = fix_k3;
             options.bundle.refine_flatness = refine_flatness;
-            return calibrate(&input, &out, reference.as_deref(), options, held_out);
+            return calibrate(
+                &input,
+                &out,
+                reference.as_deref(),
+                options,
+                held_out,
+                &stereo,
+            );
         }
         other => execute_other(other)?,
     }
@@ -480,7 +504,7 @@ fn execute_other(command: Command) -> anyhow::Result<()> {
             println!("{} {side} side written to {}", board.name, out.display());
         }
         Command::Verify { calibration, input } => {
-            let checks = hexcal::app::calibrate::verify_file(&calibration, &input)?;
+            let checks = hexcal::app::calibrate::verify_input(&input, calibration.as_deref())?;
             print!("{}", hexcal::report::format_verification(&checks));
         }
         Command::Simulate { scene, out, seed } => simulate(scene.as_ref(), &out, seed)?,

@@ -39,6 +39,8 @@ pub struct RunOptions {
     /// Set (e.g. by Ctrl-C) to stop capturing: the pose being captured is dropped, every
     /// pose already captured is finished, and the run ends with [`AppError::Interrupted`].
     pub stop: Option<Arc<AtomicBool>>,
+    /// Device pairs ("first,second") to export as rectified stereo pairs.
+    pub stereo: Vec<String>,
 }
 
 impl RunOptions {
@@ -152,6 +154,7 @@ pub fn run(
         devices: &devices,
         all: &all,
         held_from,
+        stereo: &options.stereo,
     };
     let dir = out.join("calibration");
     let mut outcome = finish(
