@@ -281,6 +281,7 @@ fn calibrate(
         println!("camchain.yaml: {name} refitted to radtan, largest deviation {px:.4} px");
     }
     println!("wrote {} files to {}", done.files.len(), out.display());
+    cli::report_line(cal, &[], &done.files, 0);
     Ok(finished(cal))
 }
 
