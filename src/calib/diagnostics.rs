@@ -123,8 +123,9 @@ pub fn coverage(cal: &Calibration) -> Vec<(f64, [bool; 4])> {
         .collect()
 }
 
-/// The covariance of device `d`'s free lens parameters and which they are.
-fn lens_covariance(cal: &Calibration, d: usize) -> (Vec<LensParam>, DMatrix<f64>) {
+/// The covariance of device `d`'s free lens parameters (a block of (33)) and which they
+/// are, in [`LensParam`] order.
+pub fn lens_covariance(cal: &Calibration, d: usize) -> (Vec<LensParam>, DMatrix<f64>) {
     let sol = &cal.solution;
     let mut params = LensParams::for_model(&cal.devices[d].model);
     if sol.intrinsic_std[d].len() < params.len() {

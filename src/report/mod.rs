@@ -11,7 +11,7 @@ pub mod export;
 pub mod html;
 
 use crate::calib::bundle::DeviceKind;
-use crate::calib::diagnostics::{residual_table, ResidualRow};
+use crate::calib::diagnostics::{lens_covariance, residual_table, ResidualRow};
 use crate::calib::solve::Calibration;
 use crate::camera::{CameraModel, Distortion, Intrinsics};
 use nalgebra::{Isometry3, Matrix3, Vector3};
@@ -70,6 +70,13 @@ pub struct DeviceRecord {
     pub lens_std: Vec<f64>,
     /// Standard deviations of the pose increment (ω rad, τ mm); zero for the reference.
     pub pose_std: [f64; 6],
+    /// Names of the free lens parameters ("fx", …, "k3"), the rows and columns of
+    /// `lens_covariance` (empty in files of older builds).
+    #[serde(default)]
+    pub lens_params: Vec<String>,
+    /// Covariance of the free lens parameters (px², docs/design.md (33)), row by row.
+    #[serde(default)]
+    pub lens_covariance: Vec<Vec<f64>>,
 }
 
 impl DeviceRecord {
@@ -183,6 +190,15 @@ impl CalibrationFile {
                     pose: PoseRecord::from_isometry(&d.pose),
                     lens_std: sol.intrinsic_std[i].clone(),
                     pose_std: sol.pose_std[i],
+                    lens_params: lens_covariance(cal, i)
+                        .0
+                        .iter()
+                        .map(|p| p.name().to_string())
+                        .collect(),
+                    lens_covariance: {
+                        let c = lens_covariance(cal, i).1;
+                        c.row_iter().map(|r| r.iter().copied().collect()).collect()
+                    },
                 })
                 .collect(),
             sigma: sol.sigma,
@@ -236,6 +252,7 @@ impl CalibrationFile {
             limits::finite(&d.pose.tvec).map_err(|m| (at("pose.tvec"), m))?;
             limits::count(d.lens_std.len(), crate::camera::LENS_PARAM_COUNT, "values")
                 .map_err(|m| (at("lens_std"), m))?;
+            check_covariance(d).map_err(|(k, m)| (at(k), m))?;
         }
         if !self.devices.iter().any(|d| d.name == self.reference) {
             return Err((
@@ -253,6 +270,35 @@ impl CalibrationFile {
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("plain data serialises")
     }
+}
+
+/// The first problem of a record's labelled covariance: names of lens parameters, as many
+/// as `lens_std` holds (or none), a square finite matrix of that size.
+fn check_covariance(d: &DeviceRecord) -> Result<(), (&'static str, String)> {
+    let n = d.lens_params.len();
+    if n == 0 && d.lens_covariance.is_empty() {
+        return Ok(());
+    }
+    if n != d.lens_std.len() {
+        return Err((
+            "lens_params",
+            format!("{n} names for {} standard deviations", d.lens_std.len()),
+        ));
+    }
+    let names: Vec<&str> = crate::camera::LensParam::ALL
+        .iter()
+        .map(|p| p.name())
+        .collect();
+    if let Some(bad) = d.lens_params.iter().find(|p| !names.contains(&p.as_str())) {
+        return Err(("lens_params", format!("{bad:?} is no lens parameter")));
+    }
+    if d.lens_covariance.len() != n || d.lens_covariance.iter().any(|r| r.len() != n) {
+        return Err(("lens_covariance", format!("not a {n} × {n} matrix")));
+    }
+    for row in &d.lens_covariance {
+        crate::limits::finite(row).map_err(|m| ("lens_covariance", m))?;
+    }
+    Ok(())
 }
 
 /// The distortion vector OpenCV uses: 5 coefficients, or 8 with the rational terms.
