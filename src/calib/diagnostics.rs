@@ -152,6 +152,41 @@ pub fn projection_uncertainty(cal: &Calibration, d: usize, pixel: Point2<f64>) -
     Some(s.symmetric_eigenvalues().max().max(0.0).sqrt())
 }
 
+/// Projection uncertainty (px) below which a pixel counts as well determined: mrcal's
+/// default for its valid-intrinsics region.
+pub const VALID_UNCERTAINTY: f64 = 1.0;
+/// Directions of the valid-intrinsics polygon.
+const REGION_DIRECTIONS: usize = 36;
+
+/// Device `d`'s valid-intrinsics region: a polygon (px) around the principal point whose
+/// vertex in each of [`REGION_DIRECTIONS`] directions is the farthest point, walking out in
+/// 1 % steps of the image diagonal and within the image, up to which the
+/// [`projection_uncertainty`] stays below `threshold` (px). `None` when the principal
+/// point itself is not below it. A star-shaped approximation of the region.
+pub fn valid_region(cal: &Calibration, d: usize, threshold: f64) -> Option<Vec<[f64; 2]>> {
+    let m = &cal.devices[d].model;
+    let (w, h) = (m.width as f64 - 1.0, m.height as f64 - 1.0);
+    let c = Point2::new(m.intrinsics.cx.clamp(0.0, w), m.intrinsics.cy.clamp(0.0, h));
+    let ok = |p: Point2<f64>| projection_uncertainty(cal, d, p).is_some_and(|u| u < threshold);
+    if !ok(c) {
+        return None;
+    }
+    let step = 0.01 * (w * w + h * h).sqrt();
+    let inside = |p: &Point2<f64>| p.x >= 0.0 && p.y >= 0.0 && p.x <= w && p.y <= h;
+    let polygon = (0..REGION_DIRECTIONS)
+        .map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / REGION_DIRECTIONS as f64;
+            let dir = nalgebra::Vector2::new(a.cos(), a.sin()) * step;
+            let mut p = c;
+            while inside(&(p + dir)) && ok(p + dir) {
+                p += dir;
+            }
+            [p.x, p.y]
+        })
+        .collect();
+    Some(polygon)
+}
+
 /// The four image corners of device `d` (pixel centres), top-left first.
 fn corners(cal: &Calibration, d: usize) -> [Point2<f64>; 4] {
     let m = &cal.devices[d].model;
@@ -503,6 +538,24 @@ mod tests {
                 .fold(0.0, f64::max)
         };
         assert!((1..6).all(|d| worst(0) > 5.0 * worst(d)));
+        // Its valid-intrinsics region is smaller than any other camera's, and each
+        // vertex is where the uncertainty is still below the threshold.
+        let area = |d: usize| {
+            let r = valid_region(&cal, d, VALID_UNCERTAINTY).unwrap_or_default();
+            for v in &r {
+                let u = projection_uncertainty(&cal, d, Point2::new(v[0], v[1])).unwrap();
+                assert!(u < VALID_UNCERTAINTY, "{d}: {u}");
+            }
+            let n = r.len();
+            (0..n)
+                .map(|i| r[i][0] * r[(i + 1) % n][1] - r[(i + 1) % n][0] * r[i][1])
+                .sum::<f64>()
+                .abs()
+                / 2.0
+        };
+        let areas: Vec<f64> = (0..6).map(area).collect();
+        eprintln!("valid-intrinsics areas (px²): {areas:?}");
+        assert!((1..6).all(|d| areas[0] < areas[d]), "{areas:?}");
     }
 
     #[test]

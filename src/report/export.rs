@@ -69,7 +69,8 @@ fn row_major(m: &[f64], rows: usize, cols: usize, column_major: bool) -> Vec<f64
 /// rational terms; both are OpenCV's equations, so mrcal projects exactly as hexcal does),
 /// intrinsics [fx, fy, cx, cy, k…], `extrinsics` = rt_cam_ref (Rodrigues vector, then
 /// translation in mm: mrcal's convention, the same as T_device_ref) and `imagersize`.
-pub fn mrcal_cameramodel(d: &DeviceRecord) -> String {
+/// With `region`, the model's `valid_intrinsics_region` (a closed polygon, px).
+pub fn mrcal_cameramodel(d: &DeviceRecord, region: Option<&[[f64; 2]]>) -> String {
     let k = &d.intrinsics;
     let (lensmodel, dist) = match d.distortion.is_rational() {
         true => ("LENSMODEL_OPENCV8", opencv_distortion(&d.distortion)),
@@ -92,12 +93,27 @@ pub fn mrcal_cameramodel(d: &DeviceRecord) -> String {
     let _ = write!(
         s,
         "{{\n    'lensmodel': '{lensmodel}',\n    'intrinsics': [ {} ],\n    'extrinsics': [ {} ],\n    \
-         'imagersize': [ {}, {} ],\n}}\n",
+         'imagersize': [ {}, {} ],\n",
         list(&intrinsics),
         list(&extrinsics),
         d.width,
         d.height
     );
+    if let Some(r) = region.filter(|r| !r.is_empty()) {
+        let points: Vec<String> = r
+            .iter()
+            .chain(&r[..1])
+            .map(|p| format!("[ {:?}, {:?} ]", p[0], p[1]))
+            .collect();
+        let _ = writeln!(
+            s,
+            "    # where the projection uncertainty is below {} px (docs/design.md §8)\n    \
+             'valid_intrinsics_region': [ {} ],",
+            crate::calib::diagnostics::VALID_UNCERTAINTY,
+            points.join(", ")
+        );
+    }
+    s += "}\n";
     s
 }
 

@@ -11,7 +11,9 @@ pub mod export;
 pub mod html;
 
 use crate::calib::bundle::DeviceKind;
-use crate::calib::diagnostics::{lens_covariance, residual_table, ResidualRow};
+use crate::calib::diagnostics::{
+    lens_covariance, residual_table, valid_region, ResidualRow, VALID_UNCERTAINTY,
+};
 use crate::calib::solve::Calibration;
 use crate::camera::{CameraModel, Distortion, Intrinsics};
 use nalgebra::{Isometry3, Matrix3, Vector3};
@@ -418,10 +420,12 @@ pub fn write_outputs(
             serde_json::to_string_pretty(&rows).expect("plain data serialises"),
         ),
     ];
-    for d in &file.devices {
+    for (i, d) in file.devices.iter().enumerate() {
         let at = |sub: &str, ext: &str| dir.join(sub).join(format!("{}.{ext}", d.name));
         outputs.push((at("opencv", "yml"), opencv_yaml(d)));
-        outputs.push((at("mrcal", "cameramodel"), export::mrcal_cameramodel(d)));
+        let region = valid_region(cal, i, VALID_UNCERTAINTY);
+        let model = export::mrcal_cameramodel(d, region.as_deref());
+        outputs.push((at("mrcal", "cameramodel"), model));
         outputs.push((at("ros", "yaml"), export::ros_camera_info(d)));
     }
     for (name, text) in export::colmap_model(&file) {

@@ -35,10 +35,23 @@ def check_mrcal(out, ref):
         # mrcal projects OpenCV models with OpenCV's equations in double precision: the
         # two agree to rounding (pixels ~1e3, so ~1e-12); 1e-6 px is the bound.
         assert err < 1e-6, (d["name"], err)
+        region = model.valid_intrinsics_region()
+        # On this rig every device's centre is well determined, so every model has one.
+        assert region is not None, d["name"]
+        if region is not None:
+            # A closed polygon around the principal point (ray casting: odd crossings).
+            assert region.ndim == 2 and region.shape[1] == 2 and (region[0] == region[-1]).all()
+            cx, cy = intrinsics[2], intrinsics[3]
+            a, b = region[:-1], region[1:]
+            straddle = (a[:, 1] > cy) != (b[:, 1] > cy)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                x = a[:, 0] + (cy - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+            assert (straddle & (x > cx)).sum() % 2 == 1, (d["name"], region)
+        regions = "none" if region is None else f"{len(region) - 1} vertices"
         text = open(f"{out}/mrcal/{d['name']}.cameramodel").read()
         if d["kind"] == "projector":
             assert "projector" in text, d["name"]
-        print(f"mrcal {d['name']} {lensmodel} max projection difference {err:.3e} px")
+        print(f"mrcal {d['name']} {lensmodel} max projection difference {err:.3e} px, valid region {regions}")
 
 
 def colmap_rows(path):
