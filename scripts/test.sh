@@ -5,13 +5,13 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
-    # Debian packages of docs/design.md §11 used by the tests: python3 with OpenCV and YAML read
-    # the calibration outputs; chromium renders the HTML report (tests/report_html.rs);
+    # Debian packages of docs/design.md §11 used by the tests: python3 with OpenCV, YAML and
+    # mrcal read the calibration outputs (tests/exports.rs); chromium renders the HTML report (tests/report_html.rs);
     # libaravis-dev (+ libusb-1.0-0-dev, which its .pc needs) for the `aravis` feature;
     # libclang-dev for the `v4l2` feature (bindgen generates the V4L2 bindings); for the
     # `window` feature the X client libraries winit and softbuffer load at run time, and
     # Xvfb, xwd (x11-apps), xwininfo (x11-utils) and xdotool for its tests.
-    apt_packages=(python3 python3-opencv python3-yaml chromium libaravis-dev libusb-1.0-0-dev
+    apt_packages=(python3 python3-opencv python3-yaml python3-mrcal chromium libaravis-dev libusb-1.0-0-dev
         libclang-dev libx11-6 libx11-xcb1 libxcb1 libxcursor1 libxi6 libxkbcommon-x11-0
         xvfb x11-apps x11-utils xdotool)
     apt-get update -qq

@@ -285,6 +285,34 @@ pub fn summarise(outcome: &hexcal::app::progress::Outcome, progress: Progress) {
         println!("warning: {w}");
     }
     println!("wrote {} files", outcome.files.len());
+    report_line(
+        cal,
+        &outcome.verification,
+        &outcome.files,
+        outcome.warnings.len(),
+    );
+}
+
+/// "report: PATH (N warnings)" when `files` hold the HTML report; `extra` counts the
+/// caller's warnings the page also shows.
+pub fn report_line(
+    cal: &hexcal::calib::solve::Calibration,
+    verification: &[hexcal::calib::verify::PairCheck],
+    files: &[std::path::PathBuf],
+    extra: usize,
+) {
+    use hexcal::calib::diagnostics::{residual_table, verification_warnings, warnings};
+    let Some(page) = files.iter().find(|f| f.ends_with("report.html")) else {
+        return;
+    };
+    let n = warnings(cal, &residual_table(cal)).len()
+        + verification_warnings(verification).len()
+        + extra;
+    println!(
+        "report: {} ({n} warning{})",
+        page.display(),
+        if n == 1 { "" } else { "s" }
+    );
 }
 
 /// `hexcal devices`: what this machine has, as rig-file addresses.

@@ -125,14 +125,20 @@ enum Command {
         /// Estimate the board's bend (bowl and two saddles).
         #[arg(long)]
         refine_flatness: bool,
+        /// Export the pair FIRST,SECOND as a rectified stereo pair (stereo/FIRST-SECOND.yml);
+        /// repeatable.
+        #[arg(long, value_name = "FIRST,SECOND")]
+        stereo: Vec<String>,
     },
     /// Check a calibration on held-out board poses: triangulate them from camera pairs and
     /// camera–projector pairs, report length errors and flatness against the board.
     Verify {
-        /// The calibration file (`calibration.json` of `hexcal calibrate`).
+        /// The calibration file (`calibration.json` of `hexcal calibrate`); by default the
+        /// one in the folder given.
         #[arg(long)]
-        calibration: PathBuf,
-        /// Correspondences of the held-out poses.
+        calibration: Option<PathBuf>,
+        /// Correspondences of the held-out poses, or a calibration folder or a run's folder
+        /// (its held-out.json).
         input: PathBuf,
     },
     /// Detect the board's circles in images and label them with lattice positions (JSON).
@@ -204,6 +210,10 @@ enum Command {
         /// without touching a device.
         #[arg(long)]
         dry_run: bool,
+        /// Export the pair FIRST,SECOND as a rectified stereo pair (stereo/FIRST-SECOND.yml);
+        /// repeatable.
+        #[arg(long, value_name = "FIRST,SECOND")]
+        stereo: Vec<String>,
     },
     /// List the cameras, monitors and serial ports this machine has (rig-file addresses).
     Devices,
@@ -240,6 +250,7 @@ fn calibrate(
     reference: Option<&str>,
     options: CalibrateOptions,
     held_out: usize,
+    stereo: &[String],
 ) -> anyhow::Result<Finished> {
     use hexcal::app::calibrate::{calibrate_dataset, calibrate_file, device_index};
     if input.is_dir() {
@@ -252,11 +263,11 @@ fn calibrate(
             options.bundle.reference = device_index(input, names, name)?;
         }
         let mut printer = cli::printer(cli::Progress::Human);
-        let outcome = calibrate_dataset(input, out, held_out, &options, &mut printer)?;
+        let outcome = calibrate_dataset(input, out, held_out, &options, stereo, &mut printer)?;
         cli::summarise(&outcome, cli::Progress::Human);
         return Ok(finished(&outcome.calibration));
     }
-    let done = calibrate_file(input, out, reference, options)?;
+    let done = calibrate_file(input, out, reference, options, stereo)?;
     let cal = &done.calibration;
     print!(
         "{}",
@@ -275,7 +286,11 @@ fn calibrate(
     for e in &cal.excluded {
         println!("not calibrated: {}: {}", e.name, e.reason);
     }
+    for (name, px) in done.radtan.iter().filter(|(_, px)| *px > 0.0) {
+        println!("camchain.yaml: {name} refitted to radtan, largest deviation {px:.4} px");
+    }
     println!("wrote {} files to {}", done.files.len(), out.display());
+    cli::report_line(cal, &[], &done.files, 0);
     Ok(finished(cal))
 }
 
@@ -447,6 +462,7 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             json,
             console,
             dry_run,
+            stereo,
         } => {
             if dry_run {
                 let timeline = hexcal::app::script::timeline(&rig).map_err(anyhow::Error::msg)?;
@@ -458,6 +474,7 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
                 held_out,
                 keep_stacks,
                 stop: Some(cli::stop_flag()?),
+                stereo,
                 ..Default::default()
             };
             let progress = if json {
@@ -476,11 +493,19 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             fix_k3,
             refine_flatness,
             held_out,
+            stereo,
         } => {
             let mut options = CalibrateOptions::default();
             options.bundle.fix_k3 = fix_k3;
             options.bundle.refine_flatness = refine_flatness;
-            return calibrate(&input, &out, reference.as_deref(), options, held_out);
+            return calibrate(
+                &input,
+                &out,
+                reference.as_deref(),
+                options,
+                held_out,
+                &stereo,
+            );
         }
         other => execute_other(other)?,
     }
@@ -507,7 +532,7 @@ fn execute_other(command: Command) -> anyhow::Result<()> {
             println!("{} {side} side written to {}", board.name, out.display());
         }
         Command::Verify { calibration, input } => {
-            let checks = hexcal::app::calibrate::verify_file(&calibration, &input)?;
+            let checks = hexcal::app::calibrate::verify_input(&input, calibration.as_deref())?;
             print!("{}", hexcal::report::format_verification(&checks));
         }
         Command::Simulate { scene, out, seed } => simulate(scene.as_ref(), &out, seed)?,

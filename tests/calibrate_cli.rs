@@ -81,6 +81,24 @@ fn calibrate_writes_files_that_opencv_and_yaml_read() {
         assert!(dt < 1.0, "{} position error {dt} mm", est.name);
     }
 
+    // Every device's lens covariance is in the file, labelled, and agrees with its σ.
+    for d in &file.devices {
+        assert_eq!(
+            d.lens_params[..5],
+            ["fx", "fy", "cx", "cy", "k1"],
+            "{}",
+            d.name
+        );
+        for (i, s) in d.lens_std.iter().enumerate() {
+            let c = d.lens_covariance[i][i].sqrt();
+            assert!((c - s).abs() <= 1e-9 * s, "{} {}: {c} vs {s}", d.name, i);
+        }
+    }
+    let mut bad: serde_json::Value = serde_json::from_str(&text).unwrap();
+    bad["devices"][1]["lens_covariance"][0] = serde_json::json!([1.0]);
+    let e = CalibrationFile::from_json(&bad.to_string(), "c.json").unwrap_err();
+    assert!(e.to_string().contains("devices[1].lens_covariance"), "{e}");
+
     // OpenCV reads what we wrote, value for value.
     let cam = &file.devices[1];
     let yml = out.join("opencv").join(format!("{}.yml", cam.name));

@@ -157,12 +157,31 @@ fn run_calibrates_a_simulated_rig_to_its_ground_truth() {
     }
     let length = hexcal::report::verification_rms(&outcome.verification).unwrap();
     eprintln!("held-out length error RMS {length:.4} mm");
+    // `hexcal verify` reads the run's folder (or its calibration folder) and repeats the
+    // run's verification of the held-out pose.
+    for folder in [out.clone(), out.join("calibration")] {
+        let v = cli::hexcal(&["verify", folder.to_str().unwrap()]);
+        let stdout = String::from_utf8_lossy(&v.stdout);
+        assert!(v.status.success(), "{}", String::from_utf8_lossy(&v.stderr));
+        let last = stdout.lines().last().unwrap();
+        assert!(last.ends_with(&format!(": {length:.4} mm")), "{stdout}");
+    }
+    let v = cli::hexcal(&["verify", dir.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&v.stderr);
+    assert!(
+        v.status.code() == Some(1) && err.contains("held-out.json"),
+        "{err}"
+    );
     assert!(length <= 0.1, "held-out length RMS {length} mm");
     for name in [
         "calibration.json",
         "camchain.yaml",
         "truth.txt",
         "verification.txt",
+        "held-out.json",
+        "mrcal/cam0.cameramodel",
+        "colmap/cameras.txt",
+        "ros/cam0.yaml",
     ] {
         assert!(out.join("calibration").join(name).exists(), "{name}");
     }

@@ -43,6 +43,8 @@ pub(crate) struct Collected<'a> {
     pub(crate) all: &'a [Option<PoseViews>],
     /// First held-out pose.
     pub(crate) held_from: usize,
+    /// Device pairs ("first,second") to export as stereo pairs.
+    pub(crate) stereo: &'a [String],
 }
 
 /// Calibrate from the views of `all` poses (those from `held_from` on are held out and
@@ -59,6 +61,7 @@ pub(crate) fn finish(
         devices,
         all,
         held_from,
+        stereo,
     } = c;
     let views_of = |range: std::ops::Range<usize>| -> Vec<CameraView> {
         all[range]
@@ -75,7 +78,13 @@ pub(crate) fn finish(
     let cal = calibrate_registering(board, devices, poses, &used, options, &geometric)?;
     let verification = verify_held_out(board, &cal, &held, held_from);
     std::fs::create_dir_all(dir).map_err(AppError::io(dir))?;
-    let mut files = crate::report::write_outputs(&cal, dir)?;
+    let mut files = crate::report::write_outputs(&cal, dir, stereo)?.files;
+    if !held.is_empty() {
+        let path = dir.join(HELD_OUT_FILE);
+        let text = held_out_file(board, devices, &held, held_from, all.len());
+        crate::atomic::write(&path, text.as_bytes()).map_err(AppError::io(&path))?;
+        files.push(path);
+    }
     let text = crate::report::format_verification(&verification);
     let path = dir.join("verification.txt");
     crate::atomic::write(&path, text.as_bytes()).map_err(AppError::io(&path))?;
@@ -107,6 +116,34 @@ pub(crate) fn finish(
         truth: Vec::new(),
         agreement: crate::correspond::agreement(&used),
     })
+}
+
+/// The file in a calibration folder that holds the held-out poses' views, for
+/// `hexcal verify DIR`.
+pub const HELD_OUT_FILE: &str = "held-out.json";
+
+/// The held-out views as a correspondences file (devices as given, poses renumbered from 0).
+fn held_out_file(
+    board: &Board,
+    devices: &[DeviceInfo],
+    held: &[CameraView],
+    held_from: usize,
+    poses: usize,
+) -> String {
+    let views = held
+        .iter()
+        .map(|v| CameraView {
+            pose: v.pose - held_from,
+            ..v.clone()
+        })
+        .collect();
+    let c = Correspondences {
+        board: board.name.clone(),
+        devices: devices.to_vec(),
+        poses: poses - held_from,
+        views,
+    };
+    serde_json::to_string(&c).expect("plain data serialises")
 }
 
 /// Verify held-out views against the calibrated devices (views re-indexed to the kept
@@ -148,6 +185,7 @@ pub fn calibrate_dataset(
     out: &Path,
     held_out: usize,
     options: &CalibrateOptions,
+    stereo: &[String],
     events: &mut dyn FnMut(&Event),
 ) -> Result<Outcome, AppError> {
     let data = Dataset::open(root)?;
@@ -190,6 +228,7 @@ pub fn calibrate_dataset(
             devices: &devices,
             all: &all,
             held_from,
+            stereo,
         },
         out,
         options,
@@ -208,6 +247,8 @@ pub struct FileOutcome {
     pub calibration: Calibration,
     /// Files written.
     pub files: Vec<PathBuf>,
+    /// Per device, the Kalibr radtan refit's largest deviation from the full model (px).
+    pub radtan: Vec<(String, f64)>,
 }
 
 /// Read a correspondences file (README: "A correspondences file").
@@ -249,12 +290,13 @@ pub fn device_index<'a>(
 }
 
 /// `hexcal calibrate CORRESPONDENCES.json`: calibrate every device, write the outputs and
-/// the report to `out`; `reference` names the gauge device.
+/// the report to `out`; `reference` names the gauge device, `stereo` the pairs to export.
 pub fn calibrate_file(
     input: &Path,
     out: &Path,
     reference: Option<&str>,
     mut options: CalibrateOptions,
+    stereo: &[String],
 ) -> Result<FileOutcome, AppError> {
     let c = read_correspondences(input)?;
     let board = Board::resolve(&c.board)?;
@@ -264,7 +306,8 @@ pub fn calibrate_file(
     }
     let geometric = GeometricParams::default();
     let cal = calibrate_registering(&board, &c.devices, c.poses, &c.views, &options, &geometric)?;
-    let mut files = crate::report::write_outputs(&cal, out)?;
+    let written = crate::report::write_outputs(&cal, out, stereo)?;
+    let mut files = written.files;
     let html = out.join("report.html");
     crate::report::html::write_html(
         &crate::report::html::ReportInput {
@@ -280,11 +323,43 @@ pub fn calibrate_file(
         input: c,
         calibration: cal,
         files,
+        radtan: written.radtan,
     })
 }
 
-/// `hexcal verify`: the held-out poses of the correspondences file `input` triangulated
-/// with the devices of the calibration file `calibration`.
+/// `hexcal verify INPUT [--calibration FILE]`: INPUT is a correspondences file (then
+/// `calibration` is needed), a calibration folder or a run's folder (its `calibration/`);
+/// a folder gives its [`HELD_OUT_FILE`] and, unless `calibration` names another, its
+/// `calibration.json`.
+pub fn verify_input(input: &Path, calibration: Option<&Path>) -> Result<Vec<PairCheck>, AppError> {
+    if !input.is_dir() {
+        let calibration = calibration.ok_or_else(|| {
+            AppError::Input(format!(
+                "{}: --calibration FILE is needed with a correspondences file (or give a \
+                 calibration or run folder)",
+                input.display()
+            ))
+        })?;
+        return verify_file(calibration, input);
+    }
+    let dir = match input.join("calibration").join("calibration.json").exists() {
+        true => input.join("calibration"),
+        false => input.to_owned(),
+    };
+    let held = dir.join(HELD_OUT_FILE);
+    if !held.exists() {
+        return Err(AppError::Input(format!(
+            "{}: no {HELD_OUT_FILE} (is it a calibration or run folder, calibrated with \
+             --held-out 1 or more?)",
+            input.display()
+        )));
+    }
+    let own = dir.join("calibration.json");
+    verify_file(calibration.unwrap_or(&own), &held)
+}
+
+/// The held-out poses of the correspondences file `input` triangulated with the devices of
+/// the calibration file `calibration`.
 pub fn verify_file(calibration: &Path, input: &Path) -> Result<Vec<PairCheck>, AppError> {
     let text = crate::limits::read_text(calibration).map_err(AppError::io(calibration))?;
     let cal = crate::report::CalibrationFile::from_json(&text, &calibration.display().to_string())?;

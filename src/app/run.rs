@@ -39,6 +39,8 @@ pub struct RunOptions {
     /// Set (e.g. by Ctrl-C) to stop capturing: the pose being captured is dropped, every
     /// pose already captured is finished, and the run ends with [`AppError::Interrupted`].
     pub stop: Option<Arc<AtomicBool>>,
+    /// Device pairs ("first,second") to export as rectified stereo pairs.
+    pub stereo: Vec<String>,
     /// Sees every captured frame (the operator console's thumbnails).
     pub frame_tap: Option<FrameTap>,
     /// Finish processing each pose before the board is placed for the next, so a watcher
@@ -178,6 +180,7 @@ pub fn run(
         devices: &devices,
         all: &all,
         held_from,
+        stereo: &options.stereo,
     };
     let dir = out.join("calibration");
     let mut outcome = finish(

@@ -75,6 +75,9 @@ pub fn html_report(input: &ReportInput) -> String {
     h.push_str("<h2 id=\"warnings\">Warnings</h2>\n");
     let warnings: Vec<String> = crate::calib::diagnostics::warnings(cal, &rows)
         .into_iter()
+        .chain(crate::calib::diagnostics::verification_warnings(
+            input.verification,
+        ))
         .chain(input.warnings.iter().cloned())
         .collect();
     if warnings.is_empty() {
@@ -1315,10 +1318,14 @@ mod tests {
         }
     }
 
+    /// The paper rig's poses leave its image corners empty, so the page warns that the
+    /// lens models extrapolate there (calib::diagnostics' tests) and of nothing else.
     #[test]
-    fn no_warnings_for_a_good_rig_and_no_verification_without_checks() {
+    fn the_paper_rig_is_warned_of_its_corners_only_and_no_verification_without_checks() {
         let html = page(calibration(), &[], Vec::new());
-        assert!(html.contains("<p class=\"ok\">None"), "unexpected warnings");
+        assert!(!html.contains("<p class=\"ok\">None"));
+        assert!(html.contains("extrapolates in the image corners"));
+        assert!(!html.contains("outliers,") && !html.contains("the median"));
         assert!(!html.contains("id=\"verification\""));
     }
 

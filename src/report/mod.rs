@@ -1,15 +1,19 @@
 //! What a calibration gives its users: hexcal's own calibration file, an OpenCV FileStorage
-//! YAML per device, a Kalibr-style camchain, and the per-device residual table of the
-//! paper's Table I (docs/design.md §8).
+//! YAML per device, the exports for neighbouring tools ([`export`]: mrcal, COLMAP, ROS,
+//! stereo pairs, Kalibr), and the per-device residual table of the paper's Table I
+//! (docs/design.md §8).
 //!
 //! Takes a [`Calibration`]; gives serialisable values and text. Units: millimetres and
 //! pixels; poses are `T_device_ref` (a point in the reference device's frame mapped into
 //! the device's frame), rotations as Rodrigues vectors (rad).
 
+pub mod export;
 pub mod html;
 
 use crate::calib::bundle::DeviceKind;
-use crate::calib::diagnostics::{residual_table, ResidualRow};
+use crate::calib::diagnostics::{
+    lens_covariance, residual_table, valid_region, ResidualRow, VALID_UNCERTAINTY,
+};
 use crate::calib::solve::Calibration;
 use crate::camera::{CameraModel, Distortion, Intrinsics};
 use nalgebra::{Isometry3, Matrix3, Vector3};
@@ -68,6 +72,13 @@ pub struct DeviceRecord {
     pub lens_std: Vec<f64>,
     /// Standard deviations of the pose increment (ω rad, τ mm); zero for the reference.
     pub pose_std: [f64; 6],
+    /// Names of the free lens parameters ("fx", …, "k3"), the rows and columns of
+    /// `lens_covariance` (empty in files of older builds).
+    #[serde(default)]
+    pub lens_params: Vec<String>,
+    /// Covariance of the free lens parameters (px², docs/design.md (33)), row by row.
+    #[serde(default)]
+    pub lens_covariance: Vec<Vec<f64>>,
 }
 
 impl DeviceRecord {
@@ -137,6 +148,9 @@ pub enum ReportError {
         /// The cause.
         source: std::io::Error,
     },
+    /// An export asked for cannot be made.
+    #[error(transparent)]
+    Export(#[from] export::ExportError),
     /// A version this build does not read.
     #[error("{path}: format version {found}, this hexcal reads version {FORMAT_VERSION}")]
     Version {
@@ -178,6 +192,15 @@ impl CalibrationFile {
                     pose: PoseRecord::from_isometry(&d.pose),
                     lens_std: sol.intrinsic_std[i].clone(),
                     pose_std: sol.pose_std[i],
+                    lens_params: lens_covariance(cal, i)
+                        .0
+                        .iter()
+                        .map(|p| p.name().to_string())
+                        .collect(),
+                    lens_covariance: {
+                        let c = lens_covariance(cal, i).1;
+                        c.row_iter().map(|r| r.iter().copied().collect()).collect()
+                    },
                 })
                 .collect(),
             sigma: sol.sigma,
@@ -231,6 +254,7 @@ impl CalibrationFile {
             limits::finite(&d.pose.tvec).map_err(|m| (at("pose.tvec"), m))?;
             limits::count(d.lens_std.len(), crate::camera::LENS_PARAM_COUNT, "values")
                 .map_err(|m| (at("lens_std"), m))?;
+            check_covariance(d).map_err(|(k, m)| (at(k), m))?;
         }
         if !self.devices.iter().any(|d| d.name == self.reference) {
             return Err((
@@ -248,6 +272,35 @@ impl CalibrationFile {
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("plain data serialises")
     }
+}
+
+/// The first problem of a record's labelled covariance: names of lens parameters, as many
+/// as `lens_std` holds (or none), a square finite matrix of that size.
+fn check_covariance(d: &DeviceRecord) -> Result<(), (&'static str, String)> {
+    let n = d.lens_params.len();
+    if n == 0 && d.lens_covariance.is_empty() {
+        return Ok(());
+    }
+    if n != d.lens_std.len() {
+        return Err((
+            "lens_params",
+            format!("{n} names for {} standard deviations", d.lens_std.len()),
+        ));
+    }
+    let names: Vec<&str> = crate::camera::LensParam::ALL
+        .iter()
+        .map(|p| p.name())
+        .collect();
+    if let Some(bad) = d.lens_params.iter().find(|p| !names.contains(&p.as_str())) {
+        return Err(("lens_params", format!("{bad:?} is no lens parameter")));
+    }
+    if d.lens_covariance.len() != n || d.lens_covariance.iter().any(|r| r.len() != n) {
+        return Err(("lens_covariance", format!("not a {n} × {n} matrix")));
+    }
+    for row in &d.lens_covariance {
+        crate::limits::finite(row).map_err(|m| ("lens_covariance", m))?;
+    }
+    Ok(())
 }
 
 /// The distortion vector OpenCV uses: 5 coefficients, or 8 with the rational terms.
@@ -304,57 +357,6 @@ pub fn opencv_yaml(d: &DeviceRecord) -> String {
     s
 }
 
-/// A Kalibr-style camchain YAML: one `camN` entry per device in order, pinhole-radtan,
-/// `T_cn_cnm1` relative to the previous device (metres, as Kalibr uses). Projectors are
-/// listed as cameras (Kalibr has no projector model); k3 and the rational terms have no
-/// place in radtan and are stated in a comment when nonzero.
-pub fn kalibr_camchain(file: &CalibrationFile) -> String {
-    let mut s =
-        String::from("# Kalibr-style camchain written by hexcal; translations in metres.\n");
-    let mut previous: Option<Isometry3<f64>> = None;
-    for (i, d) in file.devices.iter().enumerate() {
-        let k = &d.intrinsics;
-        let dist = &d.distortion;
-        let _ = writeln!(s, "cam{i}:");
-        let _ = writeln!(s, "  rostopic: /{}/image_raw", d.name);
-        let _ = writeln!(s, "  camera_model: pinhole");
-        let _ = writeln!(s, "  intrinsics: [{}, {}, {}, {}]", k.fx, k.fy, k.cx, k.cy);
-        let _ = writeln!(s, "  distortion_model: radtan");
-        let _ = writeln!(
-            s,
-            "  distortion_coeffs: [{}, {}, {}, {}]",
-            dist.k1, dist.k2, dist.p1, dist.p2
-        );
-        if dist.k3 != 0.0 || dist.is_rational() {
-            let _ = writeln!(
-                s,
-                "  # not representable in radtan: k3 {} k4 {} k5 {} k6 {}",
-                dist.k3, dist.k4, dist.k5, dist.k6
-            );
-        }
-        let _ = writeln!(s, "  resolution: [{}, {}]", d.width, d.height);
-        if matches!(d.kind, DeviceKind::Projector) {
-            let _ = writeln!(s, "  # a projector: its \"image\" is the projected raster");
-        }
-        let pose = d.pose.isometry();
-        if let Some(prev) = previous {
-            // T_cn_cnm1 = T_n_ref · T_ref_(n−1).
-            let t = pose * prev.inverse();
-            let m = t.to_homogeneous();
-            let _ = writeln!(s, "  T_cn_cnm1:");
-            for r in 0..4 {
-                let scale = |c: usize| if c == 3 && r < 3 { 1e-3 } else { 1.0 };
-                let row: Vec<String> = (0..4)
-                    .map(|c| format!("{}", m[(r, c)] * scale(c)))
-                    .collect();
-                let _ = writeln!(s, "  - [{}]", row.join(", "));
-            }
-        }
-        previous = Some(pose);
-    }
-    s
-}
-
 /// The table as aligned text.
 pub fn format_table(rows: &[ResidualRow]) -> String {
     let mut s = format!(
@@ -376,35 +378,81 @@ pub fn format_table(rows: &[ResidualRow]) -> String {
 }
 
 /// Write every output of a calibration into `dir`, each file atomically:
-/// `calibration.json`, `opencv/NAME.yml` per device, `camchain.yaml`, `residuals.txt` and
-/// `residuals.json`. Returns the paths written.
-pub fn write_outputs(cal: &Calibration, dir: &Path) -> Result<Vec<PathBuf>, ReportError> {
+/// `calibration.json`, `opencv/NAME.yml`, `mrcal/NAME.cameramodel` and `ros/NAME.yaml` per
+/// device, `colmap/{cameras,images,points3D}.txt`, `camchain.yaml` (Kalibr),
+/// `stereo/FIRST-SECOND.yml` per pair of `stereo` ("first,second"), `residuals.txt` and
+/// `residuals.json`. Returns the paths written and, per device, the Kalibr radtan refit's
+/// largest deviation (px). Pairs are checked before anything is written.
+pub fn write_outputs(
+    cal: &Calibration,
+    dir: &Path,
+    stereo: &[String],
+) -> Result<Written, ReportError> {
     let io = |path: &Path| {
         let path = path.display().to_string();
         move |source| ReportError::Io { path, source }
     };
-    let opencv = dir.join("opencv");
-    std::fs::create_dir_all(&opencv).map_err(io(&opencv))?;
     let file = CalibrationFile::new(cal);
+    let pairs = stereo
+        .iter()
+        .map(|p| {
+            let name = p.replace(',', "-").replace(' ', "");
+            Ok((
+                dir.join("stereo").join(format!("{name}.yml")),
+                export::stereo_yaml(&file, p)?,
+            ))
+        })
+        .collect::<Result<Vec<_>, export::ExportError>>()?;
+    for sub in ["opencv", "mrcal", "ros", "colmap", "stereo"] {
+        let d = dir.join(sub);
+        if sub != "stereo" || !pairs.is_empty() {
+            std::fs::create_dir_all(&d).map_err(io(&d))?;
+        }
+    }
     let rows = residual_table(cal);
+    let (camchain, fits) = export::kalibr_camchain(&file, &export::overlaps(cal));
     let mut outputs = vec![
         (dir.join("calibration.json"), file.to_json()),
-        (dir.join("camchain.yaml"), kalibr_camchain(&file)),
+        (dir.join("camchain.yaml"), camchain),
         (dir.join("residuals.txt"), format_table(&rows)),
         (
             dir.join("residuals.json"),
             serde_json::to_string_pretty(&rows).expect("plain data serialises"),
         ),
     ];
-    outputs.extend(
-        file.devices
-            .iter()
-            .map(|d| (opencv.join(format!("{}.yml", d.name)), opencv_yaml(d))),
-    );
+    for (i, d) in file.devices.iter().enumerate() {
+        let at = |sub: &str, ext: &str| dir.join(sub).join(format!("{}.{ext}", d.name));
+        outputs.push((at("opencv", "yml"), opencv_yaml(d)));
+        let region = valid_region(cal, i, VALID_UNCERTAINTY);
+        let model = export::mrcal_cameramodel(d, region.as_deref());
+        outputs.push((at("mrcal", "cameramodel"), model));
+        outputs.push((at("ros", "yaml"), export::ros_camera_info(d)));
+    }
+    for (name, text) in export::colmap_model(&file) {
+        outputs.push((dir.join("colmap").join(name), text));
+    }
+    outputs.extend(pairs);
     for (path, text) in &outputs {
         crate::atomic::write(path, text.as_bytes()).map_err(io(path))?;
     }
-    Ok(outputs.into_iter().map(|(p, _)| p).collect())
+    Ok(Written {
+        files: outputs.into_iter().map(|(p, _)| p).collect(),
+        radtan: file
+            .devices
+            .iter()
+            .zip(&fits)
+            .map(|(d, f)| (d.name.clone(), f.max_deviation))
+            .collect(),
+    })
+}
+
+/// What [`write_outputs`] wrote.
+#[derive(Clone, Debug)]
+pub struct Written {
+    /// Paths written.
+    pub files: Vec<PathBuf>,
+    /// Per device, the Kalibr radtan refit's largest deviation from the full model (px).
+    pub radtan: Vec<(String, f64)>,
 }
 
 /// The held-out verification as a table: per device pair and pose, points, length error
