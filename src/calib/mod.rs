@@ -10,6 +10,7 @@ pub mod bundle;
 pub mod circle;
 pub mod diagnostics;
 pub mod posegraph;
+pub mod schur;
 pub mod solve;
 #[cfg(any(test, feature = "testkit"))]
 pub mod synthetic;
