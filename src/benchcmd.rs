@@ -145,9 +145,11 @@ fn bench_calib(
         case.start,
     );
     println!(
-        "{:.3} s, peak memory {}, {} LM iterations{}; posterior σ {:.4} px (simulated {sigma}), \
-         worst focal error {:.4} %, worst parameter {:.2} σ ({}; bound {:.2}): {}",
+        "{:.3} s wall, {} CPU, peak memory {}, {} LM iterations{}; posterior σ {:.4} px \
+         (simulated {sigma}), worst focal error {:.4} %, worst parameter {:.2} σ ({}; bound \
+         {:.2}): {}",
         b.seconds,
+        cpu_seconds().map_or("unknown".into(), |s| format!("{s:.2} s")),
         peak_memory().map_or("unknown".into(), |kb| format!(
             "{:.1} MiB",
             kb as f64 / 1024.0
@@ -162,6 +164,17 @@ fn bench_calib(
         if b.passes(sigma) { "pass" } else { "FAIL" },
     );
     Ok(())
+}
+
+/// CPU time of the process so far (user + system, s, from /proc/self/stat at 100 ticks per
+/// second): on a shared machine a steadier figure than the wall time.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (in parentheses): utime and stime are the 12th and 13th.
+    let rest = stat.rsplit_once(')')?.1;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
 }
 
 /// The process's peak resident memory (kB, `VmHWM` of /proc/self/status), where known.

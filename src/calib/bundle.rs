@@ -201,7 +201,7 @@ pub struct Solution {
     pub side_index: Option<usize>,
     /// LM iterations over all phases.
     pub iterations: usize,
-    /// Whether both phases stopped at their minimum (not at the iteration limit).
+    /// Whether the final (plain) phase stopped at its minimum, not at the iteration limit.
     pub converged: bool,
 }
 
@@ -819,6 +819,27 @@ fn held(sys: &Scaled) -> Vec<bool> {
     u.into_iter().chain(v.into_iter().flatten()).collect()
 }
 
+/// The robust phase's Huber threshold and observations for one iteration (30a), from the
+/// residuals `res` at its start: the threshold follows the residuals (3 robust σ) down to
+/// `floor`, and each device's observations beyond `outlier_sigmas` of its own robust σ sit
+/// out the iteration (31), so wild ones (a ray grazing the board through a camera still far
+/// from its pose) cannot stall the start.
+fn robust_set(
+    p: &Problem,
+    res: &[Option<Vector2<f64>>],
+    active: &[bool],
+    floor: f64,
+    o: &Options,
+) -> (f64, Vec<bool>) {
+    let mut norms: Vec<f64> = res
+        .iter()
+        .zip(active)
+        .filter_map(|(r, a)| r.filter(|_| *a).map(|e| e.norm()))
+        .collect();
+    let k = floor.max(3.0 * robust_sigma(&mut norms));
+    (k, inliers(p, res, o))
+}
+
 /// Damped trials at most per LM iteration.
 const MAX_TRIALS: usize = 30;
 
@@ -850,19 +871,12 @@ fn levenberg_marquardt(
     let mut last: Option<Vec<Option<Vector2<f64>>>> = None;
     for iteration in 1..=o.max_iterations {
         let an = anchors(p, &s, o);
-        // Robust phase (30a): the Huber threshold follows the residuals down to its floor,
-        // and each device's observations beyond `outlier_sigmas` of its robust σ sit out
-        // this iteration (31).
+        let floor = huber;
         let (huber, trimmed) = match huber {
             Some(floor) => {
                 let res = last.take().unwrap_or_else(|| residuals(p, &s, l, &an));
-                let mut norms: Vec<f64> = res
-                    .iter()
-                    .zip(active)
-                    .filter_map(|(r, a)| r.filter(|_| *a).map(|e| e.norm()))
-                    .collect();
-                let k = floor.max(3.0 * robust_sigma(&mut norms));
-                (Some(k), Some(inliers(p, &res, o)))
+                let (k, trimmed) = robust_set(p, &res, active, floor, o);
+                (Some(k), Some(trimmed))
             }
             None => (None, None),
         };
@@ -908,6 +922,16 @@ fn levenberg_marquardt(
             };
         };
         s = trial;
+        // The robust phase only brings the state near the minimum (its trimmed set and
+        // threshold move between iterations): it ends once the threshold is at its floor
+        // and a step gains less than 10⁻⁴ of the cost; the plain phase finishes.
+        if huber.is_some_and(|k| Some(k) == floor) && drop < 1e-4 * c0 {
+            return Phase {
+                state: s,
+                iterations: iteration,
+                converged: true,
+            };
+        }
         small_drop = drop < tol;
     }
     Phase {
@@ -1043,7 +1067,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         side_index: l.side,
         covariance,
         iterations: robust.iterations + plain.iterations,
-        converged: robust.converged && plain.converged,
+        converged: plain.converged,
     })
 }
 
