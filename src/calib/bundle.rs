@@ -822,7 +822,7 @@ fn held(sys: &Scaled) -> Vec<bool> {
 /// The robust phase's Huber threshold and observations for one iteration (30a), from the
 /// residuals `res` at its start: the threshold follows the residuals (3 robust σ) down to
 /// `floor`, and each device's observations beyond `outlier_sigmas` of its own robust σ sit
-/// out the iteration (31), so wild ones (a ray grazing the board through a camera still far
+/// out the iteration (31) — both held once the threshold is at its floor — so wild ones (a ray grazing the board through a camera still far
 /// from its pose) cannot stall the start.
 fn robust_set(
     p: &Problem,
@@ -869,16 +869,21 @@ fn levenberg_marquardt(
     let n = 2 * active.iter().filter(|a| **a).count().max(1);
     let mut small_drop = false;
     let mut last: Option<Vec<Option<Vector2<f64>>>> = None;
+    let mut frozen: Option<(f64, Vec<bool>)> = None;
     for iteration in 1..=o.max_iterations {
         let an = anchors(p, &s, o);
-        let floor = huber;
-        let (huber, trimmed) = match huber {
-            Some(floor) => {
+        let (huber, trimmed) = match (huber, &frozen) {
+            (Some(_), Some((k, set))) => (Some(*k), Some(set.clone())),
+            (Some(floor), None) => {
                 let res = last.take().unwrap_or_else(|| residuals(p, &s, l, &an));
-                let (k, trimmed) = robust_set(p, &res, active, floor, o);
-                (Some(k), Some(trimmed))
+                let (k, set) = robust_set(p, &res, active, floor, o);
+                // At the floor the threshold and the set stay: one objective to converge on.
+                if k <= floor {
+                    frozen = Some((k, set.clone()));
+                }
+                (Some(k), Some(set))
             }
-            None => (None, None),
+            (None, _) => (None, None),
         };
         let active = trimmed.as_deref().unwrap_or(active);
         let (sys, c0, res) = linear_system(p, &s, l, &an, active, huber, by_pose);
@@ -922,16 +927,6 @@ fn levenberg_marquardt(
             };
         };
         s = trial;
-        // The robust phase only brings the state near the minimum (its trimmed set and
-        // threshold move between iterations): it ends once the threshold is at its floor
-        // and a step gains less than 10⁻⁴ of the cost; the plain phase finishes.
-        if huber.is_some_and(|k| Some(k) == floor) && drop < 1e-4 * c0 {
-            return Phase {
-                state: s,
-                iterations: iteration,
-                converged: true,
-            };
-        }
         small_drop = drop < tol;
     }
     Phase {
@@ -1136,7 +1131,7 @@ mod tests {
                 )
             };
             let mut worst = 0.0f64;
-            for i in (0..l.len).step_by(5) {
+            for i in (0..l.len).step_by(13) {
                 let g = if i < l.m {
                     sys.g[i]
                 } else {

@@ -244,6 +244,7 @@ impl Covariance {
         self.len() == 0
     }
 
+    #[allow(clippy::type_complexity)]
     /// State index `i` as a combination of the reduced system's unknowns (a column of
     /// [−X_k; I] or a unit vector), its scale and, for a pose entry, (pose, component).
     fn column(&self, i: usize) -> (Vec<(usize, f64)>, f64, Option<(usize, usize)>) {

@@ -597,7 +597,7 @@ pub fn worst_deviation(
     let mut check = |name: String, at: usize, value: f64| {
         let z = value.abs() / sol.covariance.variance(at).sqrt();
         count += 1;
-        if !(z <= worst.0) {
+        if z.is_nan() || z > worst.0 {
             worst = (z, name);
         }
     };
