@@ -12,12 +12,13 @@
 //! robust σ, then plain least squares; covariance σ²(JᵀJ)⁻¹ at the end.
 
 use super::circle::ellipse_center;
+use super::schur::{BlockSystem, Covariance, PoseBlock, Scaled, Step};
 use super::CalibError;
 use crate::board::{Board, Hex, Side};
 use crate::camera::{CameraModel, LensJacobian, LensParam, LensParams};
 use nalgebra::{
-    DMatrix, DVector, Isometry3, Matrix2x3, Matrix3, Point2, Point3, Translation3, UnitQuaternion,
-    Vector2, Vector3,
+    DMatrix, DVector, Isometry3, Matrix2x3, Matrix3, Matrix6, Point2, Point3, Translation3,
+    UnitQuaternion, Vector2, Vector3, Vector6,
 };
 use rayon::prelude::*;
 
@@ -189,9 +190,9 @@ pub struct Solution {
     pub intrinsic_std: Vec<Vec<f64>>,
     /// Standard deviation of every device's pose increment (ω in rad, τ in mm).
     pub pose_std: Vec<[f64; 6]>,
-    /// Full parameter covariance σ²(JᵀJ)⁻¹ in [`Solution::index`] order (zero rows and
-    /// columns for fixed parameters).
-    pub covariance: DMatrix<f64>,
+    /// Parameter covariance σ²(JᵀJ)⁻¹ in [`Solution::index`] order (zero rows and columns
+    /// for held parameters), in block form: any entry or block on demand.
+    pub covariance: Covariance,
     /// Where each device's lens block and pose block start in `covariance`.
     pub index: Vec<(usize, Option<usize>)>,
     /// Where each board pose's increment (ω, τ) starts in `covariance`.
@@ -200,6 +201,8 @@ pub struct Solution {
     pub side_index: Option<usize>,
     /// LM iterations over all phases.
     pub iterations: usize,
+    /// Whether the final (plain) phase stopped at its minimum, not at the iteration limit.
+    pub converged: bool,
 }
 
 /// Apply a left increment (ω, τ) to a pose: T ← (exp(ω), τ)·T.
@@ -212,7 +215,9 @@ fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }
 
-/// Column layout of the parameter vector.
+/// Column layout of the parameter vector: the device parameters (each device's lens block
+/// and pose, the side transform, the bend) in the first `m` columns, then 6 per board pose,
+/// the order the Schur complement needs ([`super::schur`]).
 struct Layout {
     /// Start column and free parameters of each device's lens block.
     lens: Vec<(usize, LensParams)>,
@@ -220,6 +225,8 @@ struct Layout {
     board: Vec<usize>,
     side: Option<usize>,
     bend: Option<usize>,
+    /// Device parameters (the first board column).
+    m: usize,
     len: usize,
 }
 
@@ -242,8 +249,6 @@ impl Layout {
                 at += 6;
             }
         }
-        let board = (0..p.boards.len()).map(|k| at + 6 * k).collect();
-        at += 6 * p.boards.len();
         let side = o.refine_side_transform.then_some(at);
         if side.is_some() {
             at += 6;
@@ -252,14 +257,47 @@ impl Layout {
         if bend.is_some() {
             at += 3;
         }
+        let m = at;
+        let board = (0..p.boards.len()).map(|k| m + 6 * k).collect();
         Layout {
             lens,
             pose,
             board,
             side,
             bend,
-            len: at,
+            m,
+            len: m + 6 * p.boards.len(),
         }
+    }
+
+    /// The device-parameter columns the observations `obs` (of one board pose) touch,
+    /// ascending.
+    fn pose_columns(&self, p: &Problem, obs: &[usize]) -> Vec<usize> {
+        let mut seen = vec![false; p.devices.len()];
+        let mut back = false;
+        for &i in obs {
+            let ob = &p.observations[i];
+            seen[ob.device] = true;
+            if let Some(v) = ob.via {
+                seen[v.camera] = true;
+            }
+            back |= ob.side == Side::Back;
+        }
+        let mut cols = Vec::new();
+        for (d, _) in seen.iter().enumerate().filter(|(_, s)| **s) {
+            let (at, params) = self.lens[d];
+            cols.extend(at..at + params.len());
+            if let Some(at) = self.pose[d] {
+                cols.extend(at..at + 6);
+            }
+        }
+        if let (Some(at), true) = (self.side, back) {
+            cols.extend(at..at + 6);
+        }
+        if let Some(at) = self.bend {
+            cols.extend(at..at + 3);
+        }
+        cols
     }
 }
 
@@ -416,45 +454,49 @@ impl Linearised {
             .zip(self.jac.iter().copied())
     }
 
-    /// Add w·JᵀJ to the upper triangle of `jtj` (column-major, n × n) and w·Jᵀe to `jtr`.
-    fn accumulate(&self, w: f64, e: &Vector2<f64>, jtj: &mut [f64], n: usize, jtr: &mut [f64]) {
-        let blocks = &self.blocks[..self.nblocks];
+    /// Add this observation's share, with weight `w` and residual `e`, to its board pose's
+    /// part of the normal equations: `local` maps device-parameter columns (below `m`) to
+    /// the pose's local columns.
+    fn accumulate(&self, w: f64, e: &Vector2<f64>, m: usize, local: &[usize], acc: &mut PoseAcc) {
+        // (local column, Jacobian column) of each device parameter; the board block's start.
+        let mut uc = [(0usize, 0usize); MAX_COLUMNS];
+        let (mut nu, mut board, mut off) = (0, None, 0);
+        for &(at, n) in &self.blocks[..self.nblocks] {
+            if at >= m {
+                board = Some(off);
+            } else {
+                for c in 0..n {
+                    uc[nu] = (local[at + c], off + c);
+                    nu += 1;
+                }
+            }
+            off += n;
+        }
         let mut wj = [Vector2::zeros(); MAX_COLUMNS];
         for (x, j) in wj.iter_mut().zip(&self.jac[..self.ncolumns]) {
             *x = j * w;
         }
-        let mut oa = 0;
-        for (ia, &(ga, la)) in blocks.iter().enumerate() {
-            for (g, j) in jtr[ga..ga + la].iter_mut().zip(&wj[oa..oa + la]) {
-                *g += j.dot(e);
+        let nl = acc.g.len();
+        let u = acc.u.as_mut_slice();
+        for (a, &(la, ja)) in uc[..nu].iter().enumerate() {
+            acc.g[la] += wj[ja].dot(e);
+            for &(lb, jb) in &uc[a..nu] {
+                let (r, c) = if la <= lb { (la, lb) } else { (lb, la) };
+                u[c * nl + r] += wj[ja].dot(&self.jac[jb]);
             }
-            let mut ob = oa;
-            for &(gb, lb) in &blocks[ia..] {
-                if gb == ga {
-                    // Diagonal block: its upper triangle.
-                    for c in 0..la {
-                        let col = &mut jtj[(ga + c) * n + ga..(ga + c) * n + ga + c + 1];
-                        for (x, j) in col.iter_mut().zip(&wj[oa..=oa + c]) {
-                            *x += j.dot(&self.jac[oa + c]);
-                        }
-                    }
-                } else {
-                    // Off-diagonal block: rows of the earlier parameters, columns of the later.
-                    let (gr, lr, or, gc, lc, oc) = if ga < gb {
-                        (ga, la, oa, gb, lb, ob)
-                    } else {
-                        (gb, lb, ob, ga, la, oa)
-                    };
-                    for c in 0..lc {
-                        let col = &mut jtj[(gc + c) * n + gr..(gc + c) * n + gr + lr];
-                        for (x, j) in col.iter_mut().zip(&wj[or..or + lr]) {
-                            *x += j.dot(&self.jac[oc + c]);
-                        }
-                    }
+            if let Some(bo) = board {
+                for t in 0..6 {
+                    acc.w[(la, t)] += wj[ja].dot(&self.jac[bo + t]);
                 }
-                ob += lb;
             }
-            oa += la;
+        }
+        if let Some(bo) = board {
+            for t in 0..6 {
+                acc.gv[t] += wj[bo + t].dot(e);
+                for t2 in t..6 {
+                    acc.v[(t, t2)] += wj[bo + t].dot(&self.jac[bo + t2]);
+                }
+            }
         }
     }
 }
@@ -589,12 +631,16 @@ fn linearise(
     }
 }
 
-/// Normal equations, weighted cost and per-observation residuals at a state.
-struct Normal {
-    jtj: DMatrix<f64>,
-    jtr: DVector<f64>,
+/// One board pose's share of the normal equations, in its local device columns.
+struct PoseAcc {
+    /// Upper triangle of the local U block (column-major, `g.len()` square).
+    u: DMatrix<f64>,
+    g: DVector<f64>,
+    w: DMatrix<f64>,
+    v: Matrix6<f64>,
+    gv: Vector6<f64>,
     cost: f64,
-    residuals: Vec<Option<Vector2<f64>>>,
+    residuals: Vec<(usize, Vector2<f64>)>,
 }
 
 fn weight(e: &Vector2<f64>, huber: Option<f64>) -> f64 {
@@ -604,107 +650,212 @@ fn weight(e: &Vector2<f64>, huber: Option<f64>) -> f64 {
     }
 }
 
-fn normal_equations(
+/// The loss of one residual (30): Huber's with threshold k, or the square.
+fn loss(e: &Vector2<f64>, huber: Option<f64>) -> f64 {
+    match huber {
+        Some(k) if e.norm() > k => 2.0 * k * e.norm() - k * k,
+        _ => e.norm_squared(),
+    }
+}
+
+/// Residuals of every observation at `s` with the anchors `an` (each independent, so the
+/// parallel evaluation gives the same values for any thread count).
+fn residuals(
+    p: &Problem,
+    s: &State,
+    l: &Layout,
+    an: &[Option<Anchor>],
+) -> Vec<Option<Vector2<f64>>> {
+    p.observations
+        .par_iter()
+        .zip(an)
+        .map(|(ob, a)| {
+            let lin = linearise(p, s, l, ob, a.as_ref()?, false)?;
+            Some(ob.pixel - lin.predicted)
+        })
+        .collect()
+}
+
+/// The cost (30) of the active observations that `reference` (the linearisation point)
+/// predicts, summed in input order; infinite when one of them cannot be predicted (a trial
+/// must neither gain by losing observations nor lose by regaining them).
+fn cost(
+    res: &[Option<Vector2<f64>>],
+    reference: &[Option<Vector2<f64>>],
+    active: &[bool],
+    huber: Option<f64>,
+) -> f64 {
+    let mut total = 0.0;
+    for ((r, r0), a) in res.iter().zip(reference).zip(active) {
+        match (r, r0, a) {
+            (Some(e), Some(_), true) => total += loss(e, huber),
+            (None, Some(_), true) => return f64::INFINITY,
+            _ => {}
+        }
+    }
+    total
+}
+
+/// One board pose's share of JᵀWJ, JᵀW·e, the cost and the residuals, summed in input order.
+#[allow(clippy::too_many_arguments)]
+fn pose_share(
     p: &Problem,
     s: &State,
     l: &Layout,
     an: &[Option<Anchor>],
     active: &[bool],
     huber: Option<f64>,
-    with_jacobian: bool,
-) -> Normal {
-    let loss = |e: &Vector2<f64>| match huber {
-        Some(k) if e.norm() > k => 2.0 * k * e.norm() - k * k,
-        _ => e.norm_squared(),
+    obs: &[usize],
+    cols: &[usize],
+) -> PoseAcc {
+    let nl = cols.len();
+    let mut local = vec![usize::MAX; l.m];
+    for (i, &c) in cols.iter().enumerate() {
+        local[c] = i;
+    }
+    let mut acc = PoseAcc {
+        u: DMatrix::zeros(nl, nl),
+        g: DVector::zeros(nl),
+        w: DMatrix::zeros(nl, 6),
+        v: Matrix6::zeros(),
+        gv: Vector6::zeros(),
+        cost: 0.0,
+        residuals: Vec::with_capacity(obs.len()),
     };
-    if !with_jacobian {
-        let residuals: Vec<Option<Vector2<f64>>> = p
-            .observations
+    for &i in obs {
+        let ob = &p.observations[i];
+        let Some(lin) = an[i].as_ref().and_then(|a| linearise(p, s, l, ob, a, true)) else {
+            continue;
+        };
+        let e = ob.pixel - lin.predicted;
+        acc.residuals.push((i, e));
+        if active[i] {
+            acc.cost += loss(&e, huber);
+            lin.accumulate(weight(&e, huber), &e, l.m, &local, &mut acc);
+        }
+    }
+    acc.v.fill_lower_triangle_with_upper_triangle();
+    acc
+}
+
+/// The normal equations in block form (35), the cost and the residuals at `s`. Board poses
+/// are linearised in parallel, each alone in input order, and added up in pose order: the
+/// sums do not depend on the thread count.
+#[allow(clippy::too_many_arguments)]
+fn linear_system(
+    p: &Problem,
+    s: &State,
+    l: &Layout,
+    an: &[Option<Anchor>],
+    active: &[bool],
+    huber: Option<f64>,
+    by_pose: &[Vec<usize>],
+) -> (BlockSystem, f64, Vec<Option<Vector2<f64>>>) {
+    let m = l.m;
+    let mut u = DMatrix::<f64>::zeros(m, m);
+    let mut g = DVector::zeros(m);
+    let mut poses = Vec::with_capacity(by_pose.len());
+    let mut total = 0.0;
+    let mut res = vec![None; p.observations.len()];
+    // A few poses per thread at a time bound the memory of the local blocks; the batch
+    // size does not change any sum.
+    let batch = 2 * rayon::current_num_threads().max(1);
+    let ks: Vec<usize> = (0..by_pose.len()).collect();
+    for chunk in ks.chunks(batch) {
+        let shares: Vec<(Vec<usize>, PoseAcc)> = chunk
             .par_iter()
-            .zip(an)
-            .map(|(ob, a)| {
-                let lin = linearise(p, s, l, ob, a.as_ref()?, false)?;
-                Some(ob.pixel - lin.predicted)
+            .map(|&k| {
+                let cols = l.pose_columns(p, &by_pose[k]);
+                let acc = pose_share(p, s, l, an, active, huber, &by_pose[k], &cols);
+                (cols, acc)
             })
             .collect();
-        let cost = residuals
-            .iter()
-            .zip(active)
-            .filter_map(|(r, a)| r.filter(|_| *a))
-            .map(|e| loss(&e))
-            .sum();
-        return Normal {
-            jtj: DMatrix::zeros(0, 0),
-            jtr: DVector::zeros(0),
-            cost,
-            residuals,
-        };
-    }
-    // JᵀWJ (upper triangle), JᵀWr, the cost and the residuals in one pass over chunks of
-    // observations, one accumulator per chunk (a few per thread bound their number), summed.
-    let n = l.len;
-    let chunk = p.observations.len() / (4 * rayon::current_num_threads()) + 1;
-    struct Acc {
-        jtj: DMatrix<f64>,
-        jtr: DVector<f64>,
-        cost: f64,
-        residuals: Vec<(usize, Vector2<f64>)>,
-    }
-    let empty = || Acc {
-        jtj: DMatrix::zeros(n, n),
-        jtr: DVector::zeros(n),
-        cost: 0.0,
-        residuals: Vec::new(),
-    };
-    let acc = (0..p.observations.len())
-        .into_par_iter()
-        .with_min_len(chunk)
-        .fold(empty, |mut acc, i| {
-            let ob = &p.observations[i];
-            if let Some(lin) = an[i].as_ref().and_then(|a| linearise(p, s, l, ob, a, true)) {
-                let e = ob.pixel - lin.predicted;
-                acc.residuals.push((i, e));
-                if active[i] {
-                    acc.cost += loss(&e);
-                    lin.accumulate(
-                        weight(&e, huber),
-                        &e,
-                        acc.jtj.as_mut_slice(),
-                        n,
-                        acc.jtr.as_mut_slice(),
-                    );
+        for (cols, acc) in shares {
+            let nl = cols.len();
+            for c in 0..nl {
+                for r in 0..=c {
+                    u[(cols[r], cols[c])] += acc.u[(r, c)];
                 }
+                g[cols[c]] += acc.g[c];
             }
-            acc
-        })
-        .reduce(empty, |mut a, b| {
-            a.jtj += b.jtj;
-            a.jtr += b.jtr;
-            a.cost += b.cost;
-            a.residuals.extend(b.residuals);
-            a
-        });
-    let mut residuals = vec![None; p.observations.len()];
-    for (i, e) in acc.residuals {
-        residuals[i] = Some(e);
+            total += acc.cost;
+            for (i, e) in acc.residuals {
+                res[i] = Some(e);
+            }
+            poses.push(PoseBlock {
+                cols,
+                w: acc.w,
+                v: acc.v,
+                g: acc.gv,
+            });
+        }
     }
-    let mut jtj = acc.jtj;
-    jtj.fill_lower_triangle_with_upper_triangle();
-    Normal {
-        jtj,
-        jtr: acc.jtr,
-        cost: acc.cost,
-        residuals,
-    }
+    u.fill_lower_triangle_with_upper_triangle();
+    (BlockSystem { u, g, poses }, total, res)
 }
 
-/// Parameters that carry no information (no observation touches them) or that the options
-/// fix: held at their start.
-fn fixed_parameters(l: &Layout, jtj: &DMatrix<f64>) -> Vec<bool> {
-    (0..l.len).map(|i| jtj[(i, i)] <= 0.0).collect()
+/// Observation indices of each board pose.
+fn group_by_pose(p: &Problem) -> Vec<Vec<usize>> {
+    let mut by_pose = vec![Vec::new(); p.boards.len()];
+    for (i, ob) in p.observations.iter().enumerate() {
+        by_pose[ob.pose].push(i);
+    }
+    by_pose
 }
 
-/// Levenberg–Marquardt iterations; returns the new state and the iteration count.
+/// The state's increment from a solved step: device columns, then each board pose's.
+fn full_step(l: &Layout, step: &Step) -> DVector<f64> {
+    let mut delta = DVector::zeros(l.len);
+    delta.rows_mut(0, l.m).copy_from(&step.devices);
+    for (k, d) in step.poses.iter().enumerate() {
+        delta.fixed_rows_mut::<6>(l.board[k]).copy_from(d);
+    }
+    delta
+}
+
+/// Held parameters of a scaled system, in state order.
+fn held(sys: &Scaled) -> Vec<bool> {
+    let (u, v) = sys.held();
+    u.into_iter().chain(v.into_iter().flatten()).collect()
+}
+
+/// The robust phase's Huber threshold and observations for one iteration (30a), from the
+/// residuals `res` at its start: the threshold follows the residuals (3 robust σ) down to
+/// `floor`, and each device's observations beyond `outlier_sigmas` of its own robust σ sit
+/// out the iteration (31) — both held once the threshold is at its floor — so wild ones (a ray grazing the board through a camera still far
+/// from its pose) cannot stall the start.
+fn robust_set(
+    p: &Problem,
+    res: &[Option<Vector2<f64>>],
+    active: &[bool],
+    floor: f64,
+    o: &Options,
+) -> (f64, Vec<bool>) {
+    let mut norms: Vec<f64> = res
+        .iter()
+        .zip(active)
+        .filter_map(|(r, a)| r.filter(|_| *a).map(|e| e.norm()))
+        .collect();
+    let k = floor.max(3.0 * robust_sigma(&mut norms));
+    (k, inliers(p, res, o))
+}
+
+/// Damped trials at most per LM iteration.
+const MAX_TRIALS: usize = 30;
+
+/// How one phase of Levenberg–Marquardt ended.
+struct Phase {
+    state: State,
+    iterations: usize,
+    /// Whether it stopped at the minimum (rather than at the iteration limit or stalled).
+    converged: bool,
+}
+
+/// Levenberg–Marquardt iterations (32) with Nielsen's damping update: after a step with gain
+/// ratio ρ (actual over predicted decrease), λ ← λ·max(1/3, 1 − (2ρ − 1)³); after a
+/// rejected one λ ← λ·ν, ν ← 2ν. Stops when the undamped step would lower the cost by less
+/// than 0.1·σ̂²: then the state is within ~0.3 standard deviations of the minimum in the
+/// parameters' own metric.
 fn levenberg_marquardt(
     p: &Problem,
     mut s: State,
@@ -712,59 +863,77 @@ fn levenberg_marquardt(
     o: &Options,
     active: &[bool],
     huber: Option<f64>,
-) -> (State, usize) {
-    let mut lambda = 1e-3;
-    let mut iterations = 0;
-    // Converged when a step lowers the cost by less than 0.1·σ̂² (σ̂² ≈ cost/n, one
-    // residual's variance): near the minimum the drop is the squared Mahalanobis length of
-    // the step, so what is left is ~0.3 standard deviations in the parameters' metric —
-    // nothing beside the √p spread of the estimate itself.
+    by_pose: &[Vec<usize>],
+) -> Phase {
+    let (mut lambda, mut nu) = (1e-3, 2.0);
     let n = 2 * active.iter().filter(|a| **a).count().max(1);
-    let mut an = anchors(p, &s, o);
-    for _ in 0..o.max_iterations {
-        iterations += 1;
-        let ne = normal_equations(p, &s, l, &an, active, huber, true);
-        let fixed = fixed_parameters(l, &ne.jtj);
-        let mut improved = false;
-        for _ in 0..10 {
-            let mut a = ne.jtj.clone();
-            for i in 0..l.len {
-                if fixed[i] {
-                    a.row_mut(i).fill(0.0);
-                    a.column_mut(i).fill(0.0);
-                    a[(i, i)] = 1.0;
-                } else {
-                    a[(i, i)] += lambda * ne.jtj[(i, i)].max(1e-12);
+    let mut small_drop = false;
+    let mut last: Option<Vec<Option<Vector2<f64>>>> = None;
+    let mut frozen: Option<(f64, Vec<bool>)> = None;
+    for iteration in 1..=o.max_iterations {
+        let an = anchors(p, &s, o);
+        let (huber, trimmed) = match (huber, &frozen) {
+            (Some(_), Some((k, set))) => (Some(*k), Some(set.clone())),
+            (Some(floor), None) => {
+                let res = last.take().unwrap_or_else(|| residuals(p, &s, l, &an));
+                let (k, set) = robust_set(p, &res, active, floor, o);
+                // At the floor the threshold and the set stay: one objective to converge on.
+                if k <= floor {
+                    frozen = Some((k, set.clone()));
                 }
+                (Some(k), Some(set))
             }
-            let rhs = DVector::from_fn(l.len, |i, _| if fixed[i] { 0.0 } else { ne.jtr[i] });
-            let Some(chol) = a.cholesky() else {
-                lambda *= 10.0;
+            (None, _) => (None, None),
+        };
+        let active = trimmed.as_deref().unwrap_or(active);
+        let (sys, c0, res) = linear_system(p, &s, l, &an, active, huber, by_pose);
+        let sys = sys.scaled();
+        let tol = 0.1 * c0 / n as f64;
+        if small_drop && sys.solve(0.0).is_some_and(|st| st.predicted < tol) {
+            return Phase {
+                state: s,
+                iterations: iteration,
+                converged: true,
+            };
+        }
+        let fixed = held(&sys);
+        let mut accepted = None;
+        for _ in 0..MAX_TRIALS {
+            let Some(step) = sys.solve(lambda) else {
+                (lambda, nu) = (lambda * nu, 2.0 * nu);
                 continue;
             };
-            let delta = chol.solve(&rhs);
-            let trial = s.update(l, &delta, &fixed);
-            // The anchors (circle biases) stay those of the linearisation point within a step.
-            let c = normal_equations(p, &trial, l, &an, active, huber, false).cost;
-            if c < ne.cost {
-                let rel = (ne.cost - c) / ne.cost.max(1e-300);
-                s = trial;
-                lambda = (lambda / 10.0).max(1e-12);
-                improved = ne.cost - c > 0.1 * ne.cost / n as f64;
-                // The circle biases move with the poses: refresh them after large steps
-                // (near convergence a step changes them by far less than the noise).
-                if rel > 1e-2 {
-                    an = anchors(p, &s, o);
-                }
+            let trial = s.update(l, &full_step(l, &step), &fixed);
+            // The anchors stay those of the linearisation point within a step.
+            let trial_res = residuals(p, &trial, l, &an);
+            let c = cost(&trial_res, &res, active, huber);
+            if c < c0 {
+                let rho = (c0 - c) / step.predicted.max(1e-300);
+                lambda *= (1.0 / 3.0f64).max(1.0 - (2.0 * rho - 1.0).powi(3));
+                nu = 2.0;
+                accepted = Some((trial, c0 - c));
+                last = Some(trial_res);
                 break;
             }
-            lambda *= 10.0;
+            (lambda, nu) = (lambda * nu, 2.0 * nu);
         }
-        if !improved {
-            break;
-        }
+        let Some((trial, drop)) = accepted else {
+            // No trial lowers the cost: at the minimum to rounding, or stalled.
+            let at_minimum = sys.solve(0.0).is_some_and(|st| st.predicted < tol);
+            return Phase {
+                state: s,
+                iterations: iteration,
+                converged: at_minimum,
+            };
+        };
+        s = trial;
+        small_drop = drop < tol;
     }
-    (s, iterations)
+    Phase {
+        state: s,
+        iterations: o.max_iterations,
+        converged: false,
+    }
 }
 
 /// Median absolute deviation scaled to a Gaussian σ per coordinate.
@@ -777,70 +946,80 @@ fn robust_sigma(norms: &mut [f64]) -> f64 {
     norms[norms.len() / 2] / (2.0 * std::f64::consts::LN_2).sqrt()
 }
 
-/// Run the adjustment: robust phase, outlier rejection per device, plain phase, covariance.
-pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
-    if o.reference >= p.devices.len() {
-        return Err(CalibError::Degenerate("reference device out of range"));
-    }
-    let l = Layout::new(p, o);
-    let start = State {
-        devices: p.devices.clone(),
-        boards: p.boards.clone(),
-        front_back: p.board.side_transform(Side::Back),
-        bend: Bend::flat(&p.board),
-    };
-    let mut active = vec![true; p.observations.len()];
-    let (s, it1) = levenberg_marquardt(p, start, &l, o, &active, Some(o.huber));
-    // Outliers per device against its own robust σ.
-    let an = anchors(p, &s, o);
-    let ne = normal_equations(p, &s, &l, &an, &active, None, false);
+/// Per device, the observations within `o.outlier_sigmas` robust σ of the residuals `res`
+/// (31).
+fn inliers(p: &Problem, res: &[Option<Vector2<f64>>], o: &Options) -> Vec<bool> {
+    let mut active = vec![false; p.observations.len()];
     for d in 0..p.devices.len() {
         let mut norms: Vec<f64> = p
             .observations
             .iter()
-            .zip(&ne.residuals)
+            .zip(res)
             .filter(|(ob, _)| ob.device == d)
             .filter_map(|(_, r)| r.map(|e| e.norm()))
             .collect();
         let sigma = robust_sigma(&mut norms);
         for (i, ob) in p.observations.iter().enumerate() {
             if ob.device == d {
-                active[i] =
-                    ne.residuals[i].is_some_and(|e| e.norm() <= o.outlier_sigmas * sigma.max(1e-9));
+                active[i] = res[i].is_some_and(|e| e.norm() <= o.outlier_sigmas * sigma.max(1e-9));
             }
         }
     }
-    let (s, it2) = levenberg_marquardt(p, s, &l, o, &active, None);
-    let an = anchors(p, &s, o);
-    let ne = normal_equations(p, &s, &l, &an, &active, None, true);
-    let fixed = fixed_parameters(&l, &ne.jtj);
-    let free = fixed.iter().filter(|f| !**f).count();
-    let n = 2 * active.iter().filter(|a| **a).count();
-    let sigma = (ne.cost / (n.saturating_sub(free)).max(1) as f64).sqrt();
-    let mut a = ne.jtj.clone();
-    for i in 0..l.len {
-        if fixed[i] {
-            a.row_mut(i).fill(0.0);
-            a.column_mut(i).fill(0.0);
-            a[(i, i)] = 1.0;
-        }
+    active
+}
+
+/// Refuses observations naming a device, board pose or camera out of range.
+fn check_problem(p: &Problem, o: &Options) -> Result<(), CalibError> {
+    if o.reference >= p.devices.len() {
+        return Err(CalibError::Degenerate("reference device out of range"));
     }
-    let inverse = a
-        .cholesky()
+    let (nd, nk) = (p.devices.len(), p.boards.len());
+    if p.observations
+        .iter()
+        .any(|ob| ob.device >= nd || ob.pose >= nk || ob.via.is_some_and(|v| v.camera >= nd))
+    {
+        return Err(CalibError::Degenerate(
+            "an observation names a device or board pose out of range",
+        ));
+    }
+    Ok(())
+}
+
+/// Run the adjustment: robust phase, outlier rejection per device, plain phase, covariance.
+pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
+    check_problem(p, o)?;
+    let l = Layout::new(p, o);
+    let by_pose = group_by_pose(p);
+    let start = State {
+        devices: p.devices.clone(),
+        boards: p.boards.clone(),
+        front_back: p.board.side_transform(Side::Back),
+        bend: Bend::flat(&p.board),
+    };
+    let all = vec![true; p.observations.len()];
+    let robust = levenberg_marquardt(p, start, &l, o, &all, Some(o.huber), &by_pose);
+    let res = residuals(p, &robust.state, &l, &anchors(p, &robust.state, o));
+    let active = inliers(p, &res, o);
+    let plain = levenberg_marquardt(p, robust.state, &l, o, &active, None, &by_pose);
+    let s = plain.state;
+    let an = anchors(p, &s, o);
+    let (sys, cost, res) = linear_system(p, &s, &l, &an, &active, None, &by_pose);
+    let sys = sys.scaled();
+    let free = held(&sys).iter().filter(|h| !**h).count();
+    let n = 2 * active
+        .iter()
+        .zip(&res)
+        .filter(|(a, r)| **a && r.is_some())
+        .count();
+    let sigma = (cost / (n.saturating_sub(free)).max(1) as f64).sqrt();
+    // Cov(θ) ≈ σ²(JᵀJ)⁻¹ (§8, (38)); held parameters get zero rows and columns.
+    let covariance = sys
+        .covariance()
         .ok_or(CalibError::Degenerate(
             "normal equations are singular: a device or pose is not constrained",
         ))?
-        .inverse();
-    // Cov(θ) ≈ σ²(JᵀJ)⁻¹ (§8); fixed parameters get zero rows and columns.
-    let cov = DMatrix::from_fn(l.len, l.len, |i, j| {
-        if fixed[i] || fixed[j] {
-            0.0
-        } else {
-            sigma * sigma * inverse[(i, j)]
-        }
-    });
-    let std = |i: usize| cov[(i, i)].sqrt();
-
+        .times(sigma * sigma);
+    let std = |i: usize| covariance.variance(i).max(0.0).sqrt();
     let intrinsic_std = l
         .lens
         .iter()
@@ -851,8 +1030,10 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         .iter()
         .map(|at| at.map_or([0.0; 6], |at| std::array::from_fn(|j| std(at + j))))
         .collect();
-    let residuals = ne
-        .residuals
+    let bend_std = l
+        .bend
+        .map_or([0.0; 3], |at| std::array::from_fn(|j| std(at + j)));
+    let residuals = res
         .iter()
         .zip(&active)
         .map(|(r, a)| Residual {
@@ -860,9 +1041,6 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
             outlier: !a,
         })
         .collect();
-    let bend_std = l
-        .bend
-        .map_or([0.0; 3], |at| std::array::from_fn(|j| std(at + j)));
     Ok(Solution {
         devices: s.devices,
         boards: s.boards,
@@ -882,8 +1060,9 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
             .collect(),
         board_index: l.board.clone(),
         side_index: l.side,
-        covariance: cov,
-        iterations: it1 + it2,
+        covariance,
+        iterations: robust.iterations + plain.iterations,
+        converged: plain.converged,
     })
 }
 
@@ -891,6 +1070,103 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
 mod tests {
     use super::*;
     use crate::calib::synthetic::SyntheticRig;
+
+    #[test]
+    fn results_do_not_depend_on_the_thread_count() {
+        let rig = SyntheticRig::paper(4, 0.1, 9);
+        let start = rig.perturbed_start(10);
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| adjust(&start, &Options::default()).unwrap())
+        };
+        let (a, b) = (run(1), run(2));
+        let bits = |s: &Solution| -> Vec<u64> {
+            let mut v: Vec<f64> = vec![s.sigma];
+            for d in &s.devices {
+                v.extend(d.model.lens_vector().iter());
+                v.extend(d.pose.to_homogeneous().iter());
+            }
+            for b in &s.boards {
+                v.extend(b.to_homogeneous().iter());
+            }
+            for r in &s.residuals {
+                v.extend(r.error.iter());
+            }
+            v.extend(s.intrinsic_std.iter().flatten());
+            v.into_iter().map(f64::to_bits).collect()
+        };
+        assert_eq!(a.iterations, b.iterations);
+        assert!(bits(&a) == bits(&b), "1 and 2 threads differ");
+    }
+
+    #[test]
+    fn assembled_gradient_matches_the_cost_on_a_ring_rig() {
+        // The normal equations as assembled pose by pose (35) against central differences
+        // of the cost, at a perturbed start of a ring rig where devices see different poses.
+        let rig = SyntheticRig::ring(20, 4, 4, 0.1, 1);
+        let problem = rig.perturbed_start(2);
+        let o = Options::default();
+        let l = Layout::new(&problem, &o);
+        let state = State {
+            devices: problem.devices.clone(),
+            boards: problem.boards.clone(),
+            front_back: problem.board.side_transform(Side::Back),
+            bend: Bend::flat(&problem.board),
+        };
+        let an = anchors(&problem, &state, &o);
+        let active = vec![true; problem.observations.len()];
+        let by_pose = group_by_pose(&problem);
+        for huber in [None, Some(1.0)] {
+            let (sys, c0, res) = linear_system(&problem, &state, &l, &an, &active, huber, &by_pose);
+            let none = vec![false; l.len];
+            let c = |d: &DVector<f64>| {
+                cost(
+                    &residuals(&problem, &state.update(&l, d, &none), &l, &an),
+                    &res,
+                    &active,
+                    huber,
+                )
+            };
+            let mut worst = 0.0f64;
+            for i in (0..l.len).step_by(13) {
+                let g = if i < l.m {
+                    sys.g[i]
+                } else {
+                    sys.poses[(i - l.m) / 6].g[(i - l.m) % 6]
+                };
+                // Steps well above the rounding of a cost of ~10¹⁰: focal length and principal
+                // point (px), distortion, then pose increments (rad, mm).
+                let lens = l.lens.iter().find(|&&(at, q)| i >= at && i < at + q.len());
+                let h = match lens {
+                    Some(&(at, _)) if i < at + 4 => 1e-3,
+                    Some(_) => 1e-5,
+                    None => 1e-6,
+                };
+                // Central differences at h and h/2, Richardson-extrapolated (error O(h⁴)):
+                // the cost is strongly curved this far from the minimum.
+                let central = |h: f64| {
+                    let mut d = DVector::zeros(l.len);
+                    d[i] = h;
+                    let plus = c(&d);
+                    d[i] = -h;
+                    (plus - c(&d)) / (2.0 * h)
+                };
+                let fd = (4.0 * central(h / 2.0) - central(h)) / 3.0;
+                let rel = (fd + 2.0 * g).abs() / (fd.abs() + 1e-3 * c0.sqrt());
+                worst = worst.max(rel);
+                assert!(
+                    rel < 1e-3,
+                    "{huber:?} parameter {i} (m = {}): −2g = {} vs fd {fd}",
+                    l.m,
+                    -2.0 * g
+                );
+            }
+            eprintln!("{huber:?}: worst relative gradient error {worst:.2e}");
+        }
+    }
 
     #[test]
     fn jacobian_columns_match_finite_differences() {

@@ -134,7 +134,8 @@ pub fn lens_covariance(cal: &Calibration, d: usize) -> (Vec<LensParam>, DMatrix<
     let free: Vec<LensParam> = params.iter().collect();
     let at = sol.index[d].0;
     let n = free.len();
-    (free, sol.covariance.view((at, at), (n, n)).into_owned())
+    let idx: Vec<usize> = (at..at + n).collect();
+    (free, sol.covariance.block(&idx))
 }
 
 /// Projection uncertainty (px, 1σ along the worst direction) of device `d` at `pixel`:

@@ -12,6 +12,7 @@ pub mod circle;
 pub mod diagnostics;
 pub mod geometric;
 pub mod posegraph;
+pub mod schur;
 pub mod solve;
 #[cfg(any(test, feature = "testkit"))]
 pub mod synthetic;
