@@ -1,4 +1,6 @@
-//! The capture-side commands: `capture` and `decode`.
+//! The capture-side commands: `capture`, `decode` and `run` (with its console and capture script).
+
+mod script;
 
 use anyhow::Context;
 use crossbeam_channel::{Receiver, RecvTimeoutError};
@@ -202,9 +204,7 @@ pub fn run(
     let t = std::time::Instant::now();
     let file = hexcal::rig::file::RigFile::load(rig)?;
     let (outcome, jitter) = match hexcal::app::script::plan_of(&file)? {
-        Some(plan) => {
-            crate::cli_script::run(file, plan, (rig, out), &options, progress, &mut show)?
-        }
+        Some(plan) => script::run(file, plan, (rig, out), &options, progress, &mut show)?,
         None => {
             let mut place = placer(auto, false, options.stop.clone(), button);
             let mut print = printer(progress);

@@ -51,7 +51,6 @@ macro_rules! eprint {
 #[cfg(feature = "bench")]
 mod benchcmd;
 mod cli;
-mod cli_script;
 
 /// Exit status of a command that failed (refused input or any other error).
 const EXIT_FAILED: u8 = 1;

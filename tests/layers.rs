@@ -89,8 +89,7 @@ fn graph() -> BTreeMap<String, BTreeMap<String, PathBuf>> {
         let test_file = parts.last().is_some_and(|p| p == "tests")
             || parts[..parts.len() - 1].iter().any(|p| p == "tests");
         let module = parts[0].clone();
-        if test_file || ["lib", "main", "cli", "cli_script", "benchcmd"].contains(&module.as_str())
-        {
+        if test_file || ["lib", "main", "cli", "benchcmd"].contains(&module.as_str()) {
             continue;
         }
         let text = std::fs::read_to_string(&file).unwrap();

@@ -1,7 +1,7 @@
 //! `hexcal run` on a rig file with a capture script: the script places every pose, the
 //! operator's Enter answers its prompts, and its step timing is printed at the end.
 
-use crate::cli::{operator_lines, printer, Progress};
+use super::{operator_lines, printer, Progress};
 use hexcal::app::progress::{Event, Outcome};
 use hexcal::app::run::RunOptions;
 use hexcal::app::script::{Jitter, ScriptRun};
