@@ -33,6 +33,9 @@ pub enum OpenError {
     /// A device's driver.
     #[error("{0}")]
     Device(#[from] DeviceError),
+    /// A projector's driver (its error names the projector).
+    #[error("projector {0}")]
+    Projector(DeviceError),
     /// The trigger controller.
     #[error("trigger: {0}")]
     Trigger(#[from] TriggerError),
@@ -265,10 +268,11 @@ fn open_window(
     height: u32,
 ) -> Result<Box<dyn Projector>, OpenError> {
     let monitor = monitor.ok_or_else(|| OpenError::Spec {
-        device: name.to_string(),
+        device: format!("projector {name}"),
         reason: "monitor is required".into(),
     })?;
-    let projector = super::window::WindowProjector::open(name, monitor, width, height)?;
+    let projector = super::window::WindowProjector::open(name, monitor, width, height)
+        .map_err(OpenError::Projector)?;
     Ok(Box::new(projector))
 }
 
@@ -280,7 +284,7 @@ fn open_window(
     _height: u32,
 ) -> Result<Box<dyn Projector>, OpenError> {
     Err(OpenError::Spec {
-        device: name.to_string(),
+        device: format!("projector {name}"),
         reason: "driver window is not built in; rebuild with `--features window`".into(),
     })
 }
