@@ -160,7 +160,7 @@ pub const VALID_UNCERTAINTY: f64 = 1.0;
 const REGION_DIRECTIONS: usize = 36;
 
 /// Device `d`'s valid-intrinsics region: a polygon (px) around the principal point whose
-/// vertex in each of [`REGION_DIRECTIONS`] directions is the farthest point, walking out in
+/// vertex in each of 36 directions is the farthest point, walking out in
 /// 1 % steps of the image diagonal and within the image, up to which the
 /// [`projection_uncertainty`] stays below `threshold` (px). `None` when the principal
 /// point itself is not below it. A star-shaped approximation of the region.
