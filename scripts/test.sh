@@ -19,26 +19,24 @@ if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
 fi
 
 rustup component add rustfmt clippy >/dev/null 2>&1 || true
+# Everything is built once, with the hardware drivers (features `aravis`, `v4l2`, `window`)
+# and the benchmark harnesses (`bench`) switched on, so the driver tests run in the same
+# pass as the rest: the Aravis driver through the GigE Vision loopback camera; the V4L2
+# driver on a simulated node behind its device trait (no /dev/video in CI); the window
+# projector, each test on its own Xvfb; and the hardware loop — loopback camera, trigger
+# controller on a pty and window projector through the capture engine to decoded stacks.
+features=hexcal/aravis,hexcal/loopback,hexcal/v4l2,hexcal/window,hexcal/bench
 cargo fmt --all --check
-cargo clippy --workspace --all-targets -- -D warnings
-cargo test --workspace
+cargo clippy --workspace --all-targets --features "$features" -- -D warnings
+# The code a build without those features compiles instead (`cfg(not(feature = …))`).
+cargo clippy -p hexcal --lib --bins -- -D warnings
+cargo test --workspace --features "$features"
 # Fuzzing regressions (docs/fuzzing.md): every corpus input once, then a seeded mutation
 # run of every target, 40 s in all; a panic, a slow input or an allocation past the cap
 # fails CI.
-cargo run -q -p hexcal-fuzz -- ci --seconds 40
-# The hardware drivers (features `aravis`, `v4l2`, `window`) and the benchmark harnesses
-# (`bench`), built once together: lints,
-# then only their tests (no second full-workspace test run): the Aravis driver through the
-# GigE Vision loopback camera; the V4L2 driver on a simulated node behind its device trait
-# (no /dev/video in CI); the window projector, each test on its own Xvfb; and the hardware
-# loop — loopback camera, trigger controller on a pty and window projector through the
-# capture engine to decoded stacks.
-hw=aravis,loopback,v4l2,window,bench
-cargo clippy --features $hw --all-targets -- -D warnings
-cargo test --features $hw --test aravis_loopback --test window_projector --test hardware_loop
-cargo test --features $hw --lib rig::v4l2
+cargo run -q -p hexcal-fuzz --features "$features" -- ci --seconds 40
 # Documentation: every intra-doc link resolves (drivers included).
-RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --features $hw
+RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --features "$features"
 # The firmware protocol must stay no_std: build it for the controller's target (RP2040).
 if rustup target add thumbv6m-none-eabi >/dev/null 2>&1; then
     cargo build -p hexcal-firmware-protocol --target thumbv6m-none-eabi
