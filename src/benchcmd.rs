@@ -377,7 +377,8 @@ fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
 /// `hexcal bench capture`: one simulated pose through the engine, frames discarded.
 /// `hexcal bench guide`: guided against fixed, poses to done and accuracy.
 fn bench_guide(rig: &Path, sigma: f64, max_poses: usize, seed: u64) -> anyhow::Result<()> {
-    let b = hexcal::bench::guide::bench_guide(rig, sigma, max_poses, seed)?;
+    let b =
+        hexcal::bench::guide::bench_guide(rig, sigma, max_poses, seed, &mut |l| eprintln!("{l}"))?;
     println!(
         "rig {}: threshold {} px, observation noise {} px, guided placement noise {}° / {} mm",
         rig.display(),
@@ -387,11 +388,7 @@ fn bench_guide(rig: &Path, sigma: f64, max_poses: usize, seed: u64) -> anyhow::R
         hexcal::bench::guide::PLACEMENT_MM
     );
     for r in &b.runs {
-        let trail: Vec<String> = r
-            .worst
-            .iter()
-            .map(|(k, w)| format!("{k}:{w:.3}"))
-            .collect();
+        let trail: Vec<String> = r.worst.iter().map(|(k, w)| format!("{k}:{w:.3}")).collect();
         println!("{:<7} worst px after poses  {}", r.label, trail.join("  "));
     }
     println!(
@@ -405,8 +402,10 @@ fn bench_guide(rig: &Path, sigma: f64, max_poses: usize, seed: u64) -> anyhow::R
         println!(
             "{:<7} {:>14} {:>12.4} {:>12.3} {:>12.4} {:>12.3} {:>10.2}",
             r.label,
-            r.done_at
-                .map_or_else(|| format!("> {}", r.worst.last().map_or(0, |w| w.0)), |k| k.to_string()),
+            r.done_at.map_or_else(
+                || format!("> {}", r.worst.last().map_or(0, |w| w.0)),
+                |k| k.to_string()
+            ),
             100.0 * max(&|c| c.focal_error),
             max(&|c| c.principal_error),
             max(&|c| c.rotation_error_deg),

@@ -14,7 +14,8 @@ use crate::calib::diagnostics::lens_covariance;
 use crate::calib::solve::{Calibration, DeviceInfo};
 use crate::camera::{CameraModel, LensParam};
 use nalgebra::{
-    DMatrix, Isometry3, Matrix3, Matrix6, Point2, Point3, Translation3, UnitQuaternion, Vector3,
+    DMatrix, Isometry3, Matrix2x6, Matrix3, Matrix6, Point2, Point3, Translation3, UnitQuaternion,
+    Vector2, Vector3,
 };
 use rayon::prelude::*;
 use serde::Serialize;
@@ -22,6 +23,10 @@ use serde::Serialize;
 /// Points per image side at which a device's worst projection uncertainty is taken
 /// (corners included).
 const GRID: (usize, usize) = (9, 6);
+
+/// Steepest view of the board a detector is trusted with: the angle (deg) between a side's
+/// normal and the line from its centre to the device.
+pub const MAX_VIEW_ANGLE_DEG: f64 = 60.0;
 
 /// Fewest points a device must see of a candidate pose for it to be drawn in its thumbnail.
 const MIN_SEEN: usize = 12;
@@ -97,9 +102,9 @@ fn side_frame(side: Side, front_back: &Isometry3<f64>) -> Isometry3<f64> {
 }
 
 /// What `devices` (T_device_ref) see of the board at T_ref_board `pose`: each camera every
-/// circle of the side facing it that falls in its image, and each projector the same
-/// circle when the side faces it too and it falls in its raster (projectors are observed
-/// through the cameras, §7).
+/// circle of the side facing it (within [`MAX_VIEW_ANGLE_DEG`]) that falls in its image, and
+/// each projector the same circle when the side faces it too and it falls in its raster
+/// (projectors are observed through the cameras, §7).
 pub fn sightings(
     board: &Board,
     devices: &[Device],
@@ -108,7 +113,8 @@ pub fn sightings(
 ) -> Vec<Sighting> {
     let faces = |dev: &Device, side: Side| {
         let t = dev.pose * pose * side_frame(side, front_back);
-        ((t.inverse() * Point3::origin()).z > 0.0).then_some(t)
+        let eye = (t.inverse() * Point3::origin()).coords;
+        (eye.z > MAX_VIEW_ANGLE_DEG.to_radians().cos() * eye.norm()).then_some(t)
     };
     let mut out = Vec::new();
     for (c, cam) in devices.iter().enumerate() {
@@ -238,7 +244,7 @@ fn information(
     let mut haa = DMatrix::<f64>::zeros(n, n);
     let mut hab = DMatrix::<f64>::zeros(n, 6);
     let mut hbb = Matrix6::<f64>::zeros();
-    let mut cols: Vec<(usize, [f64; 2])> = Vec::with_capacity(24);
+    let mut cols: Vec<(usize, Vector2<f64>)> = Vec::with_capacity(24);
     for s in seen {
         let dev = &devices[s.device];
         let p = board.position(s.hex);
@@ -249,36 +255,26 @@ fn information(
         cols.clear();
         let (at, free) = &b.lens[s.device];
         for (k, f) in free.iter().enumerate() {
-            cols.push((at + k, [j.d_lens[(0, f.index())], j.d_lens[(1, f.index())]]));
+            cols.push((at + k, j.d_lens.column(f.index()).into_owned()));
         }
         if let Some(at) = b.pose[s.device] {
             for k in 0..6 {
-                cols.push((at + k, [j.d_pose[(0, k)], j.d_pose[(1, k)]]));
+                cols.push((at + k, j.d_pose.column(k).into_owned()));
             }
         }
         // Left increment of the board pose: dX_ref = −[X_ref]×·ω + τ.
-        let sk = skew(&x_ref.coords);
-        let mut jb = [[0.0; 6]; 2];
-        for r in 0..2 {
-            for k in 0..3 {
-                let dp = j.d_point.row(r);
-                jb[r][k] = -(dp * sk.column(k))[(0, 0)];
-                jb[r][k + 3] = dp[k];
+        let mut jb = Matrix2x6::<f64>::zeros();
+        jb.fixed_columns_mut::<3>(0)
+            .copy_from(&(-j.d_point * skew(&x_ref.coords)));
+        jb.fixed_columns_mut::<3>(3).copy_from(&j.d_point);
+        for (ci, vi) in &cols {
+            for (cj, vj) in &cols {
+                haa[(*ci, *cj)] += vi.dot(vj);
             }
+            let mut row = hab.fixed_view_mut::<1, 6>(*ci, 0);
+            row += vi.transpose() * jb;
         }
-        for &(ci, vi) in &cols {
-            for &(cj, vj) in &cols {
-                haa[(ci, cj)] += vi[0] * vj[0] + vi[1] * vj[1];
-            }
-            for k in 0..6 {
-                hab[(ci, k)] += vi[0] * jb[0][k] + vi[1] * jb[1][k];
-            }
-        }
-        for k in 0..6 {
-            for l in 0..6 {
-                hbb[(k, l)] += jb[0][k] * jb[0][l] + jb[1][k] * jb[1][l];
-            }
-        }
+        hbb += jb.transpose() * jb;
     }
     if let Some(inv) = hbb.try_inverse() {
         let hbb_inv = DMatrix::from_fn(6, 6, |r, c| inv[(r, c)]);

@@ -128,10 +128,13 @@ fn observe(
                 }
             }
             Some(c) => {
-                let Some(p) = views.last_mut().and_then(|v| v.points.last_mut()) else {
+                let Some(v) = views.last_mut().filter(|v| v.camera == c) else {
                     continue;
                 };
-                if p.hex == s.hex && views.last().is_some_and(|v| v.camera == c) {
+                let Some(p) = v.points.last_mut() else {
+                    continue;
+                };
+                if p.hex == s.hex {
                     p.projectors.push(ProjectorPixel {
                         projector: s.device,
                         pixel: s.pixel + n(),
@@ -200,7 +203,13 @@ struct Setup<'a> {
 
 /// One operator: the first [`START_POSES`] of the schedule, then the schedule (`guided`
 /// false) or the guidance's suggestions, until done or `max_poses`.
-fn operate(s: &Setup, guided: bool, max_poses: usize, seed: u64) -> Result<OperatorRun, AppError> {
+fn operate(
+    s: &Setup,
+    guided: bool,
+    max_poses: usize,
+    seed: u64,
+    log: &mut dyn FnMut(&str),
+) -> Result<OperatorRun, AppError> {
     let mut rng = StdRng::seed_from_u64(seed);
     let mut views = Vec::new();
     let mut run = OperatorRun {
@@ -227,6 +236,15 @@ fn operate(s: &Setup, guided: bool, max_poses: usize, seed: u64) -> Result<Opera
         let (cal, g, done) = interim(s.board, s.devices, k + 1, &views, s.threshold)?;
         seconds += t.elapsed().as_secs_f64();
         run.worst.push((k + 1, worst(&g)));
+        log(&format!(
+            "{}: {} poses, worst {:.3} px{}",
+            run.label,
+            k + 1,
+            worst(&g),
+            g.suggestion
+                .as_ref()
+                .map_or(String::new(), |s| format!("; next: {}", s.sentence))
+        ));
         run.truth = check_truth(&cal, s.world);
         if done {
             run.done_at = Some(k + 1);
@@ -243,12 +261,13 @@ fn operate(s: &Setup, guided: bool, max_poses: usize, seed: u64) -> Result<Opera
 }
 
 /// Both operators on the rig file at `rig_path`: observation noise `sigma` (px), the guided
-/// one stopping at `max_poses`, noise from `seed`.
+/// one stopping at `max_poses`, noise from `seed`; `log` hears each interim calibration.
 pub fn bench_guide(
     rig_path: &Path,
     sigma: f64,
     max_poses: usize,
     seed: u64,
+    log: &mut dyn FnMut(&str),
 ) -> Result<GuideBench, AppError> {
     let rig = RigFile::load(rig_path)?;
     let board = Board::resolve(&rig.board)?;
@@ -280,8 +299,8 @@ pub fn bench_guide(
         noise: Normal::new(0.0, sigma).map_err(|e| AppError::Input(e.to_string()))?,
     };
     let runs = vec![
-        operate(&setup, false, max_poses, seed)?,
-        operate(&setup, true, max_poses, seed)?,
+        operate(&setup, false, max_poses, seed, log)?,
+        operate(&setup, true, max_poses, seed, log)?,
     ];
     Ok(GuideBench {
         threshold: setup.threshold,

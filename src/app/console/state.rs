@@ -137,7 +137,10 @@ mod tests {
         g.devices[0].worst = Some(0.31);
         s.guidance = Some(g.clone());
         s.judge();
-        assert_eq!(s.missing, ["proj0: projection uncertainty 0.31 px > 0.25 px"]);
+        assert_eq!(
+            s.missing,
+            ["proj0: projection uncertainty 0.31 px > 0.25 px"]
+        );
         g.devices[0].worst = Some(0.2);
         s.guidance = Some(g);
         s.judge();
