@@ -45,8 +45,8 @@ pub struct DeviceUncertainty {
 /// The next pose to place.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Suggestion {
-    /// The device whose uncertainty limits the rig (the pose is chosen for the whole rig,
-    /// the sentence is told from this device's view).
+    /// The device the sentence is told for: the one that limits the rig when it sees the
+    /// pose, else the one that sees most of it (the pose is chosen for the whole rig).
     pub target: String,
     /// The worst device's uncertainty predicted after the pose (px).
     pub predicted: f64,
@@ -402,22 +402,34 @@ fn suggest(
         .into_par_iter()
         .filter_map(|c| predict(&c).map(|p| (c, p)))
         .min_by(|a, b| a.1.total_cmp(&b.1))?;
-    // The device told about: one not yet calibrated, else the worst one.
-    let target = now.iter().find(|u| u.worst.is_none()).or_else(|| {
-        now.iter()
-            .max_by(|a, b| a.worst.unwrap_or(0.0).total_cmp(&b.worst.unwrap_or(0.0)))
-    })?;
+    // The device told about: one not yet calibrated, else the worst one when it sees the
+    // pose, else the one that sees most of it.
+    let seen = sightings(&cal.board, &cal.devices, &sol.front_back, &pose);
+    let count = |d: usize| seen.iter().filter(|s| s.device == d).count();
+    let index = |name: &str| cal.devices.iter().position(|d| d.name == name);
+    let uncalibrated = now.iter().find(|u| u.worst.is_none());
+    let worst_device = now
+        .iter()
+        .max_by(|a, b| a.worst.unwrap_or(0.0).total_cmp(&b.worst.unwrap_or(0.0)))
+        .and_then(|u| index(&u.name))
+        .filter(|&d| count(d) >= MIN_SEEN);
+    let told = worst_device.or_else(|| (0..cal.devices.len()).max_by_key(|&d| count(d)))?;
     let outlines = outlines(cal, devices, &pose);
-    let sentence = match cal.devices.iter().position(|d| d.name == target.name) {
-        Some(d) => sentence(cal, d, &pose),
-        None => format!(
-            "show the board to {} (not calibrated yet: it needs the board in view in {} poses)",
-            target.name,
-            crate::calib::zhang::MIN_VIEWS
+    let (target, sentence) = match uncalibrated {
+        Some(u) => (
+            u.name.clone(),
+            format!(
+                "show the board to {} (not calibrated yet: it needs the board in view in {} \
+                 poses); then {}",
+                u.name,
+                crate::calib::zhang::MIN_VIEWS,
+                sentence(cal, told, &pose)
+            ),
         ),
+        None => (cal.devices[told].name.clone(), sentence(cal, told, &pose)),
     };
     Some(Suggestion {
-        target: target.name.clone(),
+        target,
         predicted,
         sentence,
         outlines,

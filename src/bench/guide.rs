@@ -189,6 +189,21 @@ fn placed(pose: &Isometry3<f64>, rng: &mut StdRng) -> Isometry3<f64> {
     )
 }
 
+/// The board at the schedule's mean position, its front turned to face `device`.
+fn facing(device: &Device, schedule: &[Isometry3<f64>]) -> Isometry3<f64> {
+    let centre = schedule
+        .iter()
+        .map(|b| b.translation.vector)
+        .sum::<Vector3<f64>>()
+        / schedule.len().max(1) as f64;
+    let eye = device.pose.inverse() * nalgebra::Point3::origin();
+    let z = (eye.coords - centre).normalize();
+    let r = UnitQuaternion::rotation_between(&Vector3::z(), &z).unwrap_or_else(|| {
+        UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI)
+    });
+    Isometry3::from_parts(Translation3::from(centre), r)
+}
+
 /// Everything one operator's loop needs.
 struct Setup<'a> {
     board: &'a Board,
@@ -250,10 +265,14 @@ fn operate(
             run.done_at = Some(k + 1);
             break;
         }
-        match g.suggestion {
-            Some(sug) => next = sug.pose,
-            None if guided => break,
-            None => {}
+        // Told to show the board to a device not calibrated yet, the operator turns it
+        // to face that device (where it stands is known to a person at the rig).
+        let uncalibrated = g.devices.iter().position(|d| d.worst.is_none());
+        match (uncalibrated, g.suggestion) {
+            (Some(d), _) => next = facing(&s.truth[d], s.schedule),
+            (None, Some(sug)) => next = sug.pose,
+            (None, None) if guided => break,
+            (None, None) => {}
         }
     }
     run.seconds_per_pose = seconds / run.worst.len().max(1) as f64;

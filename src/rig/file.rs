@@ -221,7 +221,7 @@ pub struct GuidanceSpec {
 }
 
 /// Default of [`GuidanceSpec::uncertainty_px`] (px).
-pub const DEFAULT_UNCERTAINTY_PX: f64 = 0.25;
+pub const DEFAULT_UNCERTAINTY_PX: f64 = 1.0;
 
 fn default_uncertainty() -> f64 {
     DEFAULT_UNCERTAINTY_PX

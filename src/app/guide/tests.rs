@@ -160,3 +160,23 @@ fn hull_keeps_the_outer_points() {
         assert!(h.contains(&Point2::new(c.0, c.1)));
     }
 }
+
+#[test]
+fn the_rig_file_threshold_is_read_and_checked() {
+    let text = include_str!("../../../rigs/sim-paper.toml");
+    let rig = crate::rig::file::RigFile::parse(text, "sim-paper.toml").unwrap();
+    assert_eq!(
+        rig.guidance.uncertainty_px,
+        crate::rig::file::DEFAULT_UNCERTAINTY_PX
+    );
+    let set = format!("{text}\n[guidance]\nuncertainty_px = 0.4\n");
+    let rig = crate::rig::file::RigFile::parse(&set, "sim-paper.toml").unwrap();
+    assert_eq!(rig.guidance.uncertainty_px, 0.4);
+    for bad in ["-1.0", "0.0", "nan", "1e9"] {
+        let text = format!("{text}\n[guidance]\nuncertainty_px = {bad}\n");
+        let e = crate::rig::file::RigFile::parse(&text, "sim-paper.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("guidance.uncertainty_px"), "{bad}: {e}");
+    }
+}
