@@ -82,7 +82,7 @@ fn truth_devices(world: &SimWorld) -> (Vec<Device>, Isometry3<f64>) {
         .map(|(d, kind)| Device {
             name: d.name.clone(),
             kind,
-            model: d.model.clone(),
+            model: d.model,
             pose: d.pose * ref_rig.inverse(),
         })
         .collect();
