@@ -37,6 +37,23 @@ pub enum Bench {
         #[arg(long, default_value = "rigs/sim-paper.toml")]
         rig: PathBuf,
     },
+    /// A guided operator (each next pose where the console's guidance suggests, placed with
+    /// noise) against the rig's fixed schedule: poses until every device's projection
+    /// uncertainty is below the rig's threshold, and accuracy against the truth.
+    Guide {
+        /// The rig file (simulated devices and `[poses]`, the fixed schedule).
+        #[arg(long, default_value = "rigs/sim-paper.toml")]
+        rig: PathBuf,
+        /// Observation noise σ (px).
+        #[arg(long, default_value_t = 0.1)]
+        sigma: f64,
+        /// Most poses of the guided operator.
+        #[arg(long, default_value_t = 20)]
+        max_poses: usize,
+        /// Seed of the noise and the placement errors.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// Step-timing jitter of a rig file's capture script on its simulated devices (the
     /// stage on a pty, waits, timed captures), captures taking no time.
     Script {
@@ -196,6 +213,12 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
     match what {
         Bench::Capture { rig } => bench_capture(&rig)?,
         Bench::Script { rig } => bench_script(&rig)?,
+        Bench::Guide {
+            rig,
+            sigma,
+            max_poses,
+            seed,
+        } => bench_guide(&rig, sigma, max_poses, seed)?,
         Bench::Aravis {
             width,
             height,
@@ -352,6 +375,47 @@ fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
 }
 
 /// `hexcal bench capture`: one simulated pose through the engine, frames discarded.
+/// `hexcal bench guide`: guided against fixed, poses to done and accuracy.
+fn bench_guide(rig: &Path, sigma: f64, max_poses: usize, seed: u64) -> anyhow::Result<()> {
+    let b =
+        hexcal::bench::guide::bench_guide(rig, sigma, max_poses, seed, &mut |l| eprintln!("{l}"))?;
+    println!(
+        "rig {}: threshold {} px, observation noise {} px, guided placement noise {}° / {} mm",
+        rig.display(),
+        b.threshold,
+        b.sigma,
+        hexcal::bench::guide::PLACEMENT_DEG,
+        hexcal::bench::guide::PLACEMENT_MM
+    );
+    for r in &b.runs {
+        let trail: Vec<String> = r.worst.iter().map(|(k, w)| format!("{k}:{w:.3}")).collect();
+        println!("{:<7} worst px after poses  {}", r.label, trail.join("  "));
+    }
+    println!(
+        "{:<7} {:>14} {:>12} {:>12} {:>12} {:>12} {:>10}",
+        "", "poses to done", "focal err %", "pp err px", "rot err deg", "pos err mm", "s/pose"
+    );
+    for r in &b.runs {
+        let max = |f: &dyn Fn(&hexcal::app::truth::TruthCheck) -> f64| {
+            r.truth.iter().map(f).fold(0.0, f64::max)
+        };
+        println!(
+            "{:<7} {:>14} {:>12.4} {:>12.3} {:>12.4} {:>12.3} {:>10.2}",
+            r.label,
+            r.done_at.map_or_else(
+                || format!("> {}", r.worst.last().map_or(0, |w| w.0)),
+                |k| k.to_string()
+            ),
+            100.0 * max(&|c| c.focal_error),
+            max(&|c| c.principal_error),
+            max(&|c| c.rotation_error_deg),
+            max(&|c| c.position_error_mm),
+            r.seconds_per_pose
+        );
+    }
+    Ok(())
+}
+
 /// `hexcal bench script`: the script's step timing, per kind of step.
 fn bench_script(rig_path: &Path) -> anyhow::Result<()> {
     let scratch = std::env::temp_dir().join(format!("hexcal-bench-script-{}", std::process::id()));

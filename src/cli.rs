@@ -196,13 +196,16 @@ pub fn run(
         options.settle_each_pose = true;
     }
     let button = console.as_ref().map(Console::captures);
+    let t = std::time::Instant::now();
+    let file = hexcal::rig::file::RigFile::load(rig)?;
+    if let Some(c) = console.as_mut() {
+        c.set_threshold(file.guidance.uncertainty_px);
+    }
     let mut show = |e: &hexcal::app::progress::Event| {
         if let Some(c) = console.as_mut() {
             c.event(e);
         }
     };
-    let t = std::time::Instant::now();
-    let file = hexcal::rig::file::RigFile::load(rig)?;
     let (outcome, jitter) = match hexcal::app::script::plan_of(&file)? {
         Some(plan) => script::run(file, plan, (rig, out), &options, progress, &mut show)?,
         None => {

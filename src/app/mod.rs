@@ -5,7 +5,8 @@
 //! - [`capture`]: a rig's poses into a dataset folder;
 //! - [`calibrate`]: a dataset folder or a correspondences file to a calibration;
 //! - [`detect`]: circles and labelled lattice points of image files, with overlays;
-//! - [`console`]: the operator console of `run --console` (a local web page);
+//! - [`console`]: the operator console of `run --console` (a local web page), with
+//!   [`guide`]: per-device projection uncertainty, the done rule and the next pose;
 //! - [`script`]: a rig file's capture script (positioner moves, waits, prompts, timed
 //!   captures) driving `run`, with its timeline and step timing;
 //! - [`process`]: one camera's stack through the stages; [`truth`]: a calibration against a
@@ -15,6 +16,7 @@ pub mod calibrate;
 pub mod capture;
 pub mod console;
 pub mod detect;
+pub mod guide;
 mod overlay;
 pub mod process;
 pub mod progress;

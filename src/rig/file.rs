@@ -210,6 +210,31 @@ pub struct PosesSpec {
     pub absent: Vec<usize>,
 }
 
+/// The console's done rule (`hexcal run --console`, docs/design.md §15).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GuidanceSpec {
+    /// A device is done when its projection uncertainty (px, 1σ) stays below this over its
+    /// whole image.
+    #[serde(default = "default_uncertainty")]
+    pub uncertainty_px: f64,
+}
+
+/// Default of [`GuidanceSpec::uncertainty_px`] (px).
+pub const DEFAULT_UNCERTAINTY_PX: f64 = 1.0;
+
+fn default_uncertainty() -> f64 {
+    DEFAULT_UNCERTAINTY_PX
+}
+
+impl Default for GuidanceSpec {
+    fn default() -> Self {
+        GuidanceSpec {
+            uncertainty_px: DEFAULT_UNCERTAINTY_PX,
+        }
+    }
+}
+
 /// A rig file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -236,6 +261,9 @@ pub struct RigFile {
     /// Board poses of a simulated rig.
     #[serde(default)]
     pub poses: Option<PosesSpec>,
+    /// The operator console's guidance (docs/rig-file.md, "Guidance").
+    #[serde(default)]
+    pub guidance: GuidanceSpec,
     /// Positioners that move the board (docs/rig-file.md, "Scripts and positioners").
     #[serde(rename = "positioner", default)]
     pub positioners: Vec<super::script::PositionerSpec>,
@@ -466,6 +494,13 @@ impl RigFile {
         self.check_trigger(&lines)?;
         self.check_sequence()?;
         self.check_poses()?;
+        let u = self.guidance.uncertainty_px;
+        if !(u.is_finite() && u > 0.0 && u <= 100.0) {
+            return Err((
+                "guidance.uncertainty_px".into(),
+                format!("{u} px is not a projection uncertainty (0 < u ≤ 100 px)"),
+            ));
+        }
         let simulated = self.cameras.iter().any(|c| c.driver == CameraDriver::Sim);
         self.check_script(simulated)
     }

@@ -8,6 +8,7 @@
 //! (served from the binary, no outside file or network) and the capture button's presses.
 //! The page follows the run through server-sent events; pages come and go as they like.
 
+mod guidance;
 mod server;
 pub mod state;
 pub mod stats;
@@ -18,6 +19,7 @@ use super::progress::Event;
 use super::run::FrameTap;
 use crate::board::Board;
 use crate::calib::solve::DeviceInfo;
+use crate::correspond::CameraView;
 use crate::dataset::Dataset;
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 use state::{CameraPanel, State};
@@ -107,6 +109,10 @@ pub struct Console {
     out: PathBuf,
     data: Option<(Dataset, Board)>,
     pending: Vec<(usize, bool)>,
+    /// Every calibration view processed so far, and the poses they come from.
+    views: Vec<CameraView>,
+    poses: std::collections::BTreeSet<usize>,
+    worker: guidance::Worker,
 }
 
 impl Console {
@@ -127,6 +133,7 @@ impl Console {
             status: "starting".into(),
             message: "opening the rig".into(),
             auto,
+            threshold: crate::rig::file::DEFAULT_UNCERTAINTY_PX,
             ..State::default()
         };
         let shared = Arc::new(Shared {
@@ -139,6 +146,19 @@ impl Console {
         });
         shared.publish(&mut lock(&shared.state));
         let server = Arc::new(server);
+        let sh = Arc::clone(&shared);
+        let worker = guidance::Worker::start(move |outcome| {
+            let mut s = lock(&sh.state);
+            s.guiding = false;
+            match outcome {
+                Ok(g) => {
+                    s.guidance = Some(g);
+                    s.guidance_error = None;
+                }
+                Err(e) => s.guidance_error = Some(e),
+            }
+            sh.publish(&mut s);
+        });
         let (srv, sh) = (Arc::clone(&server), Arc::clone(&shared));
         let thread = std::thread::Builder::new()
             .name("console".into())
@@ -154,7 +174,18 @@ impl Console {
             out: out.to_path_buf(),
             data: None,
             pending: Vec::new(),
+            views: Vec::new(),
+            poses: Default::default(),
+            worker,
         })
+    }
+
+    /// Set the done threshold on every device's projection uncertainty (px; the rig
+    /// file's `[guidance] uncertainty_px`).
+    pub fn set_threshold(&mut self, px: f64) {
+        let mut s = lock(&self.shared.state);
+        s.threshold = px;
+        self.shared.publish(&mut s);
     }
 
     /// The page's address.
@@ -280,14 +311,33 @@ impl Console {
             return;
         };
         let mut later = Vec::new();
+        let mut new = false;
         for (pose, held_out) in std::mem::take(&mut self.pending) {
             match data.read_pose_file::<PoseViews>(pose, "views.json") {
-                Ok(Some(v)) => take_views(board, &v, held_out, s),
+                Ok(Some(v)) => {
+                    take_views(board, &v, held_out, s);
+                    if !held_out {
+                        let views = v.stacks.iter().filter_map(|st| st.view.clone());
+                        self.views.extend(views);
+                        self.poses.insert(pose);
+                        new = true;
+                    }
+                }
                 Ok(None) => later.push((pose, held_out)),
                 Err(e) => s.warnings.push(format!("pose {pose}: {e}")),
             }
         }
         self.pending = later;
+        if new && self.poses.len() >= super::calibrate::MIN_CALIBRATION_POSES {
+            s.guiding = true;
+            self.worker.request(guidance::Request {
+                board: board.clone(),
+                devices: super::calibrate::devices_of(&data.info),
+                views: self.views.clone(),
+                poses: self.poses.last().map_or(0, |p| p + 1),
+                threshold: s.threshold,
+            });
+        }
     }
 }
 

@@ -4,15 +4,12 @@
 //! Takes the run's events, the processed poses and the thumbnails; gives [`State`].
 
 use super::stats::{DeviceStats, Overlay};
+use crate::app::guide::Guidance;
 use serde::Serialize;
 
-/// A device needs at least this many calibration poses to be done.
-pub const MIN_POSES: usize = 3;
-/// ... and points in at least this fraction of its coverage cells.
+/// A device is done with points in at least this fraction of its coverage cells, and its
+/// projection uncertainty below the rig's threshold over its whole image.
 pub const MIN_COVERAGE: f64 = 0.3;
-/// ... and board tilts spanning at least this many degrees (views that differ in tilt
-/// separate the focal length from the distance).
-pub const MIN_TILT_SPAN: f64 = 10.0;
 
 /// One camera's picture on the page.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
@@ -57,26 +54,39 @@ pub struct State {
     pub devices: Vec<DeviceStats>,
     /// Problems reading what the run wrote (shown, never fatal).
     pub warnings: Vec<String>,
+    /// The done threshold on every device's projection uncertainty (px).
+    pub threshold: f64,
+    /// An interim calibration is under way.
+    pub guiding: bool,
+    /// What the latest interim calibration says (none before the first).
+    pub guidance: Option<Guidance>,
+    /// Why the latest interim calibration gave no guidance.
+    pub guidance_error: Option<String>,
 }
 
 impl State {
-    /// Recompute the verdict: a device is done with [`MIN_POSES`] poses, [`MIN_COVERAGE`]
-    /// of its cells covered and a tilt span of [`MIN_TILT_SPAN`].
+    /// Recompute the verdict: a device is done with [`MIN_COVERAGE`] of its cells covered
+    /// and, in the latest interim calibration, its worst projection uncertainty at most the
+    /// threshold.
     pub fn judge(&mut self) {
+        let guidance = self.guidance.as_ref();
         self.missing = self
             .devices
             .iter()
             .filter_map(|d| {
                 let mut need = Vec::new();
-                if d.poses < MIN_POSES {
-                    need.push(format!("{} more poses", MIN_POSES - d.poses));
-                }
                 if d.coverage() < MIN_COVERAGE {
                     need.push(format!("coverage {:.0} %", 100.0 * d.coverage()));
                 }
-                let span = d.tilt.map_or(0.0, |[lo, hi]| hi - lo);
-                if span < MIN_TILT_SPAN {
-                    need.push(format!("tilt range {span:.0}°"));
+                let u = guidance.and_then(|g| g.devices.iter().find(|u| u.name == d.name));
+                match (guidance, u.and_then(|u| u.worst)) {
+                    (None, _) => need.push("no interim calibration yet".into()),
+                    (Some(_), None) => need.push("not calibrated yet".into()),
+                    (Some(g), Some(w)) if w > g.threshold => need.push(format!(
+                        "projection uncertainty {w:.2} px > {:.2} px",
+                        g.threshold
+                    )),
+                    _ => {}
                 }
                 (!need.is_empty()).then(|| format!("{}: {}", d.name, need.join(", ")))
             })
@@ -88,11 +98,12 @@ impl State {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::app::guide::DeviceUncertainty;
     use crate::calib::bundle::DeviceKind;
     use crate::calib::solve::DeviceInfo;
 
     #[test]
-    fn done_needs_every_device_posed_covered_and_tilted() {
+    fn done_needs_every_device_covered_and_certain() {
         let info = DeviceInfo {
             name: "proj0".into(),
             kind: DeviceKind::Projector,
@@ -107,15 +118,31 @@ mod tests {
         assert!(!s.done);
         assert_eq!(
             s.missing,
-            ["proj0: 3 more poses, coverage 0 %, tilt range 0°"]
+            ["proj0: coverage 0 %, no interim calibration yet"]
         );
-        let d = &mut s.devices[0];
-        d.poses = 3;
-        d.cells.iter_mut().take(12).for_each(|c| *c = 5);
-        d.tilt = Some([12.0, 21.0]);
+        s.devices[0].cells.iter_mut().take(12).for_each(|c| *c = 5);
+        let mut g = Guidance {
+            devices: vec![DeviceUncertainty {
+                name: "proj0".into(),
+                worst: None,
+                at: None,
+            }],
+            threshold: 0.25,
+            done: false,
+            suggestion: None,
+        };
+        s.guidance = Some(g.clone());
         s.judge();
-        assert_eq!(s.missing, ["proj0: tilt range 9°"]);
-        s.devices[0].tilt = Some([12.0, 22.5]);
+        assert_eq!(s.missing, ["proj0: not calibrated yet"]);
+        g.devices[0].worst = Some(0.31);
+        s.guidance = Some(g.clone());
+        s.judge();
+        assert_eq!(
+            s.missing,
+            ["proj0: projection uncertainty 0.31 px > 0.25 px"]
+        );
+        g.devices[0].worst = Some(0.2);
+        s.guidance = Some(g);
         s.judge();
         assert!(s.done && s.missing.is_empty());
         s.devices.clear();

@@ -1,0 +1,543 @@
+//! Guidance for the person placing the board (issue 19, docs/design.md §15 "Guidance"): from
+//! an interim calibration, each device's worst projection uncertainty over its image, the
+//! done rule, and the next board pose that lowers the worst device's uncertainty most.
+//!
+//! Takes a [`Calibration`] (its devices and covariance) and the rig's devices; gives
+//! [`Guidance`]. Candidate poses are judged without a re-solve: a candidate's synthetic
+//! observations add their information to the device block of the normal equations, with
+//! the candidate's own board pose eliminated (the Schur complement of docs/design.md (37)),
+//! and the device covariance is that matrix's inverse (38).
+
+use crate::board::{Board, Hex, Side};
+use crate::calib::bundle::{Device, DeviceKind};
+use crate::calib::diagnostics::lens_covariance;
+use crate::calib::solve::{Calibration, DeviceInfo};
+use crate::camera::{CameraModel, LensParam};
+use nalgebra::{
+    DMatrix, Isometry3, Matrix2x6, Matrix3, Matrix6, Point2, Point3, Translation3, UnitQuaternion,
+    Vector2, Vector3,
+};
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// Points per image side at which a device's worst projection uncertainty is taken
+/// (corners included).
+const GRID: (usize, usize) = (9, 6);
+
+/// Steepest view of the board a detector is trusted with: the angle (deg) between a side's
+/// normal and the line from its centre to the device.
+pub const MAX_VIEW_ANGLE_DEG: f64 = 60.0;
+
+/// Fewest points a device must see of a candidate pose for it to be drawn in its thumbnail.
+const MIN_SEEN: usize = 12;
+
+/// One device's projection uncertainty over its image.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct DeviceUncertainty {
+    /// Device name.
+    pub name: String,
+    /// Worst projection uncertainty over the image (px, 1σ); `None`: not yet calibrated.
+    pub worst: Option<f64>,
+    /// Where in its image (px) the worst is.
+    pub at: Option<[f64; 2]>,
+}
+
+/// The next pose to place.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Suggestion {
+    /// The device the sentence is told for: the one that limits the rig when it sees the
+    /// pose, else the one that sees most of it (the pose is chosen for the whole rig).
+    pub target: String,
+    /// The worst device's uncertainty predicted after the pose (px).
+    pub predicted: f64,
+    /// What to do, in one sentence.
+    pub sentence: String,
+    /// Per rig device (cameras first), the board's outline (px) in its image at the pose,
+    /// when it would see at least [`MIN_SEEN`] points.
+    pub outlines: Vec<Option<Vec<[f32; 2]>>>,
+    /// The pose T_ref_board, in the calibration's reference frame.
+    #[serde(skip)]
+    pub pose: Isometry3<f64>,
+}
+
+/// What the console tells the operator after an interim calibration.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Guidance {
+    /// Per rig device (cameras first).
+    pub devices: Vec<DeviceUncertainty>,
+    /// The threshold (px).
+    pub threshold: f64,
+    /// Every device calibrated and below the threshold.
+    pub done: bool,
+    /// The next pose, unless done.
+    pub suggestion: Option<Suggestion>,
+}
+
+/// One point a board pose shows a device.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sighting {
+    /// Device index (in the slice given).
+    pub device: usize,
+    /// The side seen.
+    pub side: Side,
+    /// The circle.
+    pub hex: Hex,
+    /// Its pixel.
+    pub pixel: Point2<f64>,
+    /// For a projector: the camera (index) through which it is observed.
+    pub via: Option<usize>,
+}
+
+/// Whether `p` lies in `m`'s image, clear of its border.
+fn inside(m: &CameraModel, p: Point2<f64>) -> bool {
+    p.x > 2.0 && p.y > 2.0 && p.x < f64::from(m.width) - 3.0 && p.y < f64::from(m.height) - 3.0
+}
+
+/// T_board_side of `side` with the back side at `front_back`.
+fn side_frame(side: Side, front_back: &Isometry3<f64>) -> Isometry3<f64> {
+    match side {
+        Side::Front => Isometry3::identity(),
+        Side::Back => *front_back,
+    }
+}
+
+/// What `devices` (T_device_ref) see of the board at T_ref_board `pose`: each camera every
+/// circle of the side facing it (within [`MAX_VIEW_ANGLE_DEG`]) that falls in its image, and
+/// each projector the same circle when the side faces it too and it falls in its raster
+/// (projectors are observed through the cameras, §7).
+pub fn sightings(
+    board: &Board,
+    devices: &[Device],
+    front_back: &Isometry3<f64>,
+    pose: &Isometry3<f64>,
+) -> Vec<Sighting> {
+    let faces = |dev: &Device, side: Side| {
+        let t = dev.pose * pose * side_frame(side, front_back);
+        let eye = (t.inverse() * Point3::origin()).coords;
+        (eye.z > MAX_VIEW_ANGLE_DEG.to_radians().cos() * eye.norm()).then_some(t)
+    };
+    let mut out = Vec::new();
+    for (c, cam) in devices.iter().enumerate() {
+        if cam.kind != DeviceKind::Camera {
+            continue;
+        }
+        for side in Side::BOTH {
+            let Some(t) = faces(cam, side) else { continue };
+            for circle in board.circles(side) {
+                let x = Point3::new(circle.center_2d.x, circle.center_2d.y, 0.0);
+                let Some(px) = cam
+                    .model
+                    .project(&(t * x))
+                    .filter(|p| inside(&cam.model, *p))
+                else {
+                    continue;
+                };
+                let seen = |device, pixel, via| Sighting {
+                    device,
+                    side,
+                    hex: circle.hex,
+                    pixel,
+                    via,
+                };
+                out.push(seen(c, px, None));
+                for (p, proj) in devices.iter().enumerate() {
+                    if proj.kind != DeviceKind::Projector {
+                        continue;
+                    }
+                    let Some(tp) = faces(proj, side) else {
+                        continue;
+                    };
+                    if let Some(u) = proj.model.project(&(tp * x)) {
+                        if inside(&proj.model, u) {
+                            out.push(seen(p, u, Some(c)));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Projection uncertainty (px, 1σ along the worst direction) at `pixel` of a device with
+/// lens `m` whose free lens parameters `free` have covariance `cov`: J·Σ·Jᵀ with J the
+/// lens Jacobian (J5) at the pixel's ray, as `calib::diagnostics::projection_uncertainty`.
+fn uncertainty(
+    m: &CameraModel,
+    free: &[LensParam],
+    cov: &DMatrix<f64>,
+    pixel: Point2<f64>,
+) -> Option<f64> {
+    let ray = m.ray(pixel)?;
+    let j = m
+        .project_with_jacobians(&Isometry3::identity(), &Point3::from(ray))?
+        .d_lens;
+    let js = DMatrix::from_fn(2, free.len(), |r, c| j[(r, free[c].index())]);
+    let s = &js * cov * js.transpose();
+    Some(s.symmetric_eigenvalues().max().max(0.0).sqrt())
+}
+
+/// The worst [`uncertainty`] over a [`GRID`] of `m`'s image, and where.
+fn worst(m: &CameraModel, free: &[LensParam], cov: &DMatrix<f64>) -> Option<(f64, [f64; 2])> {
+    let (nx, ny) = GRID;
+    let (w, h) = (f64::from(m.width) - 1.0, f64::from(m.height) - 1.0);
+    let mut best: Option<(f64, [f64; 2])> = None;
+    for j in 0..ny {
+        for i in 0..nx {
+            let p = Point2::new(
+                w * i as f64 / (nx - 1) as f64,
+                h * j as f64 / (ny - 1) as f64,
+            );
+            let u = uncertainty(m, free, cov, p)?;
+            if best.is_none_or(|(b, _)| u > b) {
+                best = Some((u, [p.x, p.y]));
+            }
+        }
+    }
+    best
+}
+
+/// The device block of the calibration: per calibrated device its free lens parameters and
+/// where its lens and pose columns start in the block; the state indices of the block.
+struct Block {
+    lens: Vec<(usize, Vec<LensParam>)>,
+    pose: Vec<Option<usize>>,
+    state: Vec<usize>,
+}
+
+impl Block {
+    fn of(cal: &Calibration) -> Block {
+        let (mut lens, mut pose, mut state) = (Vec::new(), Vec::new(), Vec::new());
+        for d in 0..cal.devices.len() {
+            let (free, _) = lens_covariance(cal, d);
+            let (at, pose_at) = cal.solution.index[d];
+            lens.push((state.len(), free.clone()));
+            state.extend(at..at + free.len());
+            pose.push(pose_at.map(|p| {
+                let here = state.len();
+                state.extend(p..p + 6);
+                here
+            }));
+        }
+        Block { lens, pose, state }
+    }
+
+    /// The lens block of device `d` of covariance `cov` (block order).
+    fn lens_cov(&self, cov: &DMatrix<f64>, d: usize) -> DMatrix<f64> {
+        let (at, free) = &self.lens[d];
+        cov.view((*at, *at), (free.len(), free.len())).into_owned()
+    }
+}
+
+/// The information (JᵀJ/σ², device block, board pose eliminated) of sightings `seen` of a
+/// board at T_ref_board `pose`, by the calibration's `devices`.
+fn information(
+    b: &Block,
+    devices: &[Device],
+    front_back: &Isometry3<f64>,
+    board: &Board,
+    pose: &Isometry3<f64>,
+    seen: &[Sighting],
+    sigma: f64,
+) -> DMatrix<f64> {
+    let n = b.state.len();
+    let mut haa = DMatrix::<f64>::zeros(n, n);
+    let mut hab = DMatrix::<f64>::zeros(n, 6);
+    let mut hbb = Matrix6::<f64>::zeros();
+    let mut cols: Vec<(usize, Vector2<f64>)> = Vec::with_capacity(24);
+    for s in seen {
+        let dev = &devices[s.device];
+        let p = board.position(s.hex);
+        let x_ref = pose * side_frame(s.side, front_back) * Point3::new(p.x, p.y, 0.0);
+        let Some(j) = dev.model.project_with_jacobians(&dev.pose, &x_ref) else {
+            continue;
+        };
+        cols.clear();
+        let (at, free) = &b.lens[s.device];
+        for (k, f) in free.iter().enumerate() {
+            cols.push((at + k, j.d_lens.column(f.index()).into_owned()));
+        }
+        if let Some(at) = b.pose[s.device] {
+            for k in 0..6 {
+                cols.push((at + k, j.d_pose.column(k).into_owned()));
+            }
+        }
+        // Left increment of the board pose: dX_ref = −[X_ref]×·ω + τ.
+        let mut jb = Matrix2x6::<f64>::zeros();
+        jb.fixed_columns_mut::<3>(0)
+            .copy_from(&(-j.d_point * skew(&x_ref.coords)));
+        jb.fixed_columns_mut::<3>(3).copy_from(&j.d_point);
+        for (ci, vi) in &cols {
+            for (cj, vj) in &cols {
+                haa[(*ci, *cj)] += vi.dot(vj);
+            }
+            let mut row = hab.fixed_view_mut::<1, 6>(*ci, 0);
+            row += vi.transpose() * jb;
+        }
+        hbb += jb.transpose() * jb;
+    }
+    if let Some(inv) = hbb.try_inverse() {
+        let hbb_inv = DMatrix::from_fn(6, 6, |r, c| inv[(r, c)]);
+        haa -= &hab * hbb_inv * hab.transpose();
+    }
+    haa / (sigma * sigma)
+}
+
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// Candidate board poses T_ref_board around the working volume of the poses so far: the
+/// mean board position and the first pose's orientation, turned about the board's y by
+/// up to ±50°, tilted about its x by up to ±40°, shifted in its plane by ±250 / ±200 mm.
+pub fn candidates(boards: &[Isometry3<f64>]) -> Vec<Isometry3<f64>> {
+    let Some(first) = boards.first() else {
+        return Vec::new();
+    };
+    let centre = boards
+        .iter()
+        .map(|b| b.translation.vector)
+        .sum::<Vector3<f64>>()
+        / boards.len() as f64;
+    let r0 = first.rotation;
+    let mut out = Vec::new();
+    for yaw in [-50.0f64, -25.0, 0.0, 25.0, 50.0] {
+        for tilt in [-40.0f64, -20.0, 0.0, 20.0, 40.0] {
+            let r = r0
+                * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw.to_radians())
+                * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), tilt.to_radians());
+            for dx in [-250.0, 0.0, 250.0] {
+                for dy in [-200.0, 0.0, 200.0] {
+                    let t = centre + r0 * Vector3::new(dx, dy, 0.0);
+                    out.push(Isometry3::from_parts(Translation3::from(t), r));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The guidance of an interim calibration `cal` of the rig's `devices` (cameras first)
+/// against the done `threshold` (px).
+pub fn guide(cal: &Calibration, devices: &[DeviceInfo], threshold: f64) -> Guidance {
+    let block = Block::of(cal);
+    let cov = cal.solution.covariance.block(&block.state);
+    let now: Vec<Option<(f64, [f64; 2])>> = (0..cal.devices.len())
+        .map(|d| {
+            worst(
+                &cal.devices[d].model,
+                &block.lens[d].1,
+                &block.lens_cov(&cov, d),
+            )
+        })
+        .collect();
+    let uncertainties: Vec<DeviceUncertainty> = devices
+        .iter()
+        .enumerate()
+        .map(|(i, info)| {
+            let w = cal
+                .device_index
+                .iter()
+                .position(|&r| r == i)
+                .and_then(|d| now[d]);
+            DeviceUncertainty {
+                name: info.name.clone(),
+                worst: w.map(|w| w.0),
+                at: w.map(|w| w.1),
+            }
+        })
+        .collect();
+    let done = uncertainties
+        .iter()
+        .all(|u| u.worst.is_some_and(|w| w <= threshold));
+    let suggestion = (!done)
+        .then(|| suggest(cal, devices, &block, &cov, &uncertainties))
+        .flatten();
+    Guidance {
+        devices: uncertainties,
+        threshold,
+        done,
+        suggestion,
+    }
+}
+
+/// The candidate pose that lowers the worst device's predicted uncertainty most, with its
+/// sentence and outlines.
+fn suggest(
+    cal: &Calibration,
+    devices: &[DeviceInfo],
+    block: &Block,
+    cov: &DMatrix<f64>,
+    now: &[DeviceUncertainty],
+) -> Option<Suggestion> {
+    let info0 = cov.clone().cholesky()?.inverse();
+    let sol = &cal.solution;
+    let predict = |pose: &Isometry3<f64>| -> Option<f64> {
+        let seen = sightings(&cal.board, &cal.devices, &sol.front_back, pose);
+        if seen.is_empty() {
+            return None;
+        }
+        let h = information(
+            block,
+            &cal.devices,
+            &sol.front_back,
+            &cal.board,
+            pose,
+            &seen,
+            sol.sigma.max(1e-6),
+        );
+        let after = (&info0 + h).cholesky()?.inverse();
+        (0..cal.devices.len())
+            .map(|d| {
+                worst(
+                    &cal.devices[d].model,
+                    &block.lens[d].1,
+                    &block.lens_cov(&after, d),
+                )
+                .map(|w| w.0)
+            })
+            .try_fold(0.0f64, |m, w| Some(m.max(w?)))
+    };
+    let (pose, predicted) = candidates(&sol.boards)
+        .into_par_iter()
+        .filter_map(|c| predict(&c).map(|p| (c, p)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    // The device told about: one not yet calibrated, else the worst one when it sees the
+    // pose, else the one that sees most of it.
+    let seen = sightings(&cal.board, &cal.devices, &sol.front_back, &pose);
+    let count = |d: usize| seen.iter().filter(|s| s.device == d).count();
+    let index = |name: &str| cal.devices.iter().position(|d| d.name == name);
+    let uncalibrated = now.iter().find(|u| u.worst.is_none());
+    let worst_device = now
+        .iter()
+        .max_by(|a, b| a.worst.unwrap_or(0.0).total_cmp(&b.worst.unwrap_or(0.0)))
+        .and_then(|u| index(&u.name))
+        .filter(|&d| count(d) >= MIN_SEEN);
+    let told = worst_device.or_else(|| (0..cal.devices.len()).max_by_key(|&d| count(d)))?;
+    let outlines = outlines(cal, devices, &pose);
+    let (target, sentence) = match uncalibrated {
+        Some(u) => (
+            u.name.clone(),
+            format!(
+                "show the board to {} (not calibrated yet: it needs the board in view in {} \
+                 poses); then {}",
+                u.name,
+                crate::calib::zhang::MIN_VIEWS,
+                sentence(cal, told, &pose)
+            ),
+        ),
+        None => (cal.devices[told].name.clone(), sentence(cal, told, &pose)),
+    };
+    Some(Suggestion {
+        target,
+        predicted,
+        sentence,
+        outlines,
+        pose,
+    })
+}
+
+/// Per rig device, the board's outline (convex hull of the circles seen) at `pose`.
+fn outlines(
+    cal: &Calibration,
+    devices: &[DeviceInfo],
+    pose: &Isometry3<f64>,
+) -> Vec<Option<Vec<[f32; 2]>>> {
+    let seen = sightings(&cal.board, &cal.devices, &cal.solution.front_back, pose);
+    devices
+        .iter()
+        .enumerate()
+        .map(|(i, _)| {
+            let d = cal.device_index.iter().position(|&r| r == i)?;
+            let pts: Vec<Point2<f64>> = seen
+                .iter()
+                .filter(|s| s.device == d)
+                .map(|s| s.pixel)
+                .collect();
+            (pts.len() >= MIN_SEEN).then(|| {
+                hull(&pts)
+                    .into_iter()
+                    .map(|p| [p.x as f32, p.y as f32])
+                    .collect()
+            })
+        })
+        .collect()
+}
+
+/// Convex hull (Andrew's monotone chain), counter-clockwise in image coordinates.
+fn hull(points: &[Point2<f64>]) -> Vec<Point2<f64>> {
+    let mut p = points.to_vec();
+    p.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
+    let cross = |o: &Point2<f64>, a: &Point2<f64>, b: &Point2<f64>| {
+        (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x)
+    };
+    let mut h: Vec<Point2<f64>> = Vec::new();
+    for pass in 0..2 {
+        let start = h.len();
+        for q in p.iter() {
+            while h.len() >= start + 2 && cross(&h[h.len() - 2], &h[h.len() - 1], q) <= 0.0 {
+                h.pop();
+            }
+            h.push(*q);
+        }
+        h.pop();
+        if pass == 0 {
+            p.reverse();
+        }
+    }
+    h
+}
+
+/// "for cam3: board in the lower left of its view, turned about 40° from facing cam3, its
+/// right edge nearer": where device `d` sees the board centre at `pose`, the angle between
+/// the board's normal and the line to the device, and which edge is nearer to it.
+fn sentence(cal: &Calibration, d: usize, pose: &Isometry3<f64>) -> String {
+    let dev = &cal.devices[d];
+    let name = &dev.name;
+    // The board centre and the normal of the side facing the device, in the device frame.
+    let t = dev.pose * pose;
+    let centre = t * Point3::origin();
+    let mut normal = t.rotation * Vector3::z();
+    if normal.dot(&centre.coords) > 0.0 {
+        normal = -normal;
+    }
+    let angle = normal.angle(&(-centre.coords)).to_degrees();
+    let place = match dev.model.project(&centre) {
+        Some(p) => {
+            let (w, h) = (f64::from(dev.model.width), f64::from(dev.model.height));
+            let col = ["left", "centre", "right"][((3.0 * p.x / w).clamp(0.0, 2.0)) as usize];
+            let row = ["upper", "middle", "lower"][((3.0 * p.y / h).clamp(0.0, 2.0)) as usize];
+            match (row, col) {
+                ("middle", "centre") => format!("in the centre of {name}'s view"),
+                ("middle", c) => format!("at the {c} of {name}'s view"),
+                (r, "centre") => format!("in the {r} middle of {name}'s view"),
+                (r, c) => format!("in the {r} {c} of {name}'s view"),
+            }
+        }
+        None => format!("where {name} sees it"),
+    };
+    let rounded = (angle / 5.0).round() * 5.0;
+    if rounded < 10.0 {
+        return format!("for {name}: place the board {place}, facing {name}");
+    }
+    // The edge nearer to the device lies against the normal's sideways component.
+    let (sx, sy) = (-normal.x, -normal.y);
+    let edge = if sx.abs() > 2.0 * sy.abs() {
+        if sx > 0.0 { "right" } else { "left" }.to_string()
+    } else if sy.abs() > 2.0 * sx.abs() {
+        if sy > 0.0 { "bottom" } else { "top" }.to_string()
+    } else {
+        format!(
+            "{}-{}",
+            if sy > 0.0 { "bottom" } else { "top" },
+            if sx > 0.0 { "right" } else { "left" }
+        )
+    };
+    format!(
+        "for {name}: place the board {place}, tilted about {rounded:.0}° from facing {name}, \
+         its {edge} edge nearer to {name}"
+    )
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,329 @@
+//! `hexcal bench guide`: a guided operator against a fixed schedule on a simulated rig.
+//!
+//! Takes a rig file with simulated devices and `[poses]` (its fixed schedule); gives, for
+//! the fixed schedule and for an operator who places each next pose where the console's
+//! guidance ([`crate::app::guide`]) suggests (with placement noise), every device's worst
+//! projection uncertainty after each pose, the poses needed until every device is below
+//! the rig's threshold with its image covered, and the accuracy against the ground truth.
+//!
+//! The board is observed at the level of calibration input: every circle centre a device
+//! would see (cameras: the ellipse centre, §8) plus Gaussian noise, projectors through the
+//! camera that sees the circle, both sides by the cameras that face them. Image rendering,
+//! decoding and detection are left out (they are what `hexcal run` times), so both
+//! operators get the same observation model.
+
+use crate::app::guide::{guide, sightings, Guidance};
+use crate::app::truth::{check_truth, TruthCheck};
+use crate::app::AppError;
+use crate::board::{Board, Side};
+use crate::calib::bundle::{Device, DeviceKind};
+use crate::calib::circle::ellipse_center;
+use crate::calib::diagnostics::coverage;
+use crate::calib::geometric::{calibrate_registering, GeometricParams};
+use crate::calib::solve::{CalibrateOptions, Calibration, DeviceInfo};
+use crate::correspond::{CameraView, Frame, ProjectorPixel, ViewPoint};
+use crate::rig::file::RigFile;
+use crate::rig::sim::SimWorld;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2, Vector3};
+use rand::{rngs::StdRng, SeedableRng};
+use rand_distr::{Distribution, Normal};
+use std::path::Path;
+
+/// A device is covered when at most this fraction of its image cells is empty (the
+/// console's 30 % covered rule on the report's cell grid).
+const MAX_EMPTY: f64 = 0.7;
+
+/// Placement noise of the guided operator: rotation (deg) and shift (mm), 1σ.
+pub const PLACEMENT_DEG: f64 = 3.0;
+/// Placement shift noise (mm, 1σ per axis).
+pub const PLACEMENT_MM: f64 = 15.0;
+
+/// The calibration poses the first interim calibration needs: the guided operator places
+/// these from the fixed schedule (no guidance exists before them).
+pub const START_POSES: usize = 3;
+
+/// One operator's run.
+#[derive(Clone, Debug)]
+pub struct OperatorRun {
+    /// "fixed" or "guided".
+    pub label: &'static str,
+    /// After each pose from [`START_POSES`] on: (poses, worst uncertainty over every
+    /// device, px; infinite while a device is not calibrated).
+    pub worst: Vec<(usize, f64)>,
+    /// Poses until done (every device below the threshold and covered), if reached.
+    pub done_at: Option<usize>,
+    /// Accuracy against the truth at `done_at` (or after the last pose).
+    pub truth: Vec<TruthCheck>,
+    /// Seconds of interim calibration and guidance, per pose (mean).
+    pub seconds_per_pose: f64,
+}
+
+/// What [`bench_guide`] measured.
+#[derive(Clone, Debug)]
+pub struct GuideBench {
+    /// The threshold (px).
+    pub threshold: f64,
+    /// Observation noise (px).
+    pub sigma: f64,
+    /// Both operators.
+    pub runs: Vec<OperatorRun>,
+}
+
+/// The simulated rig's truth as calibration devices, poses relative to the first camera;
+/// and T_ref_rig.
+fn truth_devices(world: &SimWorld) -> (Vec<Device>, Isometry3<f64>) {
+    let ref_rig = world.cameras[0].pose;
+    let kinds = world
+        .cameras
+        .iter()
+        .map(|d| (d, DeviceKind::Camera))
+        .chain(world.projectors.iter().map(|d| (d, DeviceKind::Projector)));
+    let devices = kinds
+        .map(|(d, kind)| Device {
+            name: d.name.clone(),
+            kind,
+            model: d.model,
+            pose: d.pose * ref_rig.inverse(),
+        })
+        .collect();
+    (devices, ref_rig)
+}
+
+/// The noisy views `truth` gives of the board at T_ref_board `pose` (pose index `k`).
+fn observe(
+    board: &Board,
+    truth: &[Device],
+    k: usize,
+    pose: &Isometry3<f64>,
+    noise: &Normal<f64>,
+    rng: &mut StdRng,
+) -> Vec<CameraView> {
+    let back = board.side_transform(Side::Back);
+    let mut n = || Vector2::new(noise.sample(rng), noise.sample(rng));
+    let mut views: Vec<CameraView> = Vec::new();
+    for s in sightings(board, truth, &back, pose) {
+        match s.via {
+            None => {
+                let dev = &truth[s.device];
+                let t = dev.pose * pose * board.side_transform(s.side);
+                let Some(e) = ellipse_center(&dev.model, &t, board.position(s.hex), board.radius)
+                else {
+                    continue;
+                };
+                let point = ViewPoint {
+                    hex: s.hex,
+                    image: e + n(),
+                    projectors: Vec::new(),
+                };
+                match views.last_mut() {
+                    Some(v) if v.camera == s.device && v.frame == Frame::Anchored(s.side) => {
+                        v.points.push(point)
+                    }
+                    _ => views.push(CameraView {
+                        camera: s.device,
+                        pose: k,
+                        frame: Frame::Anchored(s.side),
+                        points: vec![point],
+                    }),
+                }
+            }
+            Some(c) => {
+                let Some(v) = views.last_mut().filter(|v| v.camera == c) else {
+                    continue;
+                };
+                let Some(p) = v.points.last_mut() else {
+                    continue;
+                };
+                if p.hex == s.hex {
+                    p.projectors.push(ProjectorPixel {
+                        projector: s.device,
+                        pixel: s.pixel + n(),
+                    });
+                }
+            }
+        }
+    }
+    views
+}
+
+/// The interim calibration of `views` and its guidance; done also needs every device's
+/// image covered.
+fn interim(
+    board: &Board,
+    devices: &[DeviceInfo],
+    poses: usize,
+    views: &[CameraView],
+    threshold: f64,
+) -> Result<(Calibration, Guidance, bool), AppError> {
+    let cal = calibrate_registering(
+        board,
+        devices,
+        poses,
+        views,
+        &CalibrateOptions::default(),
+        &GeometricParams::default(),
+    )?;
+    let g = guide(&cal, devices, threshold);
+    let covered = cal.excluded.is_empty() && coverage(&cal).iter().all(|c| c.0 <= MAX_EMPTY);
+    let done = g.done && covered;
+    Ok((cal, g, done))
+}
+
+/// The worst uncertainty of `g` (infinite while a device is not calibrated).
+fn worst(g: &Guidance) -> f64 {
+    g.devices
+        .iter()
+        .map(|d| d.worst.unwrap_or(f64::INFINITY))
+        .fold(0.0, f64::max)
+}
+
+/// `pose` as placed by a person aiming at it: turned about a random axis and shifted.
+fn placed(pose: &Isometry3<f64>, rng: &mut StdRng) -> Isometry3<f64> {
+    let n = Normal::new(0.0, 1.0).expect("unit normal");
+    let axis = Vector3::new(n.sample(rng), n.sample(rng), n.sample(rng));
+    let turn = axis * (PLACEMENT_DEG.to_radians() / 3f64.sqrt());
+    let shift = Vector3::new(n.sample(rng), n.sample(rng), n.sample(rng)) * PLACEMENT_MM;
+    Isometry3::from_parts(
+        Translation3::from(pose.translation.vector + shift),
+        UnitQuaternion::from_scaled_axis(turn) * pose.rotation,
+    )
+}
+
+/// The board at the schedule's mean position, its front turned to face `device`.
+fn facing(device: &Device, schedule: &[Isometry3<f64>]) -> Isometry3<f64> {
+    let centre = schedule
+        .iter()
+        .map(|b| b.translation.vector)
+        .sum::<Vector3<f64>>()
+        / schedule.len().max(1) as f64;
+    let eye = device.pose.inverse() * nalgebra::Point3::origin();
+    let z = (eye.coords - centre).normalize();
+    let r = UnitQuaternion::rotation_between(&Vector3::z(), &z).unwrap_or_else(|| {
+        UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI)
+    });
+    Isometry3::from_parts(Translation3::from(centre), r)
+}
+
+/// Everything one operator's loop needs.
+struct Setup<'a> {
+    board: &'a Board,
+    world: &'a SimWorld,
+    truth: &'a [Device],
+    devices: &'a [DeviceInfo],
+    /// The fixed schedule, T_ref_board.
+    schedule: &'a [Isometry3<f64>],
+    threshold: f64,
+    noise: Normal<f64>,
+}
+
+/// One operator: the first [`START_POSES`] of the schedule, then the schedule (`guided`
+/// false) or the guidance's suggestions, until done or `max_poses`.
+fn operate(
+    s: &Setup,
+    guided: bool,
+    max_poses: usize,
+    seed: u64,
+    log: &mut dyn FnMut(&str),
+) -> Result<OperatorRun, AppError> {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let mut views = Vec::new();
+    let mut run = OperatorRun {
+        label: if guided { "guided" } else { "fixed" },
+        worst: Vec::new(),
+        done_at: None,
+        truth: Vec::new(),
+        seconds_per_pose: 0.0,
+    };
+    let max = if guided { max_poses } else { s.schedule.len() };
+    let mut next = s.schedule[0];
+    let mut seconds = 0.0;
+    for k in 0..max {
+        let pose = if k < START_POSES || !guided {
+            s.schedule[k]
+        } else {
+            placed(&next, &mut rng)
+        };
+        views.extend(observe(s.board, s.truth, k, &pose, &s.noise, &mut rng));
+        if k + 1 < START_POSES {
+            continue;
+        }
+        let t = std::time::Instant::now();
+        let (cal, g, done) = interim(s.board, s.devices, k + 1, &views, s.threshold)?;
+        seconds += t.elapsed().as_secs_f64();
+        run.worst.push((k + 1, worst(&g)));
+        log(&format!(
+            "{}: {} poses, worst {:.3} px{}",
+            run.label,
+            k + 1,
+            worst(&g),
+            g.suggestion
+                .as_ref()
+                .map_or(String::new(), |s| format!("; next: {}", s.sentence))
+        ));
+        run.truth = check_truth(&cal, s.world);
+        if done {
+            run.done_at = Some(k + 1);
+            break;
+        }
+        // Told to show the board to a device not calibrated yet, the operator turns it
+        // to face that device (where it stands is known to a person at the rig).
+        let uncalibrated = g.devices.iter().position(|d| d.worst.is_none());
+        match (uncalibrated, g.suggestion) {
+            (Some(d), _) => next = facing(&s.truth[d], s.schedule),
+            (None, Some(sug)) => next = sug.pose,
+            (None, None) if guided => break,
+            (None, None) => {}
+        }
+    }
+    run.seconds_per_pose = seconds / run.worst.len().max(1) as f64;
+    Ok(run)
+}
+
+/// Both operators on the rig file at `rig_path`: observation noise `sigma` (px), the guided
+/// one stopping at `max_poses`, noise from `seed`; `log` hears each interim calibration.
+pub fn bench_guide(
+    rig_path: &Path,
+    sigma: f64,
+    max_poses: usize,
+    seed: u64,
+    log: &mut dyn FnMut(&str),
+) -> Result<GuideBench, AppError> {
+    let rig = RigFile::load(rig_path)?;
+    let board = Board::resolve(&rig.board)?;
+    let world = SimWorld::new(&rig, board.clone()).map_err(|e| AppError::Input(e.to_string()))?;
+    if world.cameras.is_empty() || world.board_poses.len() < START_POSES {
+        return Err(AppError::Input(format!(
+            "{}: needs simulated cameras and at least {START_POSES} [poses]",
+            rig_path.display()
+        )));
+    }
+    let (truth, ref_rig) = truth_devices(&world);
+    let devices: Vec<DeviceInfo> = truth
+        .iter()
+        .map(|d| DeviceInfo {
+            name: d.name.clone(),
+            kind: d.kind,
+            width: d.model.width,
+            height: d.model.height,
+        })
+        .collect();
+    let schedule: Vec<Isometry3<f64>> = world.board_poses.iter().map(|b| ref_rig * b).collect();
+    let setup = Setup {
+        board: &board,
+        world: &world,
+        truth: &truth,
+        devices: &devices,
+        schedule: &schedule,
+        threshold: rig.guidance.uncertainty_px,
+        noise: Normal::new(0.0, sigma).map_err(|e| AppError::Input(e.to_string()))?,
+    };
+    let runs = vec![
+        operate(&setup, false, max_poses, seed, log)?,
+        operate(&setup, true, max_poses, seed, log)?,
+    ];
+    Ok(GuideBench {
+        threshold: setup.threshold,
+        sigma,
+        runs,
+    })
+}
