@@ -87,16 +87,35 @@ fn placer(
     }
 }
 
-/// `hexcal capture`: drive the rig for `poses` poses into the dataset `out`.
+/// `hexcal capture`: drive the rig for `poses` poses, or through its capture script, into the
+/// dataset `out`.
 pub fn capture(rig: &Path, out: &Path, poses: Option<usize>, auto: bool) -> anyhow::Result<()> {
     let file = hexcal::rig::file::RigFile::load(rig)?;
-    let poses = poses
-        .or(file.poses.map(|p| p.count))
-        .context("say how many poses with --poses (the rig file has no [poses] table)")?;
-    let mut place = placer(auto, true, None, None);
-    let mut log = |line: &str| eprintln!("{line}");
-    let summary = hexcal::app::capture::capture_dataset(rig, out, poses, &mut place, &mut log)
-        .map_err(anyhow::Error::msg)?;
+    let (summary, jitter) = match hexcal::app::script::plan_of(&file)? {
+        Some(_) if poses.is_some() => anyhow::bail!(
+            "{}: its script decides the poses: drop --poses",
+            rig.display()
+        ),
+        Some(plan) => script::capture(file, plan, (rig, out))?,
+        None => {
+            let poses = poses
+                .or(file.poses.map(|p| p.count))
+                .context("say how many poses with --poses (the rig file has no [poses] table)")?;
+            let options = hexcal::app::capture::CaptureOptions {
+                poses,
+                ..Default::default()
+            };
+            let mut place = placer(auto, true, None, None);
+            let mut log = |note| eprintln!("{note}");
+            let summary =
+                hexcal::app::capture::capture_dataset(rig, out, &options, &mut place, &mut log)
+                    .map_err(anyhow::Error::msg)?;
+            (summary, None)
+        }
+    };
+    if let Some(j) = jitter {
+        println!("{j}");
+    }
     if !summary.skipped.is_empty() {
         eprintln!("already complete, skipped: poses {:?}", summary.skipped);
     }

@@ -111,7 +111,10 @@ fn capture(rig: &Path, out: &Path) -> Result<hexcal::app::capture::CaptureSummar
     capture_dataset(
         rig,
         out,
-        POSES,
+        &hexcal::app::capture::CaptureOptions {
+            poses: POSES,
+            ..Default::default()
+        },
         &mut |k, world| {
             world.expect("a simulated rig").place(k);
             Ok(true)

@@ -109,6 +109,7 @@ fn view(rig: &SyntheticRig, camera: usize, pose: usize) -> Option<CameraView> {
             u,
             v,
             valid,
+            modulation: None,
         })
         .collect();
     camera_view(camera, pose, &grid, &circles, &views, &FitParams::default())

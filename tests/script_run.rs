@@ -299,3 +299,159 @@ fn ctrl_c_during_a_move_stops_the_run() {
     assert_eq!(steps.last().unwrap()["outcome"], "interrupted");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Mean grey level of one stored frame.
+fn mean_level(frame: &Path) -> f64 {
+    let img = image::open(frame).unwrap().to_luma8();
+    img.pixels().map(|p| f64::from(p.0[0])).sum::<f64>() / f64::from(img.width() * img.height())
+}
+
+#[test]
+fn capture_runs_the_script_and_a_step_sets_its_own_exposure() {
+    let dir = scratch("script-capture");
+    // The held-out capture (pose 5) at 2 ms instead of cam0's own 4 ms, then pose 6 with
+    // the board where it was: cam0's frames half as bright, cam1's alike.
+    let text_in = tiny().replace(
+        "capture = \"held out\"\n",
+        "capture = \"held out\"\nexposure_us = 2000\ncameras = [\"cam0\"]\n\
+         [[script]]\ncapture = \"again\"\n",
+    );
+    let rig = write(&dir, "rig.toml", &text_in);
+    let dry = run(&rig, &dir.join("none"), &["--dry-run"]);
+    let stdout = text(&dry.stdout);
+    assert!(dry.status.success(), "{stdout}");
+    assert!(
+        stdout.contains("capture pose 5 \"held out\", exposure 2000 µs (cam0)"),
+        "{stdout}"
+    );
+    let out = dir.join("data");
+    let done = Command::new(env!("CARGO_BIN_EXE_hexcal"))
+        .args(["capture", "--rig"])
+        .arg(&rig)
+        .arg("--out")
+        .arg(&out)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (text(&done.stdout), text(&done.stderr));
+    assert!(done.status.success(), "{stdout}\n{stderr}");
+    // The script ran: it prompted, moved the stage, captured all seven poses and timed
+    // every step into script.json.
+    assert!(stderr.contains("Mount the board"), "{stderr}");
+    assert!(stdout.contains("captured 7 poses"), "{stdout}");
+    assert!(stdout.contains("jitter"), "{stdout}");
+    let record = script_json(&out);
+    let steps = record["sessions"][0]["steps"].as_array().unwrap();
+    // Prompt (its timeout passes with no operator), 5 × (move, capture), move, wait, two
+    // captures, move.
+    assert_eq!(steps.len(), 16, "{record}");
+    assert!(
+        steps[1..].iter().all(|s| s["outcome"] == "done"),
+        "{record}"
+    );
+    let exposure = |pose: usize, cam: &str| {
+        let path = out.join(format!("pose-{pose:03}/{cam}/stack.json"));
+        let stack: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        stack["frames"][0]["exposure_us"].as_f64().unwrap()
+    };
+    assert_eq!(exposure(5, "cam0"), 2000.0);
+    assert_eq!(exposure(5, "cam1"), 4000.0);
+    // Restored after.
+    assert_eq!(exposure(6, "cam0"), 4000.0);
+    for (cam, ratio) in [("cam0", 0.5), ("cam1", 1.0)] {
+        // Mean level over a few frames. Halving an integer level rounds half of them up by
+        // 0.5 DN, so the halved mean lies within 0.5 DN of half the other; the shot and
+        // read noise of a mean over 4 × 400 000 pixels moves it by ≈ 0.01 DN.
+        let mean = |pose: usize| {
+            (0..4)
+                .map(|k| mean_level(&out.join(format!("pose-{pose:03}/{cam}/frame-{k:03}.png"))))
+                .sum::<f64>()
+                / 4.0
+        };
+        let (dim, own) = (mean(5), mean(6));
+        eprintln!("{cam}: pose 5 {dim:.3} DN, pose 6 {own:.3} DN (expected ×{ratio})");
+        assert!((dim - ratio * own).abs() <= 0.5, "{cam}: {dim} vs {own}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_serial_positioner_on_a_pty_moves_and_its_fault_stops_the_capture() {
+    use serialport::SerialPort;
+    use std::io::{BufRead, BufReader, Write};
+    // A robot arm on the far end of a pty pair: "GO n" lines ending CR LF, "DONE" after
+    // each of the first two moves, then a fault.
+    let (mut master, slave) = serialport::TTYPort::pair().unwrap();
+    master.set_timeout(Duration::from_millis(50)).unwrap();
+    // hexcal opens the slave end itself (exclusively): this end is closed, and the master's
+    // reads fail until hexcal has it open.
+    let port = slave.name().unwrap();
+    drop(slave);
+    let arm = std::thread::spawn(move || {
+        let mut heard = Vec::new();
+        let mut reader = BufReader::new(master.try_clone_native().unwrap());
+        let mut line = String::new();
+        let deadline = Instant::now() + Duration::from_secs(120);
+        while heard.len() < 3 && Instant::now() < deadline {
+            if !reader.read_line(&mut line).is_ok_and(|n| n > 0) || !line.ends_with('\n') {
+                std::thread::sleep(Duration::from_millis(10));
+                continue;
+            }
+            heard.push(line.clone());
+            let reply = match heard.len() {
+                3 => "FAULT gripper open\r\n",
+                _ => "DONE\r\n",
+            };
+            master.write_all(reply.as_bytes()).unwrap();
+            line.clear();
+        }
+        heard
+    });
+    let dir = scratch("script-serial");
+    let head = tiny();
+    let devices = &head[head.find("[[camera]]").unwrap()..];
+    let rig_text = format!(
+        "name = \"serial-arm\"\n[timing]\nframe_period_ms = 5.0\npose_pause_s = 0.1\n\
+         [poses]\ncount = 3\nyaw_deg = 20.0\ntilt_deg = 10.0\nshift_mm = 0.0\n\
+         [[positioner]]\nname = \"arm\"\ndriver = \"serial\"\nport = \"{port}\"\n\
+         line_ending = \"crlf\"\ncommand = \"GO {{preset}}\"\nreply = \"^DONE\"\n\
+         fault = \"^FAULT\"\ntimeout_s = 5.0\nmove_s = 0.5\n\
+         [[script]]\nrepeat = 3\nvars = {{ p = {{ from = 0, step = 1 }} }}\n\
+         steps = [{{ move = \"arm\", to = {{ preset = \"{{p}}\" }} }}, {{ capture = \"preset {{p}}\" }}]\n\
+         {devices}"
+    );
+    let rig = write(&dir, "rig.toml", &rig_text);
+    let out = dir.join("data");
+    let failed = Command::new(env!("CARGO_BIN_EXE_hexcal"))
+        .args(["capture", "--rig"])
+        .arg(&rig)
+        .arg("--out")
+        .arg(&out)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let stderr = text(&failed.stderr);
+    assert_eq!(failed.status.code(), Some(1), "{stderr}");
+    let error: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(error.len(), 1, "{stderr}");
+    assert!(
+        error[0].contains("script[0].steps[0] (round 3 of 3): positioner arm: fault reported")
+            && error[0].contains("\"FAULT gripper open\""),
+        "{stderr}"
+    );
+    assert_eq!(
+        arm.join().unwrap(),
+        ["GO 0\r\n", "GO 1\r\n", "GO 2\r\n"],
+        "the arm heard its commands, CR LF ended"
+    );
+    // The two poses captured before the fault are complete.
+    for k in 0..2 {
+        assert!(
+            out.join(format!("pose-{k:03}/pose.json")).exists(),
+            "pose {k}"
+        );
+    }
+    assert!(!out.join("pose-002/pose.json").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -7,6 +7,7 @@ use super::AppError;
 use crate::capture::Session;
 use crate::dataset::{Dataset, Leftover, Timeline};
 use crate::rig::file::RigFile;
+use crate::rig::script::PoseExposures;
 use crate::rig::OpenedRig;
 use std::path::Path;
 
@@ -41,6 +42,37 @@ pub fn prepare(rig_path: &Path, out: &Path) -> Result<Prepared, AppError> {
 pub type PlaceBoard<'a> =
     dyn FnMut(usize, Option<&crate::rig::sim::SimWorld>) -> Result<bool, AppError> + 'a;
 
+/// What [`capture_dataset`] is asked for.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CaptureOptions {
+    /// Board poses to capture.
+    pub poses: usize,
+    /// The poses captured with their own exposure or gain (a capture script's).
+    pub exposures: PoseExposures,
+}
+
+/// What [`capture_dataset`] tells as it goes.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Note {
+    /// A line for the operator.
+    Line(String),
+    /// Pose `pose` is captured and stored; `line` says how it went.
+    Captured {
+        /// Pose index.
+        pose: usize,
+        /// Its summary.
+        line: String,
+    },
+}
+
+impl std::fmt::Display for Note {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Note::Line(line) | Note::Captured { line, .. } => f.write_str(line),
+        }
+    }
+}
+
 /// What [`capture_dataset`] did.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct CaptureSummary {
@@ -52,17 +84,20 @@ pub struct CaptureSummary {
     pub timelines: Vec<Timeline>,
 }
 
-/// Capture `poses` board poses of the rig file at `rig_path` into the dataset folder `out`
-/// (created, or resumed: complete poses are skipped). `place(k)` puts the board at pose k
-/// (the simulated world's pose, or the operator's) and may refuse to go on (`Ok(false)`
-/// stops the capture, keeping every complete pose); `log` hears one line per pose.
+/// Capture `options.poses` board poses of the rig file at `rig_path` into the dataset folder
+/// `out` (created, or resumed: complete poses are skipped), those in `options.exposures`
+/// with their own exposure and gain. `place(k)` puts the board at pose k (the simulated
+/// world's pose, the operator's or a script's) and may refuse to go on (`Ok(false)` stops
+/// the capture, keeping every complete pose); `log` hears what happens, a
+/// [`Note::Captured`] per pose.
 pub fn capture_dataset(
     rig_path: &Path,
     out: &Path,
-    poses: usize,
+    options: &CaptureOptions,
     place: &mut PlaceBoard,
-    log: &mut dyn FnMut(&str),
+    log: &mut dyn FnMut(Note),
 ) -> Result<CaptureSummary, AppError> {
+    let (poses, exposures) = (options.poses, &options.exposures);
     let Prepared { rig, opened, data } = prepare(rig_path, out)?;
     let pause = std::time::Duration::from_secs_f64(rig.timing.pose_pause_s);
     data.remove_stale_temporaries()?;
@@ -83,11 +118,16 @@ pub fn capture_dataset(
         // The board settles after it is placed.
         std::thread::sleep(pause);
         let mut writer = data.pose_writer(k)?;
-        let timeline = session.capture_pose(k, &mut |f| Ok(writer.write(&f)?))?;
+        let timeline = exposed(&mut session, exposures.get(&k), |s| {
+            Ok(s.capture_pose(k, &mut |f| Ok(writer.write(&f)?))?)
+        })?;
         let info = writer.finish(&timeline)?;
         data.mark_captured(&info)?;
         data.complete(&info)?;
-        log(&format!("pose {k}: {}", timeline.summary(cameras)));
+        log(Note::Captured {
+            pose: k,
+            line: format!("pose {k}: {}", timeline.summary(cameras)),
+        });
         summary.captured.push(k);
         summary.timelines.push(timeline);
     }
@@ -95,12 +135,27 @@ pub fn capture_dataset(
     Ok(summary)
 }
 
+/// Run `capture` with every camera set to its `settings` (`None`: the cameras' own), and
+/// set them back after, whatever the capture gave.
+pub fn exposed<T>(
+    session: &mut Session,
+    settings: Option<&Vec<Option<(f64, f64)>>>,
+    capture: impl FnOnce(&mut Session) -> Result<T, AppError>,
+) -> Result<T, AppError> {
+    session.set_exposures(settings.map_or(&[], Vec::as_slice))?;
+    let captured = capture(session);
+    let restored = session.set_exposures(&[]);
+    let value = captured?;
+    restored?;
+    Ok(value)
+}
+
 /// The poses an interrupted capture left incomplete: complete the ones whose stacks are
 /// whole on disk; move aside (never overwrite) the others, which are captured again.
 fn finish_leftovers(
     data: &Dataset,
     poses: usize,
-    log: &mut dyn FnMut(&str),
+    log: &mut dyn FnMut(Note),
 ) -> Result<(), AppError> {
     let done = data.completed()?;
     for k in (0..poses).filter(|k| !done.contains(k)) {
@@ -108,16 +163,18 @@ fn finish_leftovers(
             Leftover::Nothing => {}
             Leftover::Processed(info) | Leftover::Stacks(info) => {
                 data.complete(&info)?;
-                log(&format!("pose {k}: its stacks were whole on disk: kept"));
+                log(Note::Line(format!(
+                    "pose {k}: its stacks were whole on disk: kept"
+                )));
             }
-            Leftover::Unsaved { kept } => log(&match kept {
+            Leftover::Unsaved { kept } => log(Note::Line(match kept {
                 Some(p) => format!(
                     "pose {k} was not saved: place the board again (its partial files are \
                      kept in {})",
                     p.display()
                 ),
                 None => format!("pose {k} was not saved: place the board again"),
-            }),
+            })),
         }
     }
     Ok(())

@@ -46,6 +46,9 @@ pub struct RunOptions {
     /// Finish processing each pose before the board is placed for the next, so a watcher
     /// (the operator console) shows what it gave first.
     pub settle_each_pose: bool,
+    /// The poses captured with their own exposure or gain (a capture script's), set before
+    /// each and undone after.
+    pub exposures: crate::rig::script::PoseExposures,
 }
 
 /// What a [`FrameTap`] calls: pose index and frame.
@@ -245,7 +248,10 @@ fn capture_todo(
             c.interrupted = options.stopped().then_some(k);
             break;
         }
-        match stream.capture_pose(session, k, options) {
+        let captured = super::capture::exposed(session, options.exposures.get(&k), |s| {
+            stream.capture_pose(s, k, options)
+        });
+        match captured {
             Ok(timeline) => c.timelines.push((k, timeline)),
             Err(_) if options.stopped() => {
                 c.interrupted = Some(k);

@@ -299,23 +299,28 @@ impl<'a> ScriptRun<'a> {
 
     /// Hear the run's progress: a capture's end; after the last capture, the steps left.
     pub fn event(&mut self, e: &Event) {
-        let Event::PoseCaptured { pose, .. } = e else {
-            return;
-        };
+        if let Event::PoseCaptured { pose, .. } = e {
+            self.captured(*pose);
+        }
+    }
+
+    /// Pose `pose` is captured: its record closes; after the last capture, the steps left
+    /// run.
+    pub fn captured(&mut self, pose: usize) {
         let now = self.now();
         if let Some(r) = self
             .session
             .steps
             .iter_mut()
             .rev()
-            .find(|r| r.pose == Some(*pose) && r.end_s.is_none())
+            .find(|r| r.pose == Some(pose) && r.end_s.is_none())
         {
             r.end_s = Some(now);
             r.outcome = "done".into();
             self.due = now;
         }
         let last = self.plan.captures.checked_sub(1);
-        if Some(*pose) == last && self.failure.is_none() {
+        if Some(pose) == last && self.failure.is_none() {
             while self.cursor < self.plan.steps.len() {
                 match self.run_step(self.cursor) {
                     Ok(true) => self.cursor += 1,
@@ -595,7 +600,10 @@ impl<'a> ScriptRun<'a> {
     /// Start the capture of step `i`: a timed capture first waits for its tick, counting
     /// down; then its record opens (it closes when the run reports the pose captured).
     fn start_capture(&mut self, i: usize) -> Result<bool, AppError> {
-        let Action::Capture { pose, label, tick } = self.plan.steps[i].action.clone() else {
+        let Action::Capture {
+            pose, label, tick, ..
+        } = self.plan.steps[i].action.clone()
+        else {
             unreachable!("a capture step")
         };
         if let Some(t) = tick {
@@ -719,11 +727,19 @@ pub fn timeline(rig_path: &Path) -> Result<String, AppError> {
 
 fn describe(a: &Action) -> String {
     match a {
-        Action::Capture { pose, label, tick } => {
+        Action::Capture {
+            pose,
+            label,
+            tick,
+            exposure,
+        } => {
             let timed = tick.map_or(String::new(), |t| {
                 format!(", tick {} every {} s", t.index, t.period_s)
             });
-            format!("capture pose {pose} {label:?}{timed}")
+            let set = exposure
+                .as_ref()
+                .map_or(String::new(), |e| format!(", {}", e.describe()));
+            format!("capture pose {pose} {label:?}{timed}{set}")
         }
         Action::Wait { seconds } => format!("wait {seconds} s"),
         Action::Prompt { text, timeout_s } => match timeout_s {

@@ -75,12 +75,15 @@ enum Command {
     Take {
         software: bool,
     },
+    /// Set the exposure (µs) and gain (dB).
+    Expose(f64, f64),
     Stop,
 }
 
 enum Reply {
     Drained,
     Frame(Result<CameraFrame, DeviceError>),
+    Exposed(Result<(), DeviceError>),
 }
 
 struct Worker {
@@ -89,6 +92,9 @@ struct Worker {
     frames: Receiver<Reply>,
     thread: Option<JoinHandle<Result<(), DeviceError>>>,
     last_counter: Option<u64>,
+    /// The configured (exposure µs, gain dB), and the one set now.
+    configured: (f64, f64),
+    current: (f64, f64),
 }
 
 /// A running capture: cameras started in their threads, projectors prepared.
@@ -157,6 +163,8 @@ impl Session {
                 frames: frame_rx,
                 thread: Some(thread),
                 last_counter: None,
+                configured: (config.exposure_us, config.gain_db),
+                current: (config.exposure_us, config.gain_db),
             });
         }
         Ok(Session {
@@ -176,6 +184,30 @@ impl Session {
     /// The sequence shown.
     pub fn sequence(&self) -> &Sequence {
         &self.sequence
+    }
+
+    /// Set each camera's exposure (µs) and gain (dB) for the captures that follow:
+    /// `settings[i]` for camera i, `None` for its configured ones (so `&[]` restores every
+    /// camera). Only cameras whose setting changes are told.
+    pub fn set_exposures(&mut self, settings: &[Option<(f64, f64)>]) -> Result<(), CaptureError> {
+        for (i, w) in self.workers.iter_mut().enumerate() {
+            let want = settings.get(i).copied().flatten().unwrap_or(w.configured);
+            if want == w.current {
+                continue;
+            }
+            let ended = || CaptureError::ThreadEnded {
+                camera: w.name.clone(),
+            };
+            w.commands
+                .send(Command::Expose(want.0, want.1))
+                .map_err(|_| ended())?;
+            match w.frames.recv() {
+                Ok(Reply::Exposed(r)) => r?,
+                _ => return Err(ended()),
+            }
+            w.current = want;
+        }
+        Ok(())
     }
 
     /// Capture pose `pose`: every frame of the sequence from every camera, each handed to
@@ -453,6 +485,9 @@ fn camera_loop(
             } else {
                 cam.next_frame(timeout)
             }),
+            Ok(Command::Expose(exposure_us, gain_db)) => {
+                Reply::Exposed(cam.set_exposure_gain(exposure_us, gain_db))
+            }
             Ok(Command::Stop) | Err(_) => break,
         };
         if frames.send(reply).is_err() {

@@ -7,9 +7,8 @@
 //! planar patch, ≈ 7× a circle's pixels), evaluated at e. The fit is quadratic in (x − e):
 //! lens distortion curves the camera→projector map, and a plain plane or homography over
 //! the patch is biased by up to 0.2 projector px in the corners of a k1 = −0.3 lens.
-//! A ringed (marker) circle gives no projector observation unless [`FitParams::ringed`] is
-//! set; then the ring's band is left out of its pixels and its white inside and outside the
-//! ring serves as any other.
+//! Each pixel is weighted by its modulation² (inverse variance). A ringed (marker) circle
+//! leaves its ring's band out; its white inside and outside the ring serves as any other.
 
 use crate::board::{Hex, Side};
 use crate::grid::Grid;
@@ -115,6 +114,9 @@ pub struct ProjectorMap<'a> {
     pub v: &'a [f32],
     /// Whether (u, v) is valid, row-major.
     pub valid: &'a [bool],
+    /// Modulation B per camera pixel (DN), row-major, when known: the fit weighs each
+    /// pixel by B² (its phase noise is ∝ 1/B).
+    pub modulation: Option<&'a [f32]>,
 }
 
 impl<'a> ProjectorMap<'a> {
@@ -127,6 +129,7 @@ impl<'a> ProjectorMap<'a> {
             u: maps.u.as_raw(),
             v: maps.v.as_raw(),
             valid: maps.valid.as_slice(),
+            modulation: Some(maps.modulation.as_raw()),
         }
     }
 }
@@ -143,17 +146,11 @@ pub struct FitParams {
     /// lights only part of a circle gives no observation of it).
     pub min_own_valid: f64,
     /// A marker ring's band (inner, outer) as fractions of the circle's radius (the board's
-    /// `ring`). On a ringed circle the band, widened by `ring_margin`, is left out of the
-    /// circle's own pixels and of every fit: it is dark (no valid decoding), and near its
-    /// edges blur mixes black into the white.
+    /// `ring`). On a ringed circle the band is left out of the circle's own pixels and of
+    /// every fit: it is dark (no valid decoding). The white beside it, dimmed by the blur,
+    /// stays in: the modulation weighting gives it its due (docs/design.md §7, "Ringed
+    /// circles").
     pub ring: [f64; 2],
-    /// Widening of the ring band on either side (px): the blur's reach.
-    pub ring_margin: f64,
-    /// Whether ringed circles give projector observations at all. Off by default: on
-    /// rendered stacks their projector pixels err 1.6–1.8× as much as plain circles' (the
-    /// blurred ring reaches the few pixels left), and a run that uses them calibrates worse
-    /// (docs/design.md §7, "Ringed circles").
-    pub ringed: bool,
 }
 
 impl Default for FitParams {
@@ -163,8 +160,6 @@ impl Default for FitParams {
             min_pixels: 30,
             min_own_valid: 0.8,
             ring: [0.45, 0.75],
-            ring_margin: 1.0,
-            ringed: false,
         }
     }
 }
@@ -187,8 +182,7 @@ impl FitParams {
         width: u32,
         height: u32,
     ) -> Vec<(u32, u32)> {
-        let margin = self.ring_margin / (e.a * e.b).sqrt().max(1e-9);
-        let band = ringed.then(|| (self.ring[0] - margin, self.ring[1] + margin));
+        let band = ringed.then_some((self.ring[0], self.ring[1]));
         pixels_inside(e, self.shrink, band, width, height)
     }
 }
@@ -220,7 +214,9 @@ fn pixels_inside(
     out
 }
 
-/// Quadratic fit of u and v over `pixels` around `e`, evaluated at `e` (the constant term).
+/// Quadratic fit (24) of u and v over `pixels` around `e`, evaluated at `e` (the constant
+/// term); each pixel weighted by its modulation² when the map has it (its phase noise is
+/// ∝ 1/B, so this is the inverse-variance weighting), else alike.
 fn fit_at(
     map: &ProjectorMap,
     pixels: &[(u32, u32)],
@@ -238,9 +234,12 @@ fn fit_at(
         }
         let (dx, dy) = ((x as f64 - e.x) / scale, (y as f64 - e.y) / scale);
         let row = SVector::<f64, 6>::from([1.0, dx, dy, dx * dx, dx * dy, dy * dy]);
-        ata += row * row.transpose();
-        atu += row * f64::from(u);
-        atv += row * f64::from(v);
+        let w = map
+            .modulation
+            .map_or(1.0, |b| f64::from(b[i]).max(0.0).powi(2));
+        ata += row * row.transpose() * w;
+        atu += row * (w * f64::from(u));
+        atv += row * (w * f64::from(v));
         n += 1;
     }
     if n < 6 {
@@ -293,8 +292,7 @@ pub fn camera_view(
                         .iter()
                         .filter(|&&(x, y)| m.valid[(y * m.width + x) as usize])
                         .count();
-                    if (p.ringed && !params.ringed)
-                        || own_valid == 0
+                    if own_valid == 0
                         || (own_valid as f64) < params.min_own_valid * own_px.len() as f64
                     {
                         return None;

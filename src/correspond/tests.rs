@@ -141,6 +141,7 @@ fn projector_pixels_at_ellipse_centres_match_the_geometry() {
         u: &u,
         v: &vv,
         valid: &valid,
+        modulation: None,
     };
     let cv = camera_view(
         2,
@@ -148,10 +149,7 @@ fn projector_pixels_at_ellipse_centres_match_the_geometry() {
         &grid,
         &circles,
         &[map],
-        &FitParams {
-            ringed: true,
-            ..FitParams::for_board(&scene.board)
-        },
+        &FitParams::for_board(&scene.board),
     )
     .unwrap();
     assert_eq!(

@@ -555,6 +555,15 @@ impl Camera for AravisCamera {
         Ok(())
     }
 
+    fn set_exposure_gain(&mut self, exposure_us: f64, gain_db: f64) -> Result<(), DeviceError> {
+        let exposure_us = self.set_exposure(exposure_us)?;
+        self.set_gain(gain_db)?;
+        if let Some(a) = self.applied.as_mut() {
+            a.exposure_us = exposure_us;
+        }
+        Ok(())
+    }
+
     fn start(&mut self) -> Result<(), DeviceError> {
         if self.applied.is_none() {
             return Err(self.failed("start before configure".into()));

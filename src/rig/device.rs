@@ -40,6 +40,10 @@ pub trait Camera: Send {
     fn name(&self) -> &str;
     /// Apply `config`; refused (naming the setting) when the device cannot do it.
     fn configure(&mut self, config: &CameraConfig) -> Result<(), DeviceError>;
+    /// Set the exposure (µs) and analogue gain (dB) of the frames that follow, between
+    /// captures (after [`Camera::configure`]); refused (naming the setting) when the
+    /// device cannot.
+    fn set_exposure_gain(&mut self, exposure_us: f64, gain_db: f64) -> Result<(), DeviceError>;
     /// Start acquisition: from now on every trigger gives one frame.
     fn start(&mut self) -> Result<(), DeviceError>;
     /// Expose one frame now (software trigger).

@@ -14,6 +14,9 @@ use regex::Regex;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashSet};
 
+mod exposure;
+pub use exposure::{Exposure, PoseExposures};
+
 /// Steps an unrolled script may have.
 pub const MAX_SCRIPT_STEPS: usize = 100_000;
 /// Nesting of `repeat` blocks.
@@ -242,6 +245,15 @@ pub struct StepSpec {
     /// `every`: label of each capture (`{i}` is its number in the block).
     #[serde(default)]
     pub label: Option<String>,
+    /// `capture`, `every`: exposure of these captures (µs) instead of the cameras' own.
+    #[serde(default)]
+    pub exposure_us: Option<f64>,
+    /// `capture`, `every`: gain of these captures (dB) instead of the cameras' own.
+    #[serde(default)]
+    pub gain_db: Option<f64>,
+    /// `capture`, `every`: the cameras `exposure_us` and `gain_db` apply to (default all).
+    #[serde(default)]
+    pub cameras: Option<Vec<String>>,
 }
 
 /// What one unrolled step does.
@@ -257,6 +269,9 @@ pub enum Action {
         /// Its tick when the capture belongs to an `every` block.
         #[serde(skip_serializing_if = "Option::is_none")]
         tick: Option<Tick>,
+        /// Its own exposure and gain, when the step sets them.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        exposure: Option<Exposure>,
     },
     /// Wait.
     Wait {
@@ -602,7 +617,8 @@ impl Unroller<'_> {
         match kind {
             "capture" => {
                 let label = text("capture", s.capture.as_deref().unwrap_or(""))?;
-                self.capture(name, label, None);
+                let exposure = self.exposure(s, at)?;
+                self.capture(name, label, None, exposure);
             }
             "wait" => {
                 let seconds = s.wait.unwrap_or(0.0);
@@ -636,14 +652,26 @@ impl Unroller<'_> {
         self.clock += planned_s;
     }
 
-    fn capture(&mut self, step: String, label: String, tick: Option<Tick>) {
+    fn capture(
+        &mut self,
+        step: String,
+        label: String,
+        tick: Option<Tick>,
+        exposure: Option<Exposure>,
+    ) {
         let pose = self.poses;
         self.poses += 1;
         let planned = match tick {
             Some(t) => t.period_s.max(self.capture_s),
             None => self.capture_s,
         };
-        self.push(step, Action::Capture { pose, label, tick }, planned);
+        let action = Action::Capture {
+            pose,
+            label,
+            tick,
+            exposure,
+        };
+        self.push(step, action, planned);
     }
 
     fn move_step(
@@ -773,6 +801,7 @@ impl Unroller<'_> {
         limits::non_negative(countdown_s, period_s).map_err(|m| (key("countdown_s"), m))?;
         let label = s.label.clone().unwrap_or_else(|| "hand-held {i}".into());
         check_text(&label).map_err(|m| (key("label"), m))?;
+        let exposure = self.exposure(s, at)?;
         let group = self.groups;
         self.groups += 1;
         for index in 0..count {
@@ -787,7 +816,8 @@ impl Unroller<'_> {
                 period_s,
                 countdown_s,
             };
-            self.capture(format!("{name} #{index}"), label, Some(tick));
+            let step = format!("{name} #{index}");
+            self.capture(step, label, Some(tick), exposure.clone());
         }
         Ok(())
     }
@@ -815,7 +845,7 @@ fn step_kind(s: &StepSpec) -> Result<&'static str, String> {
 
 /// Keys that belong to another kind of step: (key, message) of the first.
 fn check_keys(s: &StepSpec, kind: &str) -> Result<(), (&'static str, String)> {
-    let owners: [(&'static str, bool, &[&str]); 8] = [
+    let owners: [(&'static str, bool, &[&str]); 11] = [
         ("to", s.to.is_some(), &["move"]),
         ("expect", s.expect.is_some(), &["move"]),
         ("timeout_s", s.timeout_s.is_some(), &["move", "prompt"]),
@@ -824,6 +854,13 @@ fn check_keys(s: &StepSpec, kind: &str) -> Result<(), (&'static str, String)> {
         ("count", s.count.is_some(), &["every"]),
         ("countdown_s", s.countdown_s.is_some(), &["every"]),
         ("label", s.label.is_some(), &["every"]),
+        (
+            "exposure_us",
+            s.exposure_us.is_some(),
+            &["capture", "every"],
+        ),
+        ("gain_db", s.gain_db.is_some(), &["capture", "every"]),
+        ("cameras", s.cameras.is_some(), &["capture", "every"]),
     ];
     for (key, set, kinds) in owners {
         if set && !kinds.contains(&kind) {

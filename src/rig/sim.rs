@@ -240,6 +240,8 @@ impl SimWorld {
                 pending: VecDeque::new(),
                 counter: 0,
                 exposure_us: 0.0,
+                gain_db: 0.0,
+                configured: (0.0, 0.0),
                 started: false,
                 line: false,
                 pulses_seen: 0,
@@ -333,6 +335,10 @@ pub struct SimCamera {
     pending: VecDeque<CameraFrame>,
     counter: u64,
     exposure_us: f64,
+    gain_db: f64,
+    /// The exposure (µs) and gain (dB) of the last [`Camera::configure`]: the rendered
+    /// images' own brightness; other settings scale it.
+    configured: (f64, f64),
     started: bool,
     /// Exposures start on line pulses rather than software triggers.
     line: bool,
@@ -383,7 +389,22 @@ impl Camera for SimCamera {
             });
         }
         self.exposure_us = config.exposure_us;
+        self.gain_db = config.gain_db;
+        self.configured = (config.exposure_us, config.gain_db);
         self.line = config.trigger == super::device::TriggerSource::Line;
+        Ok(())
+    }
+
+    fn set_exposure_gain(&mut self, exposure_us: f64, gain_db: f64) -> Result<(), DeviceError> {
+        if !(exposure_us.is_finite() && exposure_us > 0.0 && gain_db.is_finite()) {
+            return Err(DeviceError::unsupported(
+                self.name(),
+                "exposure_us, gain_db",
+                format!("{exposure_us} µs, {gain_db} dB"),
+            ));
+        }
+        self.exposure_us = exposure_us;
+        self.gain_db = gain_db;
         Ok(())
     }
 
@@ -443,6 +464,21 @@ impl Camera for SimCamera {
 }
 
 impl SimCamera {
+    /// Scale a rendered frame (at the configured exposure and gain) to the exposure and
+    /// gain set now: signal ∝ exposure · 10^(gain/20), clipped at full scale. (The noise
+    /// scales with it, as if amplified after the sensor.)
+    fn brighten(&self, data: &mut [u16], bits: u8) {
+        let (exposure, gain) = self.configured;
+        if (self.exposure_us, self.gain_db) == (exposure, gain) || exposure <= 0.0 {
+            return;
+        }
+        let scale = self.exposure_us / exposure * 10f64.powf((self.gain_db - gain) / 20.0);
+        let full = f64::from((1u32 << bits) - 1);
+        for v in data {
+            *v = (f64::from(*v) * scale).round().min(full) as u16;
+        }
+    }
+
     /// The frame index to render and the sequence shown: pattern k of every projector, or,
     /// in a rig without projectors, the plain frame (indexed by the camera's counter, so
     /// the frames of a burst have noise of their own).
@@ -498,7 +534,8 @@ impl SimCamera {
         let Some((_, _, renderer)) = &self.renderer else {
             unreachable!("set above")
         };
-        let frame = renderer.frame(k);
+        let mut frame = renderer.frame(k);
+        self.brighten(&mut frame.data, frame.bits);
         let counter = self.counter;
         self.counter += 1;
         if self.faults.drop_every.is_some_and(|n| counter % n == n - 1) {

@@ -730,6 +730,22 @@ impl<D: V4l2Device> Camera for V4l2Camera<D> {
         Ok(())
     }
 
+    fn set_exposure_gain(&mut self, exposure_us: f64, gain_db: f64) -> Result<(), DeviceError> {
+        let Some(applied) = self.applied else {
+            return Err(self.failed("exposure set before configure".into()));
+        };
+        let controls = self
+            .device
+            .controls()
+            .map_err(|e| self.io_error("VIDIOC_QUERY_EXT_CTRL", e))?;
+        let exposure_us = self.set_exposure(&controls, exposure_us, applied.format.width)?;
+        self.set_gain(&controls, gain_db)?;
+        if let Some(a) = self.applied.as_mut() {
+            a.exposure_us = exposure_us;
+        }
+        Ok(())
+    }
+
     fn start(&mut self) -> Result<(), DeviceError> {
         if self.applied.is_none() {
             return Err(self.failed("start before configure".into()));

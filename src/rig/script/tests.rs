@@ -343,3 +343,64 @@ fn shipped_scripted_rigs_load_and_unroll() {
     // 3 tilts × 4 angles on the stage, 4 hand-held, 1 held out.
     assert_eq!(plan.captures, 17);
 }
+
+#[test]
+fn a_capture_sets_its_own_exposure_and_gain() {
+    let script = "[[script]]\ncapture = \"plain\"\n[[script]]\ncapture = \"dim\"\n\
+                  exposure_us = 2500\n[[script]]\nevery = 2.0\ncount = 2\ngain_db = 6\n\
+                  cameras = [\"cam0\"]\n";
+    let rig = RigFile::parse(&rig_text(script), "rig.toml").unwrap();
+    let plan = rig.script_plan(1.0).unwrap().unwrap();
+    let exposures = plan.exposures(&rig);
+    // Pose 0 keeps the camera's own; pose 1 its own gain with 2.5 ms; poses 2 and 3 (the
+    // every block) its own 5 ms with 6 dB.
+    assert_eq!(exposures.len(), 3, "{exposures:?}");
+    assert!(!exposures.contains_key(&0));
+    assert_eq!(exposures[&1], [Some((2500.0, 0.0))]);
+    assert_eq!(exposures[&2], [Some((5000.0, 6.0))]);
+    assert_eq!(exposures[&3], exposures[&2]);
+}
+
+#[test]
+fn exposure_errors_name_the_key_and_line() {
+    // 10 ms frames, no settle: 10 000 µs at most.
+    let err = refused(
+        "[[script]]\ncapture = \"x\"\nexposure_us = 12000\n",
+        3,
+        "script[0].exposure_us",
+    );
+    assert!(err.to_string().contains("10000 µs"), "{err}");
+    refused(
+        "[[script]]\ncapture = \"x\"\nexposure_us = 0\n",
+        3,
+        "script[0].exposure_us",
+    );
+    refused(
+        "[[script]]\ncapture = \"x\"\ngain_db = nan\n",
+        3,
+        "script[0].gain_db",
+    );
+    let err = refused(
+        "[[script]]\ncapture = \"x\"\ngain_db = 3\ncameras = [\"cam9\"]\n",
+        4,
+        "script[0].cameras",
+    );
+    assert!(err.to_string().contains("\"cam9\""), "{err}");
+    refused(
+        "[[script]]\ncapture = \"x\"\ngain_db = 3\ncameras = [\"cam0\", \"cam0\"]\n",
+        4,
+        "script[0].cameras",
+    );
+    refused(
+        "[[script]]\ncapture = \"x\"\ncameras = [\"cam0\"]\n",
+        3,
+        "script[0].cameras",
+    );
+    // A key of captures on another kind of step.
+    let err = refused(
+        "[[script]]\ncapture = \"x\"\n[[script]]\nwait = 1\nexposure_us = 100\n",
+        5,
+        "script[1].exposure_us",
+    );
+    assert!(err.to_string().contains("capture, every"), "{err}");
+}
