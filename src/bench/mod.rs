@@ -3,5 +3,6 @@
 
 pub mod decode;
 pub mod detect_grid;
+pub mod formats;
 pub mod render;
 pub mod script;
