@@ -294,12 +294,13 @@ pub fn pixel_formats() -> Vec<(FourCc, SampleFormat)> {
 }
 
 /// The formats to try for `bits`, best first: the rig file's `named` one alone, else every
-/// offered format that gives `bits`, by [`SampleFormat::rank`]. The reason, naming what is
-/// offered, when none fits.
+/// offered format that gives `bits`, by [`SampleFormat::rank`]. The reason, naming the node
+/// (`node`) and what it offers, when none fits.
 pub fn candidates(
     named: Option<&str>,
     bits: u8,
     offered: &[FourCc],
+    node: &str,
 ) -> Result<Vec<(FourCc, SampleFormat)>, String> {
     let listing = offered
         .iter()
@@ -314,7 +315,7 @@ pub fn candidates(
             ));
         };
         if !offered.contains(&code) {
-            return Err(format!("{name} not offered; the device offers {listing}"));
+            return Err(format!("{name} not offered; {node} offers {listing}"));
         }
         if format.rank(bits).is_none() {
             return Err(format!(
@@ -499,7 +500,7 @@ impl<D: V4l2Device> V4l2Camera<D> {
             .device
             .formats()
             .map_err(|e| self.io_error("VIDIOC_ENUM_FMT", e))?;
-        let wanted = candidates(self.format_name.as_deref(), bits, &offered)
+        let wanted = candidates(self.format_name.as_deref(), bits, &offered, &self.address)
             .map_err(|reason| self.unsupported("format", reason))?;
         let mut refused = None;
         for (fourcc, samples) in wanted {
@@ -925,7 +926,7 @@ pub fn describe<D: V4l2Device>(device: &D) -> io::Result<String> {
     }
     let offered = device.formats()?;
     let formats: Vec<String> = offered.iter().map(|f| f.to_string()).collect();
-    let order = |bits| match candidates(None, bits, &offered) {
+    let order = |bits| match candidates(None, bits, &offered, "the node") {
         Ok(c) => c
             .iter()
             .map(|(f, _)| f.to_string())
