@@ -311,7 +311,7 @@ pub fn candidates(
     if let Some(name) = named {
         let Some(&(code, format)) = known.iter().find(|(c, _)| c.to_string() == name.trim()) else {
             return Err(format!(
-                "hexcal cannot read {name}; the device offers {listing}"
+                "hexcal cannot read {name}; {node} offers {listing}"
             ));
         };
         if !offered.contains(&code) {
@@ -332,7 +332,7 @@ pub fn candidates(
     usable.sort_by_key(|(_, f)| f.rank(bits));
     if usable.is_empty() {
         return Err(format!(
-            "no format gives {bits} bits; the device offers {listing}"
+            "no format gives {bits} bits; {node} offers {listing}"
         ));
     }
     Ok(usable)
