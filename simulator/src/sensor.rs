@@ -223,7 +223,7 @@ mod tests {
                 .data
                 .iter()
                 .enumerate()
-                .filter(|(i, _)| 2 * ((i / w) & 1) + (i % w & 1) == pos)
+                .filter(|(i, _)| 2 * ((i / w) & 1) + ((i % w) & 1) == pos)
                 .map(|(_, &v)| f64::from(v))
                 .collect();
             let n = values.len() as f64;
