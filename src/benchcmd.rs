@@ -117,6 +117,14 @@ pub enum Bench {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Detection on rendered views through each camera pixel format (mono, Bayer raw and
+    /// balanced, MJPEG at quality 95 and 85): recall, labelled points, centre error and the
+    /// conversion's time per frame.
+    Formats {
+        /// Noise draws of each of the two detect-grid scenes.
+        #[arg(long, default_value_t = 4)]
+        seeds: u64,
+    },
     /// Decode one camera's default phase-shift stack (synthetic scene, gamma 2.2).
     Decode {
         /// Camera width (px).
@@ -239,6 +247,9 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
             println!("{}", hexcal::bench::render::bench_render(&scene, repeat)?);
         }
         Bench::Detect { images, runs } => bench_detect(&images, runs)?,
+        Bench::Formats { seeds } => {
+            print!("{}", hexcal::bench::formats::bench_formats(seeds)?);
+        }
         Bench::DetectGrid { runs, out } => {
             use hexcal::bench::detect_grid as bench;
             // The views go to --out, else to a temporary directory, for OpenCV's run.

@@ -364,14 +364,19 @@ pub fn devices() -> anyhow::Result<()> {
 fn extra_devices(all: &mut Vec<hexcal::rig::discover::Found>, notes: &mut Vec<String>) {
     #[cfg(feature = "aravis")]
     all.extend(hexcal::rig::aravis::list_cameras().into_iter().map(|c| {
+        let formats = hexcal::rig::aravis::describe_formats(&c.id)
+            .unwrap_or_else(|e| format!("formats unknown: {e}"));
         hexcal::rig::discover::Found {
             kind: "aravis",
+            description: format!(
+                "{} {} #{} ({}): {formats}",
+                c.vendor, c.model, c.serial, c.protocol
+            ),
             address: if c.address.is_empty() {
                 c.id
             } else {
                 c.address
             },
-            description: format!("{} {} #{} ({})", c.vendor, c.model, c.serial, c.protocol),
         }
     }));
     #[cfg(not(feature = "aravis"))]

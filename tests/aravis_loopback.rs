@@ -137,6 +137,70 @@ fn mono16_frames_and_restart() {
     assert_eq!(fake.mismatches(), 0);
 }
 
+/// Response of the red, green and blue pixels of the served Bayer mosaics.
+const RESPONSE: [f64; 3] = [0.6, 1.0, 0.8];
+
+#[test]
+fn bayer_mosaics_of_every_phase_arrive_balanced_to_the_board_view() {
+    use hexcal::images::to_grey::Cfa;
+    let _one = exclusive();
+    let (w, h, views) = board_frames(1);
+    let Pixels::Gray8(view) = &views[0] else {
+        unreachable!("8-bit views")
+    };
+    // The board view constant over each 2×2 cell, so grey-world gains are exact up to
+    // rounding.
+    let cell = |i: usize| view[((i / w as usize) & !1) * w as usize + ((i % w as usize) & !1)];
+    for (name, cfa) in [
+        ("BayerRG8", Cfa::Rggb),
+        ("BayerGR8", Cfa::Grbg),
+        ("BayerGB8", Cfa::Gbrg),
+        ("BayerBG8", Cfa::Bggr),
+    ] {
+        let mosaic: Vec<u8> = (0..view.len())
+            .map(|i| {
+                let r = RESPONSE[cfa.channel(i % w as usize, i / w as usize)];
+                (f64::from(cell(i)) * r).round() as u8
+            })
+            .collect();
+        let fake = LoopbackCamera::start("HEXTEST", vec![Pixels::Gray8(mosaic)]).unwrap();
+        let mut camera = AravisCamera::open("cam-bayer", LOOPBACK_ADDRESS)
+            .unwrap()
+            .with_format(Some(name));
+        camera.configure(&config(w, h, 8)).expect("configures");
+        assert_eq!(camera.pixel_format().as_deref(), Some(name));
+        camera.start().expect("starts");
+        for _ in 0..2 {
+            let frame = shot(&mut camera).expect("frame arrives");
+            let Pixels::Gray8(got) = &frame.pixels else {
+                panic!("8-bit grey expected")
+            };
+            // Rounded once through the filter, once through the gain: within 1 DN.
+            let worst = (0..got.len())
+                .map(|i| (i16::from(got[i]) - i16::from(cell(i))).abs())
+                .max();
+            assert!(worst <= Some(1), "{name}: worst {worst:?}");
+        }
+        camera.stop().expect("stops");
+        assert_eq!(fake.mismatches(), 0);
+    }
+    // Unnamed, the monochrome format the fake camera also offers is chosen.
+    let fake = LoopbackCamera::start("HEXTEST", views).unwrap();
+    let mut camera = AravisCamera::open("cam-auto", LOOPBACK_ADDRESS).unwrap();
+    camera.configure(&config(w, h, 8)).expect("configures");
+    assert_eq!(camera.pixel_format().as_deref(), Some("Mono8"));
+    // A format the camera does not offer is refused naming what it offers.
+    let mut camera = AravisCamera::open("cam-named", LOOPBACK_ADDRESS)
+        .unwrap()
+        .with_format(Some("BayerRG12p"));
+    let msg = camera.configure(&config(w, h, 12)).unwrap_err().to_string();
+    assert!(
+        msg.contains("BayerRG12p not offered") && msg.contains("BayerRG8"),
+        "{msg}"
+    );
+    drop(fake);
+}
+
 #[test]
 fn impossible_settings_are_refused_naming_device_and_setting() {
     let _one = exclusive();

@@ -1,5 +1,6 @@
-//! The imaging chain from irradiance to a quantised frame: vignetting → Gaussian PSF → shot
-//! and read noise → gamma → quantisation (docs/design.md §9).
+//! The imaging chain from irradiance to a quantised frame: vignetting → Gaussian PSF →
+//! colour filter (a Bayer sensor) → shot and read noise → gamma → quantisation
+//! (docs/design.md §9).
 //!
 //! Intensities are in DN of an 8-bit scale (full scale 255) whatever the output depth; a
 //! 12- or 16-bit frame stores the same signal times (2^bits − 1)/255, so changing `bits`
@@ -31,6 +32,11 @@ pub struct Sensor {
     pub gamma: f64,
     /// Output depth: 8, 12 or 16 bits.
     pub bits: u8,
+    /// A colour filter array: the relative response to the (white) light of the four
+    /// pixels of each 2×2 cell, row by row (top-left, top-right, bottom-left,
+    /// bottom-right), applied to the signal before the noise; `None` for a monochrome
+    /// sensor.
+    pub cfa: Option<[f32; 4]>,
 }
 
 /// A quantised frame, row-major.
@@ -93,6 +99,10 @@ impl Sensor {
             .enumerate()
             .for_each(|(y, (out, inp))| {
                 let mut rng = SmallRng::seed_from_u64(splitmix64(seed ^ splitmix64(y as u64)));
+                // The filters of this row: even and odd columns (chunks start on even ones).
+                let filter = self
+                    .cfa
+                    .map_or([1.0; 2], |c| [c[2 * (y & 1)], c[2 * (y & 1) + 1]]);
                 let mut z = [0f32; 256];
                 for (out, inp) in out.chunks_mut(z.len()).zip(inp.chunks(z.len())) {
                     // The deviates first, then arithmetic the compiler vectorises (the
@@ -100,7 +110,15 @@ impl Sensor {
                     for z in &mut z[..out.len()] {
                         *z = rng.sample::<f64, _>(StandardNormal) as f32;
                     }
-                    if linear {
+                    if self.cfa.is_some() {
+                        for (x, ((o, &s), &z)) in out.iter_mut().zip(inp).zip(&z).enumerate() {
+                            let v = noisy(s * filter[x & 1], z);
+                            *o = match linear {
+                                true => quantise(v),
+                                false => quantise(full * (v / full).powf(inv_gamma)),
+                            };
+                        }
+                    } else if linear {
                         for ((o, &s), &z) in out.iter_mut().zip(inp).zip(&z) {
                             *o = quantise(noisy(s, z));
                         }
@@ -187,6 +205,41 @@ mod tests {
             read_noise: 2.0,
             gamma: 1.0,
             bits: 8,
+            cfa: None,
+        }
+    }
+
+    #[test]
+    fn a_colour_filter_scales_each_cell_position_and_its_noise_follows() {
+        // Responses 0.5, 1 / 1, 0.75 on a flat field of 160 DN.
+        let s = Sensor {
+            cfa: Some([0.5, 1.0, 1.0, 0.75]),
+            ..sensor()
+        };
+        let f = s.capture(SIZE, &flat(160.0, SIZE), 3);
+        let w = SIZE.width as usize;
+        for (pos, response) in [0.5f64, 1.0, 1.0, 0.75].into_iter().enumerate() {
+            let values: Vec<f64> = f
+                .data
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| 2 * ((i / w) & 1) + ((i % w) & 1) == pos)
+                .map(|(_, &v)| f64::from(v))
+                .collect();
+            let n = values.len() as f64;
+            let mean = values.iter().sum::<f64>() / n;
+            let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+            // The filtered signal carries its own shot noise: σ² = gain·r·I + read² + 1/12.
+            let level = 160.0 * response;
+            let model = 0.1 * level + 4.0 + 1.0 / 12.0;
+            assert!(
+                (mean - level).abs() < 5.0 * (model / n).sqrt(),
+                "{pos}: mean {mean}"
+            );
+            assert!(
+                (var - model).abs() < 5.0 * model * (2.0 / n).sqrt(),
+                "{pos}: var {var} vs {model}"
+            );
         }
     }
 

@@ -6,8 +6,9 @@
 
 use crate::app::detect::{analyse, Settings};
 use crate::board::Board;
+use crate::detect::Circle;
 use crate::grid::build;
-use crate::sim::{render, write_view, Scene, SimError};
+use crate::sim::{render, write_view, GroundTruth, Scene, SimError};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
@@ -19,6 +20,9 @@ pub enum BenchError {
     /// Rendering or writing a view failed.
     #[error(transparent)]
     Sim(#[from] SimError),
+    /// Coding or decoding a frame in a camera format failed.
+    #[error("pixel format: {0}")]
+    Encode(String),
     /// Writing the figures failed.
     #[error("cannot write {path}: {source}")]
     Write {
@@ -173,34 +177,16 @@ pub fn bench_detect_grid(
         let (total_ms, total_min_ms) = time_ms(runs, || {
             std::hint::black_box(analyse(&image, board, &settings));
         });
-        // Whole circles: outline-ellipse centre and radius.
-        let whole: Vec<([f64; 2], f64)> = view
-            .truth
-            .circles
-            .iter()
-            .filter(|c| c.whole)
-            .filter_map(|c| c.ellipse.zip(c.radius))
-            .collect();
-        let mut sq = Vec::new();
-        for (t, r) in &whole {
-            let nearest = analysis
-                .circles
-                .iter()
-                .map(|c| (c.ellipse.center.x - t[0]).hypot(c.ellipse.center.y - t[1]))
-                .fold(f64::INFINITY, f64::min);
-            if nearest < r / 3.0 {
-                sq.push(nearest * nearest);
-            }
-        }
+        let (whole, matched, centre_rms) = centre_error(&view.truth, &analysis.circles);
         rows.push(BenchRow {
             image: view.truth.image.clone(),
             width: w,
             height: h,
             circles: analysis.circles.len(),
             points: analysis.grid.points.len(),
-            whole: whole.len(),
-            matched: sq.len(),
-            centre_rms: (sq.iter().sum::<f64>() / sq.len().max(1) as f64).sqrt(),
+            whole,
+            matched,
+            centre_rms,
             detect_ms,
             grid_ms,
             total_ms,
@@ -219,6 +205,29 @@ pub fn bench_detect_grid(
         std::fs::write(&path, text).map_err(|source| BenchError::Write { path, source })?;
     }
     Ok(report)
+}
+
+/// The whole circles of `truth`, how many have a detection among `found` within a third of
+/// their radius, and the RMS distance of those from the truth's outline-ellipse centres (px).
+pub fn centre_error(truth: &GroundTruth, found: &[Circle]) -> (usize, usize, f64) {
+    let whole: Vec<([f64; 2], f64)> = truth
+        .circles
+        .iter()
+        .filter(|c| c.whole)
+        .filter_map(|c| c.ellipse.zip(c.radius))
+        .collect();
+    let mut sq = Vec::new();
+    for (t, r) in &whole {
+        let nearest = found
+            .iter()
+            .map(|c| (c.ellipse.center.x - t[0]).hypot(c.ellipse.center.y - t[1]))
+            .fold(f64::INFINITY, f64::min);
+        if nearest < r / 3.0 {
+            sq.push(nearest * nearest);
+        }
+    }
+    let rms = (sq.iter().sum::<f64>() / sq.len().max(1) as f64).sqrt();
+    (whole.len(), sq.len(), rms)
 }
 
 /// The Python that runs OpenCV (Debian's `python3-opencv`; a pyenv `python3` on PATH would

@@ -3,6 +3,7 @@
 
 pub mod decode;
 pub mod detect_grid;
+pub mod formats;
 pub mod guide;
 pub mod render;
 pub mod script;

@@ -439,3 +439,74 @@ fn the_simulated_controller_on_a_pty_triggers_the_same_frames() {
     .unwrap();
     assert_eq!(k, 2 * n);
 }
+
+/// RMS and mean of `a − b` over the pixels of a 320-wide frame that `keep` selects.
+fn difference(a: &[u8], b: &[u8], keep: impl Fn(usize, usize) -> bool) -> (f64, f64) {
+    let d: Vec<f64> = (0..a.len())
+        .filter(|&i| keep(i % 320, i / 320))
+        .map(|i| f64::from(a[i]) - f64::from(b[i]))
+        .collect();
+    let n = d.len() as f64;
+    (
+        (d.iter().map(|v| v * v).sum::<f64>() / n).sqrt(),
+        d.iter().sum::<f64>() / n,
+    )
+}
+
+#[test]
+fn simulated_bayer_and_mjpeg_cameras_deliver_grey_close_to_the_monochrome_frame() {
+    let text = RIG
+        .replacen(
+            "driver = \"sim\"\n",
+            "driver = \"sim\"\nformat = \"BayerRG\"\n",
+            1,
+        )
+        .replacen(
+            "name = \"back\"\ndriver = \"sim\"\n",
+            "name = \"back\"\ndriver = \"sim\"\nformat = \"MJPG\"\njpeg_quality = 95\n",
+            1,
+        );
+    let rig = RigFile::parse(&text, "tiny.toml").unwrap();
+    let opened = crate::rig::open(&rig).unwrap();
+    let world = opened.world.clone().unwrap();
+    let names: Vec<Option<String>> = opened
+        .devices
+        .cameras
+        .iter()
+        .map(|c| c.pixel_format())
+        .collect();
+    assert_eq!(
+        names,
+        [Some("BayerRG8".into()), Some("MJPG (quality 95)".into())]
+    );
+    let mut s = Session::start(opened.devices, &opened.sequence).unwrap();
+    world.place(1);
+    let mut got: Vec<(usize, usize, CameraFrame)> = Vec::new();
+    s.capture_pose(1, &mut |f| {
+        got.push((f.camera, f.index, f.frame));
+        Ok(())
+    })
+    .unwrap();
+    s.finish().unwrap();
+    for c in 0..2 {
+        let r = world_renderer(&world, c, 1, &opened.sequence);
+        for (_, k, f) in got.iter().filter(|g| g.0 == c && g.1 % 5 == 0) {
+            let mono: Vec<u8> = r.frame(*k).data.iter().map(|&v| v as u8).collect();
+            let grey = pixels8(f);
+            if c == 0 {
+                // Green pixels respond 1 and keep gain 1: the same noise draw as the
+                // monochrome sensor, so the same values.
+                let (rms, _) = difference(grey, &mono, |x, y| (x + y) % 2 == 1);
+                assert_eq!(rms, 0.0, "frame {k}: green pixels differ");
+                // Red and blue (responses 0.6, 0.8) balanced back: unbiased, their noise
+                // scaled up by at most 1/0.6 (σ ≤ 5.2 DN at white: < 3.5 DN apart).
+                let (rms, mean) = difference(grey, &mono, |x, y| (x + y) % 2 == 0);
+                assert!(rms < 3.5 && mean.abs() < 0.5, "frame {k}: {rms} {mean}");
+            } else {
+                // Quality 95 quantises with steps of 1–5 DN: errors of a DN or two.
+                let (rms, mean) = difference(grey, &mono, |_, _| true);
+                assert!(rms < 2.5 && mean.abs() < 0.5, "frame {k}: {rms} {mean}");
+            }
+        }
+    }
+}

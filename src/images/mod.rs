@@ -4,6 +4,7 @@
 
 mod frame;
 mod io;
+pub mod to_grey;
 
 pub use frame::{CameraFrame, Pixels};
 pub use io::*;

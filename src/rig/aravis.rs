@@ -1,7 +1,9 @@
 //! GenICam cameras through Aravis (docs/design.md §11), behind the cargo feature `aravis`.
 //!
 //! Takes a camera's rig-file name and its address (IP address, serial number or Aravis
-//! device id) and gives a [`Camera`]: Mono8 / Mono10 / Mono12 / Mono16 frames, exposure
+//! device id) and gives a [`Camera`]: monochrome, Bayer (every phase) and RGB frames of 8 to
+//! 16 bits, packed (PFNC `…p`, GigE Vision `…Packed`) or not, in the grey the stages read
+//! ([`crate::images::to_grey`]; the format the rig file names, else [`choose_format`]), exposure
 //! (SFNC `ExposureTime` or `ExposureTimeAbs`), gain (`Gain` in dB, or `GainRaw` at its
 //! minimum for 0 dB), trigger mode on with a software or line trigger source, a small
 //! buffer pool with GigE Vision packet resend, and incomplete buffers reported as
@@ -16,7 +18,8 @@ pub mod loopback;
 pub use loopback::{bench_loopback, LoopbackBench, LoopbackCamera, LOOPBACK_ADDRESS};
 
 use super::device::{Camera, CameraConfig, DeviceError, TriggerSource};
-use crate::images::{CameraFrame, Pixels};
+use crate::images::to_grey::{to_grey, BayerBalance, Cfa, Colour, Packing, SampleFormat};
+use crate::images::CameraFrame;
 use aravis::glib::{self, object::Cast};
 use aravis::prelude::*;
 use aravis::{
@@ -72,6 +75,26 @@ pub fn list_cameras() -> Vec<CameraListing> {
     }
 }
 
+/// The pixel formats of the camera `id` and what hexcal takes when the rig file names none
+/// (for 8 and 16 bits), for `hexcal devices`; opens the camera.
+pub fn describe_formats(id: &str) -> Result<String, DeviceError> {
+    let camera = AravisCamera::open(id, id)?;
+    let offered: Vec<String> = camera
+        .camera
+        .dup_available_pixel_formats_as_strings()
+        .map_err(|e| camera.error("PixelFormat", e))?
+        .iter()
+        .map(|o| o.to_string())
+        .collect();
+    let choice = |bits| choose_format(None, bits, &offered).map_or("none".into(), |c| c.0);
+    Ok(format!(
+        "formats {}; hexcal takes {} for 8 bits, {} for 16",
+        offered.join(" "),
+        choice(8),
+        choice(16)
+    ))
+}
+
 /// A C string from Aravis' device list, copied ("" when absent).
 ///
 /// # Safety
@@ -82,6 +105,82 @@ unsafe fn owned(s: *const c_char) -> String {
     } else {
         CStr::from_ptr(s).to_string_lossy().into_owned()
     }
+}
+
+/// The GenICam (PFNC) pixel formats the driver reads, by name: Mono8/10/12/16, Mono10p,
+/// Mono12p, Mono10Packed, Mono12Packed, the same for Bayer mosaics of each phase
+/// (BayerRG8, BayerGB12p, BayerBG10Packed, …), and RGB8 / BGR8 (also as …Packed).
+pub fn pixel_formats() -> Vec<(String, SampleFormat)> {
+    const DEPTHS: [(&str, Packing, u8); 8] = [
+        ("8", Packing::U8, 8),
+        ("10", Packing::U16Le, 10),
+        ("12", Packing::U16Le, 12),
+        ("16", Packing::U16Le, 16),
+        ("10p", Packing::LsbStream, 10),
+        ("12p", Packing::LsbStream, 12),
+        ("10Packed", Packing::GvspPair, 10),
+        ("12Packed", Packing::GvspPair, 12),
+    ];
+    const PHASES: [(&str, Cfa); 4] = [
+        ("RG", Cfa::Rggb),
+        ("GR", Cfa::Grbg),
+        ("GB", Cfa::Gbrg),
+        ("BG", Cfa::Bggr),
+    ];
+    let mut all: Vec<(String, SampleFormat)> = DEPTHS
+        .iter()
+        .map(|&(d, packing, bits)| (format!("Mono{d}"), SampleFormat::mono(packing, bits)))
+        .collect();
+    for (p, cfa) in PHASES {
+        all.extend(DEPTHS.iter().map(|&(d, packing, bits)| {
+            (
+                format!("Bayer{p}{d}"),
+                SampleFormat::bayer(cfa, packing, bits),
+            )
+        }));
+    }
+    for (name, colour) in [
+        ("RGB8", Colour::Rgb),
+        ("RGB8Packed", Colour::Rgb),
+        ("BGR8", Colour::Bgr),
+        ("BGR8Packed", Colour::Bgr),
+    ] {
+        all.push((name.to_string(), SampleFormat::bytes(colour)));
+    }
+    all
+}
+
+/// The pixel format to use among the camera's `offered` ones: `named` (the rig file's
+/// `format`) when given, else the best for `bits` by [`SampleFormat::rank`] (ties: the
+/// order of [`pixel_formats`]). The reason, naming what is offered, when none fits.
+pub fn choose_format(
+    named: Option<&str>,
+    bits: u8,
+    offered: &[String],
+) -> Result<(String, SampleFormat), String> {
+    let known = pixel_formats();
+    let usable = |name: &str| {
+        known
+            .iter()
+            .find(|(n, f)| n == name && f.rank(bits).is_some())
+            .cloned()
+    };
+    let listing = offered.join(", ");
+    if let Some(name) = named {
+        if !offered.iter().any(|o| o == name) {
+            return Err(format!("{name} not offered; the camera offers {listing}"));
+        }
+        return usable(name).ok_or_else(|| match known.iter().find(|(n, _)| n == name) {
+            Some((_, f)) => format!("{name} gives {} bits, the rig file asks {bits}", f.bits),
+            None => format!("hexcal cannot read {name}; the camera offers {listing}"),
+        });
+    }
+    known
+        .iter()
+        .filter(|(n, f)| offered.contains(n) && f.rank(bits).is_some())
+        .min_by_key(|(_, f)| f.rank(bits))
+        .cloned()
+        .ok_or_else(|| format!("no pixel format gives {bits} bits; the camera offers {listing}"))
 }
 
 /// Packet statistics of a running GigE Vision stream.
@@ -104,9 +203,10 @@ pub struct StreamStatistics {
 struct Applied {
     width: u32,
     height: u32,
-    format: PixelFormat,
-    bits: u8,
-    bytes_per_sample: usize,
+    /// The pixel format code buffers carry.
+    code: PixelFormat,
+    /// What the samples are.
+    format: SampleFormat,
     exposure_us: f64,
     trigger: TriggerSource,
 }
@@ -144,6 +244,12 @@ pub struct AravisCamera {
     applied: Option<Applied>,
     ids: FrameIds,
     control_lost: Arc<AtomicBool>,
+    /// The rig file's `format`, if it names one.
+    format_name: Option<String>,
+    /// The pixel format chosen at `configure`.
+    chosen: Option<String>,
+    /// White balance of a Bayer format, held from `start` to `stop`.
+    balance: BayerBalance,
 }
 
 impl AravisCamera {
@@ -170,7 +276,17 @@ impl AravisCamera {
             applied: None,
             ids: FrameIds::default(),
             control_lost,
+            format_name: None,
+            chosen: None,
+            balance: BayerBalance::default(),
         })
+    }
+
+    /// Use the pixel format `name` (a PFNC name from [`pixel_formats`]) rather than choosing
+    /// one; `None` restores the choice.
+    pub fn with_format(mut self, name: Option<&str>) -> Self {
+        self.format_name = name.map(str::to_string);
+        self
     }
 
     /// Vendor, model and serial number as the camera reports them.
@@ -308,47 +424,30 @@ impl AravisCamera {
         cam.float(feature).map_err(|e| self.error(feature, e))
     }
 
-    /// Mono8 for 8 bits; Mono10 / Mono12 (else Mono16) for 10 / 12 bits; Mono16 for 16.
-    fn set_pixel_format(&self, bits: u8) -> Result<(PixelFormat, u8, usize), DeviceError> {
-        const MONO: [(&str, PixelFormat, u8, usize); 4] = [
-            ("Mono8", PixelFormat::MONO_8, 8, 1),
-            ("Mono10", PixelFormat::MONO_10, 10, 2),
-            ("Mono12", PixelFormat::MONO_12, 12, 2),
-            ("Mono16", PixelFormat::MONO_16, 16, 2),
-        ];
-        let wanted: &[&str] = match bits {
-            8 => &["Mono8"],
-            10 => &["Mono10", "Mono16"],
-            12 => &["Mono12", "Mono16"],
-            16 => &["Mono16"],
-            _ => return Err(self.unsupported("bits", format!("{bits} bits: use 8, 10, 12 or 16"))),
-        };
-        let offered = self
+    /// Set the pixel format: the one the rig file names, else the best the camera offers for
+    /// `bits` ([`SampleFormat::rank`]: monochrome, then Bayer, then RGB); gives its name,
+    /// what it is and the pixel format code buffers carry.
+    fn set_pixel_format(
+        &self,
+        bits: u8,
+    ) -> Result<(String, SampleFormat, PixelFormat), DeviceError> {
+        let offered: Vec<String> = self
             .camera
             .dup_available_pixel_formats_as_strings()
-            .map_err(|e| self.error("PixelFormat", e))?;
-        let name = wanted
+            .map_err(|e| self.error("PixelFormat", e))?
             .iter()
-            .find(|w| offered.iter().any(|o| o.as_str() == **w))
-            .ok_or_else(|| {
-                let offered: Vec<&str> = offered.iter().map(|o| o.as_str()).collect();
-                self.unsupported(
-                    "bits",
-                    format!(
-                        "{bits} bits needs PixelFormat {}; the camera offers {}",
-                        wanted.join(" or "),
-                        offered.join(", ")
-                    ),
-                )
-            })?;
+            .map(|o| o.to_string())
+            .collect();
+        let (name, format) = choose_format(self.format_name.as_deref(), bits, &offered)
+            .map_err(|reason| self.unsupported("format", reason))?;
         self.camera
-            .set_pixel_format_from_string(name)
+            .set_pixel_format_from_string(&name)
             .map_err(|e| self.error(&format!("PixelFormat = {name}"), e))?;
-        let (_, format, bits, bytes) = MONO
-            .into_iter()
-            .find(|m| m.0 == *name)
-            .ok_or_else(|| self.failed(format!("unknown pixel format {name}")))?;
-        Ok((format, bits, bytes))
+        let code = self
+            .camera
+            .pixel_format()
+            .map_err(|e| self.error("PixelFormat", e))?;
+        Ok((name, format, code))
     }
 
     /// Exposure through SFNC `ExposureTime` or the older `ExposureTimeAbs` (µs both).
@@ -456,45 +555,38 @@ impl AravisCamera {
             )));
         }
         let (width, height) = (buffer.image_width(), buffer.image_height());
-        let format = buffer.image_pixel_format();
-        if (width, height) != (applied.width as i32, applied.height as i32)
-            || format != applied.format
+        let code = buffer.image_pixel_format();
+        if (width, height) != (applied.width as i32, applied.height as i32) || code != applied.code
         {
             return Err(self.failed(format!(
                 "frame id {}: {width}×{height} format {:#x}, configured {}×{} format {:#x}",
                 buffer.frame_id(),
-                format.raw(),
+                code.raw(),
                 applied.width,
                 applied.height,
-                applied.format.raw()
+                applied.code.raw()
             )));
         }
         let data = buffer.image_data();
-        let samples = applied.width as usize * applied.height as usize;
-        if data.len() != samples * applied.bytes_per_sample {
+        let (w, h) = (applied.width as usize, applied.height as usize);
+        let row = applied.format.row_bytes(w).unwrap_or(0);
+        if data.len() != row * h {
             return Err(DeviceError::Incomplete {
                 device: self.name.clone(),
                 reason: format!(
                     "SIZE_MISMATCH: frame id {} has {} bytes, {} expected",
                     buffer.frame_id(),
                     data.len(),
-                    samples * applied.bytes_per_sample
+                    row * h
                 ),
             });
         }
-        let pixels = if applied.bytes_per_sample == 1 {
-            Pixels::Gray8(data)
-        } else {
-            Pixels::Gray16(
-                data.chunks_exact(2)
-                    .map(|b| u16::from_le_bytes([b[0], b[1]]))
-                    .collect(),
-            )
-        };
+        let pixels = to_grey(&applied.format, &data, w, h, row, &mut self.balance)
+            .map_err(|e| self.failed(format!("frame id {}: {e}", buffer.frame_id())))?;
         Ok(CameraFrame {
             width: applied.width,
             height: applied.height,
-            bits: applied.bits,
+            bits: applied.format.bits,
             pixels,
             counter: self.ids.counter(buffer.frame_id()),
             timestamp_ns: buffer.timestamp(),
@@ -530,7 +622,8 @@ impl Camera for AravisCamera {
             return Err(self.failed("configure while acquiring: stop first".into()));
         }
         self.applied = None;
-        let (format, bits, bytes_per_sample) = self.set_pixel_format(config.bits)?;
+        self.chosen = None;
+        let (name, format, code) = self.set_pixel_format(config.bits)?;
         for offset in ["OffsetX", "OffsetY"] {
             if self.has(offset) {
                 self.camera
@@ -546,12 +639,12 @@ impl Camera for AravisCamera {
         self.applied = Some(Applied {
             width: config.width,
             height: config.height,
+            code,
             format,
-            bits,
-            bytes_per_sample,
             exposure_us,
             trigger: config.trigger,
         });
+        self.chosen = Some(name);
         Ok(())
     }
 
@@ -564,6 +657,10 @@ impl Camera for AravisCamera {
         Ok(())
     }
 
+    fn pixel_format(&self) -> Option<String> {
+        self.chosen.clone()
+    }
+
     fn start(&mut self) -> Result<(), DeviceError> {
         if self.applied.is_none() {
             return Err(self.failed("start before configure".into()));
@@ -571,6 +668,7 @@ impl Camera for AravisCamera {
         if self.stream.is_some() {
             return Ok(());
         }
+        self.balance = BayerBalance::default();
         let payload = self
             .camera
             .payload()
@@ -645,5 +743,68 @@ impl Drop for AravisCamera {
             let _ = self.camera.stop_acquisition();
             drop(stream);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn offered(names: &[&str]) -> Vec<String> {
+        names.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn the_table_names_every_depth_phase_and_packing_once() {
+        let all = pixel_formats();
+        assert_eq!(all.len(), 8 + 4 * 8 + 4);
+        let mut names: Vec<&str> = all.iter().map(|(n, _)| n.as_str()).collect();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), all.len());
+        let find = |name: &str| all.iter().find(|(n, _)| n == name).map(|(_, f)| *f);
+        assert_eq!(
+            find("BayerGB12p"),
+            Some(SampleFormat::bayer(Cfa::Gbrg, Packing::LsbStream, 12))
+        );
+        assert_eq!(
+            find("Mono10Packed"),
+            Some(SampleFormat::mono(Packing::GvspPair, 10))
+        );
+        assert_eq!(
+            find("BayerBG16"),
+            Some(SampleFormat::bayer(Cfa::Bggr, Packing::U16Le, 16))
+        );
+        assert_eq!(find("BGR8"), Some(SampleFormat::bytes(Colour::Bgr)));
+    }
+
+    #[test]
+    fn the_choice_prefers_mono_then_bayer_then_rgb_at_the_bits_asked() {
+        let pick = |bits, names: &[&str]| choose_format(None, bits, &offered(names)).map(|c| c.0);
+        assert_eq!(pick(8, &["RGB8", "BayerRG8", "Mono8"]).unwrap(), "Mono8");
+        assert_eq!(
+            pick(8, &["RGB8", "BayerRG8", "Mono16"]).unwrap(),
+            "BayerRG8"
+        );
+        assert_eq!(pick(8, &["RGB8", "Mono16"]).unwrap(), "RGB8");
+        assert_eq!(pick(12, &["Mono16", "Mono12p"]).unwrap(), "Mono12p");
+        assert_eq!(pick(12, &["Mono16", "BayerRG12p"]).unwrap(), "Mono16");
+        let e = pick(12, &["Mono8", "RGB8"]).unwrap_err();
+        assert!(e.contains("12 bits") && e.contains("Mono8, RGB8"), "{e}");
+    }
+
+    #[test]
+    fn a_named_format_must_be_offered_readable_and_of_the_bits_asked() {
+        let list = offered(&["Mono8", "BayerRG12p", "YUV422Packed"]);
+        assert_eq!(
+            choose_format(Some("BayerRG12p"), 12, &list).unwrap().0,
+            "BayerRG12p"
+        );
+        let e = choose_format(Some("BayerGB8"), 8, &list).unwrap_err();
+        assert!(e.contains("BayerGB8 not offered"), "{e}");
+        let e = choose_format(Some("YUV422Packed"), 8, &list).unwrap_err();
+        assert!(e.contains("cannot read YUV422Packed"), "{e}");
+        let e = choose_format(Some("BayerRG12p"), 8, &list).unwrap_err();
+        assert!(e.contains("gives 12 bits") && e.contains("asks 8"), "{e}");
     }
 }

@@ -52,6 +52,11 @@ pub trait Camera: Send {
     fn next_frame(&mut self, timeout: Duration) -> Result<CameraFrame, DeviceError>;
     /// Stop acquisition.
     fn stop(&mut self) -> Result<(), DeviceError>;
+    /// The pixel format `configure` chose, in the driver's own naming (GenICam `BayerRG8`,
+    /// V4L2 `MJPG`, …); `None` before `configure` or for a driver with one format.
+    fn pixel_format(&self) -> Option<String> {
+        None
+    }
 }
 
 /// What a projector shows.

@@ -6,6 +6,7 @@
 use crate::board::{Board, BoardError};
 use crate::camera::{Distortion, Intrinsics};
 use crate::dataset::{CameraEntry, DatasetInfo, ProjectorEntry};
+use crate::images::to_grey::Cfa;
 use crate::limits;
 use crate::pattern::{ProjectorCode, ProjectorResponse, ProjectorSetup, Sequence, SequenceError};
 use crate::tomlspan::{line_of, KeySpans};
@@ -85,9 +86,67 @@ pub struct CameraSpec {
     /// Trigger-controller output line; none for software trigger.
     #[serde(default)]
     pub trigger_line: Option<u8>,
+    /// Pixel format: a GenICam name (`aravis`, e.g. `BayerRG12p`), a fourcc (`v4l2`, e.g.
+    /// `MJPG`) or `Mono`, `BayerRG` / `GR` / `GB` / `BG`, `MJPG` (`sim`); none: the driver
+    /// chooses (monochrome, then Bayer, then RGB, then MJPEG).
+    #[serde(default)]
+    pub format: Option<String>,
+    /// JPEG quality (1–100) of a `sim` camera with `format = "MJPG"` (default 85).
+    #[serde(default)]
+    pub jpeg_quality: Option<u8>,
     /// Ground truth (`sim` only).
     #[serde(default)]
     pub sim: Option<SimTruth>,
+}
+
+/// What a simulated camera delivers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SimFormat {
+    /// A monochrome sensor.
+    Mono,
+    /// A Bayer sensor of this phase, its raw mosaic.
+    Bayer(Cfa),
+    /// A webcam's Motion JPEG at this quality (1–100), 8 bits.
+    Mjpeg(u8),
+}
+
+/// The JPEG quality of a simulated MJPEG camera whose rig file gives none.
+pub const DEFAULT_JPEG_QUALITY: u8 = 85;
+
+impl CameraSpec {
+    /// What this camera delivers if simulated: its `format` and `jpeg_quality`; the reason
+    /// (naming the key) when they make no simulated format.
+    pub fn sim_format(&self) -> Result<SimFormat, (&'static str, String)> {
+        let format = match self.format.as_deref().unwrap_or("Mono") {
+            "Mono" => SimFormat::Mono,
+            "BayerRG" => SimFormat::Bayer(Cfa::Rggb),
+            "BayerGR" => SimFormat::Bayer(Cfa::Grbg),
+            "BayerGB" => SimFormat::Bayer(Cfa::Gbrg),
+            "BayerBG" => SimFormat::Bayer(Cfa::Bggr),
+            "MJPG" => SimFormat::Mjpeg(self.jpeg_quality.unwrap_or(DEFAULT_JPEG_QUALITY)),
+            other => {
+                return Err((
+                    "format",
+                    format!(
+                        "{other:?}: a simulated camera is Mono, BayerRG, BayerGR, BayerGB, \
+                         BayerBG or MJPG"
+                    ),
+                ))
+            }
+        };
+        match (format, self.jpeg_quality) {
+            (SimFormat::Mjpeg(q), _) if !(1..=100).contains(&q) => {
+                Err(("jpeg_quality", format!("{q}: use 1 to 100")))
+            }
+            (SimFormat::Mjpeg(_), _) if self.bits != 8 => {
+                Err(("bits", format!("{} bits: MJPEG is 8 bits", self.bits)))
+            }
+            (SimFormat::Mono | SimFormat::Bayer(_), Some(_)) => {
+                Err(("jpeg_quality", "only for format = \"MJPG\"".into()))
+            }
+            _ => Ok(format),
+        }
+    }
 }
 
 fn default_bits() -> u8 {
@@ -566,6 +625,26 @@ impl RigFile {
             ));
         }
         limits::finite(&[c.gain_db]).map_err(|m| (at("gain_db"), m))?;
+        if let Some(f) = &c.format {
+            if f.is_empty()
+                || f.len() > 32
+                || !f.chars().all(|ch| ch.is_ascii_graphic() || ch == ' ')
+            {
+                return Err((at("format"), format!("{f:?} is not a pixel format name")));
+            }
+        }
+        match c.driver {
+            CameraDriver::Sim => {
+                c.sim_format().map_err(|(key, m)| (at(key), m))?;
+            }
+            _ if c.jpeg_quality.is_some() => {
+                return Err((
+                    at("jpeg_quality"),
+                    "only for a simulated camera (a real one sets its own)".into(),
+                ))
+            }
+            _ => {}
+        }
         check_driver(
             c.driver == CameraDriver::Sim,
             c.sim.is_some(),

@@ -138,7 +138,7 @@ fn open_cameras(
                 device: c.name.clone(),
                 reason: "no simulated camera for it".into(),
             })?),
-            driver => open_camera(driver, &c.name, c.address.as_deref())?,
+            driver => open_camera(driver, &c.name, c.address.as_deref(), c.format.as_deref())?,
         });
         configs.push(CameraConfig {
             width: c.width,
@@ -231,6 +231,7 @@ fn open_camera(
     driver: CameraDriver,
     name: &str,
     address: Option<&str>,
+    format: Option<&str>,
 ) -> Result<Box<dyn Camera>, OpenError> {
     let needs_address = || OpenError::Spec {
         device: name.to_string(),
@@ -239,16 +240,16 @@ fn open_camera(
     #[cfg(feature = "aravis")]
     if driver == CameraDriver::Aravis {
         let address = address.ok_or_else(needs_address)?;
-        let camera = super::aravis::AravisCamera::open(name, address)?;
+        let camera = super::aravis::AravisCamera::open(name, address)?.with_format(format);
         return Ok(Box::new(camera));
     }
     #[cfg(feature = "v4l2")]
     if driver == CameraDriver::V4l2 {
         let address = address.ok_or_else(needs_address)?;
-        let camera = super::v4l2::V4l2Camera::open(name, address)?;
+        let camera = super::v4l2::V4l2Camera::open(name, address)?.with_format(format);
         return Ok(Box::new(camera));
     }
-    let _ = (address, needs_address);
+    let _ = (address, format, needs_address);
     let feature = match driver {
         CameraDriver::Aravis => "aravis",
         CameraDriver::V4l2 => "v4l2",

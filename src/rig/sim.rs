@@ -9,9 +9,10 @@
 //! Faults can be injected per camera (stop delivering, drop frames) for the engine's tests.
 
 use super::device::{Camera, CameraConfig, DeviceError, Projector, Slide};
-use super::file::{LookAt, PosesSpec, RigFile, SimTruth};
+use super::file::{LookAt, PosesSpec, RigFile, SimFormat, SimTruth};
 use crate::board::Board;
 use crate::camera::CameraModel;
+use crate::images::to_grey::{jpeg_luma, to_pixels, BayerBalance, Cfa};
 use crate::images::{CameraFrame, Pixels};
 use crate::pattern::Sequence;
 use crate::sim::stack::{StackProjector, StackRenderer};
@@ -83,6 +84,8 @@ pub struct SimWorld {
     pub projectors: Vec<SimDevice>,
     /// Board poses T_rig_board.
     pub board_poses: Vec<Isometry3<f64>>,
+    /// What each simulated camera delivers, in the order of `cameras`.
+    pub formats: Vec<SimFormat>,
     imaging: Imaging,
     state: Mutex<State>,
     /// Trigger pulses on the cameras' lines so far (see [`WiredTrigger`]).
@@ -178,6 +181,12 @@ impl SimWorld {
             .filter(|c| c.driver == CameraDriver::Sim)
             .map(|c| device(&c.name, c.sim.as_ref(), c.width, c.height))
             .collect::<Result<Vec<_>, _>>()?;
+        let formats = rig
+            .cameras
+            .iter()
+            .filter(|c| c.driver == CameraDriver::Sim)
+            .map(|c| c.sim_format().unwrap_or(SimFormat::Mono))
+            .collect();
         let projectors = rig
             .projectors
             .iter()
@@ -198,6 +207,7 @@ impl SimWorld {
                 sequence: None,
             }),
             cameras,
+            formats,
             projectors,
             imaging: Imaging::default(),
             pulses: std::sync::atomic::AtomicU64::new(0),
@@ -246,6 +256,7 @@ impl SimWorld {
                 line: false,
                 pulses_seen: 0,
                 faults: Faults::default(),
+                balance: BayerBalance::default(),
             })
             .collect();
         let projs = (0..self.projectors.len())
@@ -345,6 +356,8 @@ pub struct SimCamera {
     /// Line pulses already exposed.
     pulses_seen: u64,
     faults: Faults,
+    /// White balance of a Bayer camera, held from `start` to `stop` as the drivers do.
+    balance: BayerBalance,
 }
 
 impl SimCamera {
@@ -408,8 +421,17 @@ impl Camera for SimCamera {
         Ok(())
     }
 
+    fn pixel_format(&self) -> Option<String> {
+        Some(match self.world.formats[self.index] {
+            SimFormat::Mono => format!("Mono{}", self.world.imaging.bits),
+            SimFormat::Bayer(cfa) => format!("Bayer{}{}", cfa_name(cfa), self.world.imaging.bits),
+            SimFormat::Mjpeg(q) => format!("MJPG (quality {q})"),
+        })
+    }
+
     fn start(&mut self) -> Result<(), DeviceError> {
         self.started = true;
+        self.balance = BayerBalance::default();
         self.pending.clear();
         self.pulses_seen = self.world.pulses.load(std::sync::atomic::Ordering::SeqCst);
         Ok(())
@@ -525,10 +547,13 @@ impl SimCamera {
             .is_none_or(|(p, b, _)| *p != state.pose || *b != board)
         {
             self.renderer = None;
-            let r = self
+            let mut r = self
                 .world
                 .stack_renderer_at(self.index, state.pose, board, &sequence)
                 .map_err(|e| self.failed(e.to_string()))?;
+            if let SimFormat::Bayer(cfa) = self.world.formats[self.index] {
+                r.set_cfa(Some(cfa_response(cfa)));
+            }
             self.renderer = Some((state.pose, board, r));
         }
         let Some((_, _, renderer)) = &self.renderer else {
@@ -541,11 +566,12 @@ impl SimCamera {
         if self.faults.drop_every.is_some_and(|n| counter % n == n - 1) {
             return Ok(());
         }
-        let pixels = if frame.bits <= 8 {
-            Pixels::Gray8(frame.data.iter().map(|&v| v as u8).collect())
-        } else {
-            Pixels::Gray16(frame.data)
-        };
+        let pixels = self.deliver(
+            frame.data,
+            frame.size.width as usize,
+            frame.size.height as usize,
+            frame.bits,
+        )?;
         self.pending.push_back(CameraFrame {
             width: frame.size.width,
             height: frame.size.height,
@@ -556,6 +582,61 @@ impl SimCamera {
             exposure_us: self.exposure_us,
         });
         Ok(())
+    }
+}
+
+impl SimCamera {
+    /// A rendered frame as the camera's format delivers it, turned grey as the drivers do
+    /// (docs/design.md §11): a Bayer mosaic balanced, a JPEG coded at its quality and
+    /// decoded to its luma.
+    fn deliver(
+        &mut self,
+        mut data: Vec<u16>,
+        width: usize,
+        height: usize,
+        bits: u8,
+    ) -> Result<Pixels, DeviceError> {
+        match self.world.formats[self.index] {
+            SimFormat::Mono => Ok(to_pixels(data, bits)),
+            SimFormat::Bayer(cfa) => {
+                self.balance.apply(&mut data, width, cfa, bits);
+                Ok(to_pixels(data, bits))
+            }
+            SimFormat::Mjpeg(quality) => {
+                let bytes: Vec<u8> = data.iter().map(|&v| v.min(255) as u8).collect();
+                let mut jpeg = Vec::new();
+                image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, quality)
+                    .encode(
+                        &bytes,
+                        width as u32,
+                        height as u32,
+                        image::ExtendedColorType::L8,
+                    )
+                    .map_err(|e| self.failed(format!("JPEG encoder: {e}")))?;
+                let luma =
+                    jpeg_luma(&jpeg, width, height).map_err(|e| self.failed(e.to_string()))?;
+                Ok(Pixels::Gray8(luma))
+            }
+        }
+    }
+}
+
+/// The relative response to the simulator's white light of a Bayer sensor's red, green
+/// and blue pixels (a typical colour CMOS sensor: green the most sensitive).
+pub const CFA_RESPONSE: [f32; 3] = [0.60, 1.0, 0.80];
+
+/// The response of the four pixels of a 2×2 cell of `cfa` ([`CFA_RESPONSE`]), row by row.
+fn cfa_response(cfa: Cfa) -> [f32; 4] {
+    [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(x, y)| CFA_RESPONSE[cfa.channel(x, y)])
+}
+
+/// GenICam's two letters of a CFA phase (`RG` for RGGB).
+fn cfa_name(cfa: Cfa) -> &'static str {
+    match cfa {
+        Cfa::Rggb => "RG",
+        Cfa::Grbg => "GR",
+        Cfa::Gbrg => "GB",
+        Cfa::Bggr => "BG",
     }
 }
 

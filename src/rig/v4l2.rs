@@ -5,10 +5,15 @@
 //! needs (capabilities, formats, controls, an mmap stream), implemented on the `v4l` crate
 //! by [`node::Node`]; [`V4l2Camera`] is the driver logic, generic over that trait:
 //!
-//! - **Format.** 8 bits: `GREY`, else `YUYV` keeping its luma. 10 / 12 bits: `Y10` / `Y12`,
-//!   else `Y16`; 16 bits: `Y16` (all little-endian, delivered as [`Pixels::Gray16`] with the
-//!   format's bits). Anything else is refused naming the camera, the request and what the
-//!   device offers; a size the device adjusts is an error naming both sizes.
+//! - **Format.** The rig file's `format` (a fourcc) if it names one; else the best the node
+//!   offers for the rig file's `bits` ([`candidates`]): monochrome (`GREY`, `Y10` / `Y12`,
+//!   else `Y16`), then `YUYV` keeping its luma, then Bayer (`BA81` … `RG16`), then `RGB3` /
+//!   `BGR3`, then `MJPG`, skipping a format the node sets at another size (UVC webcams
+//!   often give their large sizes in MJPEG only). Every buffer becomes grey through
+//!   [`crate::images::to_grey`] (little-endian words as [`Pixels::Gray16`] with the
+//!   format's bits; Bayer balanced; RGB and MJPEG as luma). Nothing fitting is refused
+//!   naming the camera, the request and what the device offers; a size no format keeps is
+//!   an error naming both sizes.
 //! - **Exposure.** `V4L2_CID_EXPOSURE_AUTO` set to manual (or shutter priority) first, and
 //!   `V4L2_CID_EXPOSURE_AUTO_PRIORITY` off so the frame rate stays put; then
 //!   `V4L2_CID_EXPOSURE_ABSOLUTE` in 100 µs units, or — for raw sensor drivers —
@@ -49,6 +54,7 @@ mod tests;
 pub use node::Node;
 
 use super::device::{Camera, CameraConfig, DeviceError, TriggerSource};
+use crate::images::to_grey::{to_grey, BayerBalance, Cfa, Colour, Packing, SampleFormat};
 use crate::images::{CameraFrame, Pixels};
 use std::fmt;
 use std::io;
@@ -95,6 +101,8 @@ impl FourCc {
     pub const Y16: FourCc = FourCc(*b"Y16 ");
     /// YUV 4:2:2 interleaved Y0 U Y1 V.
     pub const YUYV: FourCc = FourCc(*b"YUYV");
+    /// Motion JPEG: one JPEG per frame.
+    pub const MJPG: FourCc = FourCc(*b"MJPG");
 }
 
 impl fmt::Display for FourCc {
@@ -247,46 +255,92 @@ pub trait V4l2Device: Send {
     fn now(&self) -> Duration;
 }
 
-/// How a negotiated format's bytes become pixels.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Layout {
-    /// One byte per pixel.
-    Gray8,
-    /// Y0 U Y1 V: luma in every other byte.
-    YuyvLuma,
-    /// 16-bit little-endian words.
-    Gray16Le,
+/// The pixel formats the driver reads, by fourcc: `GREY`, `Y10`, `Y12`, `Y16` (16-bit
+/// little-endian words), `YUYV` (its luma); Bayer `BA81` `GBRG` `GRBG` `RGGB` (8 bits),
+/// `BG10` `GB10` `BA10` `RG10`, `BG12` `GB12` `BA12` `RG12`, `BYR2` `GB16` `GR16` `RG16`
+/// (16-bit words); `RGB3`, `BGR3` (24-bit RGB / BGR); `MJPG` (its luma).
+pub fn pixel_formats() -> Vec<(FourCc, SampleFormat)> {
+    use Packing::{U16Le, U8};
+    let mono = |code: &[u8; 4], packing, bits| (FourCc(*code), SampleFormat::mono(packing, bits));
+    let bayer = |code: &[u8; 4], cfa, packing, bits| {
+        (FourCc(*code), SampleFormat::bayer(cfa, packing, bits))
+    };
+    vec![
+        mono(b"GREY", U8, 8),
+        mono(b"Y10 ", U16Le, 10),
+        mono(b"Y12 ", U16Le, 12),
+        mono(b"Y16 ", U16Le, 16),
+        (FourCc::YUYV, SampleFormat::bytes(Colour::YuyvLuma)),
+        bayer(b"BA81", Cfa::Bggr, U8, 8),
+        bayer(b"GBRG", Cfa::Gbrg, U8, 8),
+        bayer(b"GRBG", Cfa::Grbg, U8, 8),
+        bayer(b"RGGB", Cfa::Rggb, U8, 8),
+        bayer(b"BG10", Cfa::Bggr, U16Le, 10),
+        bayer(b"GB10", Cfa::Gbrg, U16Le, 10),
+        bayer(b"BA10", Cfa::Grbg, U16Le, 10),
+        bayer(b"RG10", Cfa::Rggb, U16Le, 10),
+        bayer(b"BG12", Cfa::Bggr, U16Le, 12),
+        bayer(b"GB12", Cfa::Gbrg, U16Le, 12),
+        bayer(b"BA12", Cfa::Grbg, U16Le, 12),
+        bayer(b"RG12", Cfa::Rggb, U16Le, 12),
+        bayer(b"BYR2", Cfa::Bggr, U16Le, 16),
+        bayer(b"GB16", Cfa::Gbrg, U16Le, 16),
+        bayer(b"GR16", Cfa::Grbg, U16Le, 16),
+        bayer(b"RG16", Cfa::Rggb, U16Le, 16),
+        (FourCc(*b"RGB3"), SampleFormat::bytes(Colour::Rgb)),
+        (FourCc(*b"BGR3"), SampleFormat::bytes(Colour::Bgr)),
+        (FourCc::MJPG, SampleFormat::bytes(Colour::Jpeg)),
+    ]
 }
 
-impl Layout {
-    fn bytes_per_pixel(self) -> usize {
-        match self {
-            Layout::Gray8 => 1,
-            Layout::YuyvLuma | Layout::Gray16Le => 2,
+/// The formats to try for `bits`, best first: the rig file's `named` one alone, else every
+/// offered format that gives `bits`, by [`SampleFormat::rank`]. The reason, naming the node
+/// (`node`) and what it offers, when none fits.
+pub fn candidates(
+    named: Option<&str>,
+    bits: u8,
+    offered: &[FourCc],
+    node: &str,
+) -> Result<Vec<(FourCc, SampleFormat)>, String> {
+    let listing = offered
+        .iter()
+        .map(|f| f.to_string())
+        .collect::<Vec<_>>()
+        .join(", ");
+    let known = pixel_formats();
+    if let Some(name) = named {
+        let Some(&(code, format)) = known.iter().find(|(c, _)| c.to_string() == name.trim()) else {
+            return Err(format!(
+                "hexcal cannot read {name}; {node} offers {listing}"
+            ));
+        };
+        if !offered.contains(&code) {
+            return Err(format!("{name} not offered; {node} offers {listing}"));
         }
+        if format.rank(bits).is_none() {
+            return Err(format!(
+                "{name} gives {} bits, the rig file asks {bits}",
+                format.bits
+            ));
+        }
+        return Ok(vec![(code, format)]);
     }
+    let mut usable: Vec<_> = known
+        .into_iter()
+        .filter(|(c, f)| offered.contains(c) && f.rank(bits).is_some())
+        .collect();
+    usable.sort_by_key(|(_, f)| f.rank(bits));
+    if usable.is_empty() {
+        return Err(format!(
+            "no format gives {bits} bits; {node} offers {listing}"
+        ));
+    }
+    Ok(usable)
 }
 
-/// The formats that serve a request for `bits`, best first, with their layout and the
-/// significant bits they deliver.
-fn candidates(bits: u8) -> &'static [(FourCc, Layout, u8)] {
-    const GREY: (FourCc, Layout, u8) = (FourCc::GREY, Layout::Gray8, 8);
-    const YUYV: (FourCc, Layout, u8) = (FourCc::YUYV, Layout::YuyvLuma, 8);
-    const Y10: (FourCc, Layout, u8) = (FourCc::Y10, Layout::Gray16Le, 10);
-    const Y12: (FourCc, Layout, u8) = (FourCc::Y12, Layout::Gray16Le, 12);
-    const Y16: (FourCc, Layout, u8) = (FourCc::Y16, Layout::Gray16Le, 16);
-    match bits {
-        8 => &[GREY, YUYV],
-        10 => &[Y10, Y16],
-        12 => &[Y12, Y16],
-        16 => &[Y16],
-        _ => &[],
-    }
-}
-
-/// Pixels of one frame of a format the driver reads — `GREY`, `YUYV` (its luma), `Y10`,
-/// `Y12`, `Y16` (16-bit little-endian) — from `data` with `stride` bytes per row; `None` for
-/// another format or a buffer too short.
+/// Pixels of one frame of a format the driver reads ([`pixel_formats`]) from `data` with
+/// `stride` bytes per row (a JPEG: the whole coded frame); `None` for another format or a
+/// buffer that does not hold the frame. A Bayer mosaic is balanced by its own grey world.
 pub fn frame_pixels(
     fourcc: FourCc,
     data: &[u8],
@@ -294,66 +348,35 @@ pub fn frame_pixels(
     height: usize,
     stride: usize,
 ) -> Option<Pixels> {
-    let layout = [8, 10, 12, 16]
-        .into_iter()
-        .flat_map(candidates)
-        .find(|c| c.0 == fourcc)?
-        .1;
-    let row = width * layout.bytes_per_pixel();
-    if stride < row || data.len() < height.saturating_sub(1) * stride + row {
-        return None;
-    }
-    Some(convert(layout, data, width, height, stride))
-}
-
-/// Pixels of one frame in `data` (`stride` bytes per row).
-fn convert(layout: Layout, data: &[u8], width: usize, height: usize, stride: usize) -> Pixels {
-    let rows = (0..height).map(|y| &data[y * stride..]);
-    match layout {
-        Layout::Gray8 => {
-            let mut out = Vec::with_capacity(width * height);
-            for row in rows {
-                out.extend_from_slice(&row[..width]);
-            }
-            Pixels::Gray8(out)
-        }
-        Layout::YuyvLuma => {
-            let mut out = Vec::with_capacity(width * height);
-            for row in rows {
-                out.extend(row[..2 * width].chunks_exact(2).map(|p| p[0]));
-            }
-            Pixels::Gray8(out)
-        }
-        Layout::Gray16Le => {
-            let mut out = Vec::with_capacity(width * height);
-            for row in rows {
-                out.extend(
-                    row[..2 * width]
-                        .chunks_exact(2)
-                        .map(|b| u16::from_le_bytes([b[0], b[1]])),
-                );
-            }
-            Pixels::Gray16(out)
-        }
-    }
+    let (_, format) = pixel_formats().into_iter().find(|(c, _)| *c == fourcc)?;
+    to_grey(
+        &format,
+        data,
+        width,
+        height,
+        stride,
+        &mut BayerBalance::default(),
+    )
+    .ok()
 }
 
 /// What `configure` settled on.
 #[derive(Clone, Copy, Debug)]
 struct Applied {
     format: Format,
-    layout: Layout,
-    bits: u8,
+    samples: SampleFormat,
     exposure_us: f64,
     trigger: TriggerSource,
 }
 
 impl Applied {
-    /// Bytes a complete frame occupies.
+    /// Bytes a complete frame occupies (a JPEG: at least one).
     fn frame_bytes(&self) -> usize {
         let f = &self.format;
-        (f.height as usize).saturating_sub(1) * f.stride as usize
-            + f.width as usize * self.layout.bytes_per_pixel()
+        match self.samples.row_bytes(f.width as usize) {
+            Some(row) => (f.height as usize).saturating_sub(1) * f.stride as usize + row,
+            None => 1,
+        }
     }
 }
 
@@ -386,6 +409,10 @@ pub struct V4l2Camera<D: V4l2Device = Node> {
     device: D,
     applied: Option<Applied>,
     stream: Option<Stream>,
+    /// The rig file's `format` (a fourcc), if it names one.
+    format_name: Option<String>,
+    /// White balance of a Bayer format, held from `start` to `stop`.
+    balance: BayerBalance,
 }
 
 impl V4l2Camera<Node> {
@@ -409,6 +436,8 @@ impl<D: V4l2Device> V4l2Camera<D> {
             device,
             applied: None,
             stream: None,
+            format_name: None,
+            balance: BayerBalance::default(),
         };
         let caps = cam
             .device
@@ -421,6 +450,13 @@ impl<D: V4l2Device> V4l2Camera<D> {
             )));
         }
         Ok(cam)
+    }
+
+    /// Use the pixel format `fourcc` (from [`pixel_formats`]) rather than choosing one;
+    /// `None` restores the choice.
+    pub fn with_format(mut self, fourcc: Option<&str>) -> Self {
+        self.format_name = fourcc.map(str::to_string);
+        self
     }
 
     /// A kernel error while doing `what`: `Gone` when the node vanished, else `Failed`.
@@ -452,37 +488,41 @@ impl<D: V4l2Device> V4l2Camera<D> {
         DeviceError::failed(&self.name, reason)
     }
 
-    /// Choose and set the pixel format for `bits` at `width`×`height`.
+    /// Choose and set the pixel format for `bits` at `width`×`height`: the rig file's, else
+    /// the first of [`candidates`] the device sets at that size.
     fn set_format(
         &mut self,
         width: u32,
         height: u32,
         bits: u8,
-    ) -> Result<(Format, Layout, u8), DeviceError> {
+    ) -> Result<(Format, SampleFormat), DeviceError> {
         let offered = self
             .device
             .formats()
             .map_err(|e| self.io_error("VIDIOC_ENUM_FMT", e))?;
-        let wanted = candidates(bits);
-        let names = |fs: &mut dyn Iterator<Item = FourCc>| {
-            fs.map(|f| f.to_string()).collect::<Vec<_>>().join(", ")
-        };
-        let Some(&(fourcc, layout, got_bits)) = wanted.iter().find(|(f, ..)| offered.contains(f))
-        else {
-            let need = if wanted.is_empty() {
-                "8, 10, 12 or 16 bits".to_string()
-            } else {
-                names(&mut wanted.iter().map(|w| w.0)).replace(", ", " or ")
-            };
-            return Err(self.unsupported(
-                "bits",
-                format!(
-                    "{bits} bits needs {need}; {} offers {}",
-                    self.address,
-                    names(&mut offered.iter().copied())
-                ),
-            ));
-        };
+        let wanted = candidates(self.format_name.as_deref(), bits, &offered, &self.address)
+            .map_err(|reason| self.unsupported("format", reason))?;
+        let mut refused = None;
+        for (fourcc, samples) in wanted {
+            match self.try_format(fourcc, samples, width, height)? {
+                Ok(format) => return Ok((format, samples)),
+                Err(e) => {
+                    refused.get_or_insert(e);
+                }
+            }
+        }
+        Err(refused.unwrap_or_else(|| self.failed("no format to try".into())))
+    }
+
+    /// Set `fourcc` at `width`×`height`: the format set, or (inside) why the device would
+    /// not keep that size.
+    fn try_format(
+        &mut self,
+        fourcc: FourCc,
+        samples: SampleFormat,
+        width: u32,
+        height: u32,
+    ) -> Result<Result<Format, DeviceError>, DeviceError> {
         let asked = Format {
             fourcc,
             width,
@@ -494,23 +534,22 @@ impl<D: V4l2Device> V4l2Camera<D> {
             .set_format(asked)
             .map_err(|e| self.io_error(&format!("VIDIOC_S_FMT {fourcc} {width}×{height}"), e))?;
         if (set.width, set.height) != (width, height) {
-            return Err(self.unsupported(
+            return Ok(Err(self.unsupported(
                 "width, height",
                 format!(
                     "the rig file asks {width}×{height}; {} set {}×{} for {fourcc}",
                     self.address, set.width, set.height
                 ),
-            ));
+            )));
         }
         if set.fourcc != fourcc {
             return Err(self.failed(format!("asked for {fourcc}, the device set {}", set.fourcc)));
         }
-        let min_stride = width * layout.bytes_per_pixel() as u32;
-        let format = Format {
+        let min_stride = samples.row_bytes(width as usize).unwrap_or(0) as u32;
+        Ok(Ok(Format {
             stride: set.stride.max(min_stride),
             ..set
-        };
-        Ok((format, layout, got_bits))
+        }))
     }
 
     /// The value of control `id` (called `what`).
@@ -712,7 +751,7 @@ impl<D: V4l2Device> Camera for V4l2Camera<D> {
             return Err(self.failed("configure while streaming: stop first".into()));
         }
         self.applied = None;
-        let (format, layout, bits) = self.set_format(config.width, config.height, config.bits)?;
+        let (format, samples) = self.set_format(config.width, config.height, config.bits)?;
         let controls = self
             .device
             .controls()
@@ -722,8 +761,7 @@ impl<D: V4l2Device> Camera for V4l2Camera<D> {
         self.set_trigger(&controls, config.trigger)?;
         self.applied = Some(Applied {
             format,
-            layout,
-            bits,
+            samples,
             exposure_us,
             trigger: config.trigger,
         });
@@ -746,6 +784,10 @@ impl<D: V4l2Device> Camera for V4l2Camera<D> {
         Ok(())
     }
 
+    fn pixel_format(&self) -> Option<String> {
+        self.applied.map(|a| a.format.fourcc.to_string())
+    }
+
     fn start(&mut self) -> Result<(), DeviceError> {
         if self.applied.is_none() {
             return Err(self.failed("start before configure".into()));
@@ -756,6 +798,7 @@ impl<D: V4l2Device> Camera for V4l2Camera<D> {
         self.device
             .start(STREAM_BUFFERS)
             .map_err(|e| self.io_error("VIDIOC_STREAMON", e))?;
+        self.balance = BayerBalance::default();
         self.stream = Some(Stream::default());
         Ok(())
     }
@@ -840,17 +883,28 @@ impl<D: V4l2Device> Camera for V4l2Camera<D> {
                 });
             }
             let f = applied.format;
+            let used = (meta.bytes_used as usize).min(data.len());
+            let pixels = match to_grey(
+                &applied.samples,
+                &data[..used],
+                f.width as usize,
+                f.height as usize,
+                f.stride as usize,
+                &mut self.balance,
+            ) {
+                Ok(p) => p,
+                Err(e) => {
+                    break Err(DeviceError::Incomplete {
+                        device: self.name.clone(),
+                        reason: format!("buffer {} ({}): {e}", meta.sequence, f.fourcc),
+                    })
+                }
+            };
             break Ok(CameraFrame {
                 width: f.width,
                 height: f.height,
-                bits: applied.bits,
-                pixels: convert(
-                    applied.layout,
-                    data,
-                    f.width as usize,
-                    f.height as usize,
-                    f.stride as usize,
-                ),
+                bits: applied.samples.bits,
+                pixels,
                 counter,
                 timestamp_ns: u64::try_from(meta.timestamp.as_nanos()).unwrap_or(u64::MAX),
                 exposure_us: applied.exposure_us,
@@ -879,18 +933,29 @@ impl<D: V4l2Device> Drop for V4l2Camera<D> {
     }
 }
 
-/// A node's card, driver, bus and capture formats, for `hexcal devices`.
+/// A node's card, driver, bus and capture formats, and the order in which the driver tries
+/// them for 8 bits, for `hexcal devices`.
 pub fn describe<D: V4l2Device>(device: &D) -> io::Result<String> {
     let caps = device.capabilities()?;
     if !caps.capture {
         return Ok(format!("{} ({}): no video capture", caps.card, caps.driver));
     }
-    let formats: Vec<String> = device.formats()?.iter().map(|f| f.to_string()).collect();
+    let offered = device.formats()?;
+    let formats: Vec<String> = offered.iter().map(|f| f.to_string()).collect();
+    let order = |bits| match candidates(None, bits, &offered, "the node") {
+        Ok(c) => c
+            .iter()
+            .map(|(f, _)| f.to_string())
+            .collect::<Vec<_>>()
+            .join(" > "),
+        Err(_) => "none".into(),
+    };
     Ok(format!(
-        "{} ({}, {}): {}",
+        "{} ({}, {}): {}; hexcal takes for 8 bits {} (the first that keeps the size)",
         caps.card,
         caps.driver,
         caps.bus,
-        formats.join(" ")
+        formats.join(" "),
+        order(8)
     ))
 }

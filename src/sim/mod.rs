@@ -161,6 +161,7 @@ pub fn sensor(imaging: &Imaging) -> Sensor {
         read_noise: imaging.read_noise,
         gamma: imaging.gamma,
         bits: imaging.bits,
+        cfa: None,
     }
 }
 

@@ -270,6 +270,12 @@ impl StackRenderer {
         irr
     }
 
+    /// Render through a colour filter array from now on: the response of each pixel of a
+    /// 2×2 cell, row by row ([`Sensor::cfa`]); `None` for a monochrome sensor.
+    pub fn set_cfa(&mut self, cfa: Option<[f32; 4]>) {
+        self.sensor.cfa = cfa;
+    }
+
     /// Frame k of the stack.
     pub fn frame(&self, k: usize) -> Frame {
         // The optics are linear: the ambient signal (once) plus the projectors' light through

@@ -2,7 +2,8 @@
 //! serving frames we give it through the real protocol (GVCP control, GVSP stream, packet
 //! resend), and the loopback benchmark.
 //!
-//! Takes the frames to serve (Mono8 or Mono16, one per trigger, in turn) and gives a camera
+//! Takes the frames to serve (8-bit samples for Mono8 or a Bayer…8 mosaic, 16-bit for
+//! Mono16; one per trigger, in turn) and gives a camera
 //! the driver opens at [`LOOPBACK_ADDRESS`]; its packet loss can be raised to test resend
 //! and incomplete frames. One loopback camera at a time per machine (it listens on the
 //! GVCP port of 127.0.0.1).
@@ -43,7 +44,8 @@ unsafe impl Send for LoopbackCamera {}
 impl LoopbackCamera {
     /// Start a camera with serial number `serial` serving `frames` in turn (frame k of the
     /// stream is `frames[k % len]`). The driver's configuration must match the frames'
-    /// size and sample type (Mono8 for `Gray8`, Mono16 for `Gray16`); a frame that does
+    /// size and sample type (Mono8 or BayerRG8 / GR8 / GB8 / BG8 for `Gray8`, Mono16 for
+    /// `Gray16`); a frame that does
     /// not is sent as zeros and counted in [`mismatches`](Self::mismatches).
     pub fn start(serial: &str, frames: Vec<Pixels>) -> Result<Self, DeviceError> {
         let error = |reason: String| DeviceError::Failed {
@@ -193,19 +195,16 @@ unsafe extern "C" fn fill(
     let mut received = 0usize;
     let out = aravis_sys::arv_buffer_get_data(buffer, &mut received).cast::<u8>();
     let samples = width * height;
-    // The fake camera checked that the buffer holds width × height samples of `format`.
-    let bytes: Vec<u8> = match (format, frame) {
-        (aravis_sys::ARV_PIXEL_FORMAT_MONO_8, Pixels::Gray8(p)) if p.len() == samples => p.clone(),
-        (aravis_sys::ARV_PIXEL_FORMAT_MONO_16, Pixels::Gray16(p)) if p.len() == samples => {
+    // The fake camera checked that the buffer holds width × height samples of `format`:
+    // one byte each for the 8-bit formats (Mono8, Bayer…8), two for Mono16.
+    let bytes_per_sample = ((format >> 16) & 0xFF) as usize / 8;
+    let bytes: Vec<u8> = match (bytes_per_sample, frame) {
+        (1, Pixels::Gray8(p)) if p.len() == samples => p.clone(),
+        (2, Pixels::Gray16(p)) if p.len() == samples => {
             p.iter().flat_map(|v| v.to_le_bytes()).collect()
         }
         _ => {
             source.mismatches.fetch_add(1, Ordering::SeqCst);
-            let bytes_per_sample = if format == aravis_sys::ARV_PIXEL_FORMAT_MONO_16 {
-                2
-            } else {
-                1
-            };
             vec![0; samples * bytes_per_sample]
         }
     };

@@ -118,3 +118,61 @@ fn a_rig_without_projectors_takes_one_plain_frame_per_pose() {
     );
     assert_eq!(err.field(), Some("sequence"), "{err}");
 }
+
+#[test]
+fn colour_and_webcam_rigs_name_their_simulated_formats() {
+    let bayer = RigFile::parse(&shipped("sim-bayer.toml"), "sim-bayer.toml")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let formats: Vec<SimFormat> = bayer
+        .cameras
+        .iter()
+        .map(|c| c.sim_format().unwrap())
+        .collect();
+    assert_eq!(
+        formats[..4],
+        Cfa::ALL.map(SimFormat::Bayer),
+        "the four phases in turn"
+    );
+    let mjpeg = RigFile::parse(&shipped("sim-mjpeg.toml"), "sim-mjpeg.toml")
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(mjpeg
+        .cameras
+        .iter()
+        .all(|c| c.sim_format() == Ok(SimFormat::Mjpeg(85))));
+    let paper = RigFile::parse(&shipped("sim-paper.toml"), "sim-paper.toml").unwrap();
+    assert_eq!(paper.cameras[0].sim_format(), Ok(SimFormat::Mono));
+}
+
+#[test]
+fn impossible_simulated_formats_are_refused_at_their_line() {
+    let bayer = shipped("sim-bayer.toml");
+    let err = refused(
+        &bayer,
+        "name = \"cam1\"\ndriver = \"sim\"\nformat = \"BayerGR\"",
+        "name = \"cam1\"\ndriver = \"sim\"\nformat = \"Bayer\"",
+        "format",
+    );
+    assert_eq!(err.field(), Some("camera[1].format"), "{err}");
+    let err = refused(
+        &bayer,
+        "name = \"cam2\"\ndriver = \"sim\"\nformat = \"BayerGB\"",
+        "name = \"cam2\"\ndriver = \"sim\"\nformat = \"BayerGB\"\njpeg_quality = 90",
+        "jpeg_quality",
+    );
+    assert_eq!(err.field(), Some("camera[2].jpeg_quality"), "{err}");
+    let mjpeg = shipped("sim-mjpeg.toml");
+    let err = refused(
+        &mjpeg,
+        "name = \"cam3\"\ndriver = \"sim\"\nformat = \"MJPG\"\njpeg_quality = 85",
+        "name = \"cam3\"\ndriver = \"sim\"\nformat = \"MJPG\"\njpeg_quality = 0",
+        "jpeg_quality",
+    );
+    assert_eq!(err.field(), Some("camera[3].jpeg_quality"), "{err}");
+    let err = refused(
+        &mjpeg,
+        "name = \"cam4\"\ndriver = \"sim\"\nformat = \"MJPG\"\njpeg_quality = 85",
+        "name = \"cam4\"\ndriver = \"sim\"\nformat = \"MJPG\"\njpeg_quality = 85\nbits = 12",
+        "bits",
+    );
+    assert!(err.to_string().contains("MJPEG is 8 bits"), "{err}");
+}

@@ -34,6 +34,23 @@ fn sequence_of(pixels: &Pixels) -> u32 {
     }
 }
 
+/// Sample (x, y) of frame `seq` of a smooth scene (MJPEG frames: JPEG rings at a wrap).
+fn smooth(x: usize, y: usize, seq: u32) -> u8 {
+    (60 + x / 2 + y / 3 + seq as usize) as u8
+}
+
+/// A Bayer node's scene: [`luma`] constant over each 2×2 cell, so grey-world gains are
+/// exact up to rounding.
+fn cell_luma(x: usize, y: usize, seq: u32) -> u8 {
+    luma(x & !1, y & !1, seq)
+}
+
+/// Relative response of the simulated Bayer node's red, green and blue pixels.
+const RESPONSE: [f64; 3] = [0.6, 1.0, 0.8];
+
+/// JPEG quality of the simulated node's MJPEG frames.
+const MJPEG_QUALITY: u8 = 100;
+
 /// Bytes per row padding the simulated node adds.
 const PADDING: u32 = 6;
 
@@ -42,6 +59,8 @@ struct Sim {
     formats: Vec<FourCc>,
     /// The largest size the node sets (larger requests are clamped, like real drivers).
     max_size: (u32, u32),
+    /// The largest size of each format limited below `max_size` (a webcam's YUYV).
+    format_max: HashMap<FourCc, (u32, u32)>,
     format: Option<Format>,
     controls: Vec<ControlInfo>,
     values: HashMap<u32, i64>,
@@ -90,7 +109,30 @@ impl Sim {
     fn image(&self, seq: u32) -> Vec<u8> {
         let f = self.format.expect("format set");
         let (w, h, stride) = (f.width as usize, f.height as usize, f.stride as usize);
+        if f.fourcc == FourCc::MJPG {
+            let grey: Vec<u8> = (0..w * h).map(|i| smooth(i % w, i / w, seq)).collect();
+            let mut jpeg = Vec::new();
+            image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, MJPEG_QUALITY)
+                .encode(&grey, w as u32, h as u32, image::ExtendedColorType::L8)
+                .expect("encodes");
+            return jpeg;
+        }
+        let cfa = pixel_formats()
+            .into_iter()
+            .find_map(|(c, s)| match s.colour {
+                Colour::Bayer(cfa) if c == f.fourcc => Some(cfa),
+                _ => None,
+            });
         let mut data = vec![0xEE; stride * h];
+        if let Some(cfa) = cfa {
+            for y in 0..h {
+                for x in 0..w {
+                    let v = f64::from(cell_luma(x, y, seq)) * RESPONSE[cfa.channel(x, y)];
+                    data[y * stride + x] = v.round() as u8;
+                }
+            }
+            return data;
+        }
         for y in 0..h {
             let row = &mut data[y * stride..];
             for x in 0..w {
@@ -163,6 +205,7 @@ impl SimNode {
         let sim = Sim {
             formats: formats.to_vec(),
             max_size: (1920, 1200),
+            format_max: HashMap::new(),
             format: None,
             controls,
             values: HashMap::from([(CID_EXPOSURE_AUTO, 3)]),
@@ -216,14 +259,24 @@ impl V4l2Device for SimNode {
         if !s.formats.contains(&format.fourcc) {
             return Err(io::Error::from_raw_os_error(libc::EINVAL));
         }
-        let bpp = if format.fourcc == FourCc::GREY { 1 } else { 2 };
-        let width = format.width.min(s.max_size.0);
-        let height = format.height.min(s.max_size.1);
+        let bpp = match &format.fourcc.0 {
+            b"GREY" | b"BA81" | b"GBRG" | b"GRBG" | b"RGGB" => 1,
+            // MJPEG: no rows (bytesperline 0, as uvcvideo sets it).
+            b"MJPG" => 0,
+            _ => 2,
+        };
+        let max = s
+            .format_max
+            .get(&format.fourcc)
+            .copied()
+            .unwrap_or(s.max_size);
+        let width = format.width.min(max.0);
+        let height = format.height.min(max.1);
         let set = Format {
             fourcc: format.fourcc,
             width,
             height,
-            stride: width * bpp + PADDING,
+            stride: if bpp == 0 { 0 } else { width * bpp + PADDING },
         };
         s.format = Some(set);
         Ok(set)
@@ -406,11 +459,11 @@ fn y16_serves_12_bits_little_endian_and_y12_is_preferred() {
 
 #[test]
 fn no_usable_format_is_refused_naming_camera_request_and_offer() {
-    let node = SimNode::new(&[FourCc(*b"MJPG"), FourCc(*b"H264")], uvc_controls());
+    let node = SimNode::new(&[FourCc(*b"H264"), FourCc::Y16], uvc_controls());
     let e = camera(&node).configure(&config(64, 48, 8)).unwrap_err();
-    assert!(matches!(&e, DeviceError::Unsupported { setting, .. } if setting == "bits"));
+    assert!(matches!(&e, DeviceError::Unsupported { setting, .. } if setting == "format"));
     let msg = e.to_string();
-    for part in [NAME, NODE, "8 bits", "GREY or YUYV", "offers MJPG, H264"] {
+    for part in [NAME, NODE, "no format gives 8 bits", "offers H264, Y16"] {
         assert!(msg.contains(part), "{msg:?} lacks {part:?}");
     }
     let node = SimNode::new(&[FourCc::GREY, FourCc::YUYV], uvc_controls());
@@ -419,7 +472,87 @@ fn no_usable_format_is_refused_naming_camera_request_and_offer() {
         .unwrap_err()
         .to_string();
     assert!(
-        msg.contains("16 bits needs Y16") && msg.contains("offers GREY, YUYV"),
+        msg.contains("no format gives 16 bits") && msg.contains("offers GREY, YUYV"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn mjpeg_frames_decode_to_their_luma_and_carry_the_large_sizes() {
+    // A webcam: YUYV up to 640×480, MJPEG up to 1920×1200. 1280×720 is MJPEG only.
+    let node = SimNode::new(&[FourCc::YUYV, FourCc::MJPG], uvc_controls());
+    node.sim().format_max.insert(FourCc::YUYV, (640, 480));
+    let mut cam = camera(&node);
+    cam.configure(&config(1280, 720, 8)).unwrap();
+    assert_eq!(cam.pixel_format().as_deref(), Some("MJPG"));
+    cam.start().unwrap();
+    let (w, h) = (1280, 720);
+    for seq in 0..2 {
+        let f = take(&mut cam).unwrap();
+        assert_eq!((f.width, f.height, f.bits), (1280, 720, 8));
+        let Pixels::Gray8(got) = &f.pixels else {
+            panic!("8-bit luma expected")
+        };
+        // Quality 100 quantises every coefficient by 1: what is left is the rounding of the
+        // coefficients and of the integer DCTs, a fraction of a DN, at most 2.
+        let err: Vec<f64> = (0..w * h)
+            .map(|i| f64::from(got[i]) - f64::from(smooth(i % w, i / w, seq)))
+            .collect();
+        let worst = err.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+        let rms = (err.iter().map(|e| e * e).sum::<f64>() / err.len() as f64).sqrt();
+        assert!(
+            worst <= 2.0 && rms < 0.7,
+            "frame {seq}: worst {worst}, rms {rms}"
+        );
+    }
+    // At 640×480 the uncompressed YUYV wins.
+    let mut cam = camera(&node);
+    cam.configure(&config(640, 480, 8)).unwrap();
+    assert_eq!(cam.pixel_format().as_deref(), Some("YUYV"));
+}
+
+#[test]
+fn a_cut_mjpeg_frame_is_incomplete_and_worth_a_retry() {
+    let (mut cam, node) = streaming(&[FourCc::MJPG], &config(64, 48, 8));
+    node.sim().short.insert(0);
+    let e = take(&mut cam).unwrap_err();
+    assert!(e.retryable(), "{e}");
+}
+
+#[test]
+fn bayer_buffers_of_each_phase_balance_to_the_neutral_scene() {
+    for code in [b"BA81", b"GBRG", b"GRBG", b"RGGB"] {
+        let node = SimNode::new(&[FourCc::YUYV, FourCc(*code)], uvc_controls());
+        let name = FourCc(*code).to_string();
+        let mut cam = camera(&node).with_format(Some(&name));
+        cam.configure(&config(64, 48, 8)).unwrap();
+        assert_eq!(cam.pixel_format(), Some(name.clone()));
+        cam.start().unwrap();
+        let f = take(&mut cam).unwrap();
+        let Pixels::Gray8(got) = &f.pixels else {
+            panic!("8-bit grey expected")
+        };
+        // Each sample was rounded once through its filter and once through its gain.
+        for (i, &v) in got.iter().enumerate() {
+            let want = cell_luma(i % 64, i / 64, 0);
+            assert!(
+                (i16::from(v) - i16::from(want)).abs() <= 1,
+                "{name} pixel {i}: {v} for {want}"
+            );
+        }
+    }
+    // Unnamed, a Bayer format ranks after YUYV's luma.
+    let (cam, _) = streaming(&[FourCc(*b"RGGB"), FourCc::YUYV], &config(64, 48, 8));
+    assert_eq!(cam.pixel_format().as_deref(), Some("YUYV"));
+    // Named but not offered: refused naming what is.
+    let node = SimNode::new(&[FourCc::YUYV], uvc_controls());
+    let msg = camera(&node)
+        .with_format(Some("RGGB"))
+        .configure(&config(64, 48, 8))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        msg.contains("RGGB not offered") && msg.contains("YUYV"),
         "{msg}"
     );
 }
@@ -701,7 +834,9 @@ fn frame_pixels_reads_supported_formats_and_refuses_the_rest() {
         Some(Pixels::Gray16(vec![0x1234, 0x0fff]))
     );
     assert_eq!(frame_pixels(FourCc::YUYV, &yuyv[..9], 2, 2, 6), None);
-    assert_eq!(frame_pixels(FourCc(*b"MJPG"), &yuyv, 2, 2, 6), None);
+    assert_eq!(frame_pixels(FourCc(*b"H264"), &yuyv, 2, 2, 6), None);
+    // Not a JPEG: refused, not a frame of garbage.
+    assert_eq!(frame_pixels(FourCc::MJPG, &yuyv, 2, 2, 6), None);
 }
 
 #[test]
@@ -709,7 +844,8 @@ fn describe_names_card_driver_and_formats() {
     let node = SimNode::new(&[FourCc::YUYV, FourCc(*b"MJPG")], Vec::new());
     assert_eq!(
         describe(&node).unwrap(),
-        "Sim Cam (uvcvideo, usb-sim-1): YUYV MJPG"
+        "Sim Cam (uvcvideo, usb-sim-1): YUYV MJPG; hexcal takes for 8 bits YUYV > MJPG \
+         (the first that keeps the size)"
     );
 }
 
