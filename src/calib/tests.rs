@@ -703,14 +703,14 @@ mod convergence {
         assert!(worst <= bound, "{name}: {worst}σ");
     }
 
-    /// The CI share of the grid (seconds in the debug test profile): the paper rig from the
-    /// real start (Zhang per device and the pose graph) and a camera-only ring from the
-    /// perturbed truth; the whole grid is [`whole_grid`].
+    /// The CI share of the grid (≈ 15 s in the debug test profile on a loaded machine): the
+    /// paper rig from the real start (Zhang per device and the pose graph) and the smallest
+    /// camera-only ring from the perturbed truth; the whole grid is [`whole_grid`].
     #[test]
     fn grid_cells_in_ci() {
         let cases = [
             case(6, 3, 10, 2, Start::Real),
-            case(12, 0, 10, 1, Start::Perturbed),
+            case(6, 0, 10, 1, Start::Perturbed),
         ];
         for c in cases {
             let r = check(c);
