@@ -29,6 +29,10 @@ pub enum Bench {
         /// the perturbed truth.
         #[arg(long)]
         real_start: bool,
+        /// Instead of one rig, the growth table: 6/3/10, 12/4/20, 20/4/40, 40/4/60 and
+        /// 60/4/100 (cameras/projectors/poses), each in its own process, one line each.
+        #[arg(long, conflicts_with_all = ["cameras", "projectors", "poses"])]
+        table: bool,
     },
     /// Frames per second through the capture engine on a simulated rig (one pose, frames
     /// discarded), with one camera's stack rendering broken down.
@@ -198,6 +202,51 @@ fn bench_calib(
     Ok(())
 }
 
+/// The rig sizes of `hexcal bench calib --table` (cameras, projectors, poses).
+const TABLE_SIZES: [(usize, usize, usize); 5] = [
+    (6, 3, 10),
+    (12, 4, 20),
+    (20, 4, 40),
+    (40, 4, 60),
+    (60, 4, 100),
+];
+
+/// `hexcal bench calib --table`: every size of [`TABLE_SIZES`] in a child process of this
+/// binary (so each peak memory is that size's own), one line per size as it finishes.
+fn bench_calib_table(sigma: f64, seed: u64, real_start: bool) -> anyhow::Result<()> {
+    let exe = std::env::current_exe().context("locating the hexcal binary")?;
+    println!("cameras/projectors/poses: rig; adjustment");
+    for (c, p, k) in TABLE_SIZES {
+        let mut cmd = std::process::Command::new(&exe);
+        cmd.arg("bench").arg("calib");
+        for (flag, v) in [("--cameras", c), ("--projectors", p), ("--poses", k)] {
+            cmd.arg(flag).arg(v.to_string());
+        }
+        cmd.arg("--sigma").arg(sigma.to_string());
+        cmd.arg("--seed").arg(seed.to_string());
+        if real_start {
+            cmd.arg("--real-start");
+        }
+        let out = cmd
+            .output()
+            .with_context(|| format!("running size {c}/{p}/{k}"))?;
+        let text = String::from_utf8_lossy(&out.stdout);
+        let lines: Vec<&str> = text.lines().collect();
+        match (out.status.success(), lines.as_slice()) {
+            (true, [rig, result, ..]) => {
+                let rig = rig.trim_start_matches("bundle adjustment: ");
+                println!("{c}/{p}/{k}: {rig}\n    {result}");
+            }
+            _ => println!(
+                "{c}/{p}/{k}: failed ({}): {}",
+                out.status,
+                String::from_utf8_lossy(&out.stderr).trim()
+            ),
+        }
+    }
+    Ok(())
+}
+
 /// CPU time of the process so far (user + system, s, from /proc/self/stat at 100 ticks per
 /// second): on a shared machine a steadier figure than the wall time.
 fn cpu_seconds() -> Option<f64> {
@@ -235,12 +284,20 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
         } => bench_aravis(width, height, bits, frames)?,
         Bench::Window { monitor, slides } => bench_window(monitor.as_deref(), slides)?,
         Bench::Calib {
+            sigma,
+            seed,
+            real_start,
+            table: true,
+            ..
+        } => bench_calib_table(sigma, seed, real_start)?,
+        Bench::Calib {
             cameras,
             projectors,
             poses,
             sigma,
             seed,
             real_start,
+            table: false,
         } => bench_calib(cameras, projectors, poses, sigma, seed, real_start)?,
         Bench::Render { scene, repeat } => {
             let scene = crate::load_scene(scene.as_ref())?;

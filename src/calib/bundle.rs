@@ -15,12 +15,13 @@ use super::circle::ellipse_center;
 use super::schur::{BlockSystem, Covariance, PoseBlock, Scaled, Step};
 use super::CalibError;
 use crate::board::{Board, Hex, Side};
-use crate::camera::{CameraModel, LensJacobian, LensParam, LensParams};
+use crate::camera::{CameraModel, LensJacobian, LensParam, LensParams, UndistortedPixel};
 use nalgebra::{
-    DMatrix, DVector, Isometry3, Matrix2x3, Matrix3, Matrix6, Point2, Point3, Translation3,
-    UnitQuaternion, Vector2, Vector3, Vector6,
+    DMatrix, DMatrixView, DVector, DVectorView, Dyn, Isometry3, Matrix2x3, Matrix3, Matrix6,
+    MatrixView, Point2, Point3, Translation3, UnitQuaternion, Vector2, Vector3, Vector6,
 };
 use rayon::prelude::*;
+use std::collections::HashMap;
 
 /// Whether a device records images or casts them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -361,7 +362,7 @@ enum Anchor {
 
 fn anchors(p: &Problem, s: &State, o: &Options) -> Vec<Option<Anchor>> {
     p.observations
-        .iter()
+        .par_iter()
         .map(|ob| match ob.via {
             Some(_) => Some(Anchor::Projector),
             None if !o.bias_free => Some(Anchor::Camera {
@@ -453,51 +454,25 @@ impl Linearised {
             .flat_map(|&(at, n)| at..at + n)
             .zip(self.jac.iter().copied())
     }
+}
 
-    /// Add this observation's share, with weight `w` and residual `e`, to its board pose's
-    /// part of the normal equations: `local` maps device-parameter columns (below `m`) to
-    /// the pose's local columns.
-    fn accumulate(&self, w: f64, e: &Vector2<f64>, m: usize, local: &[usize], acc: &mut PoseAcc) {
-        // (local column, Jacobian column) of each device parameter; the board block's start.
-        let mut uc = [(0usize, 0usize); MAX_COLUMNS];
-        let (mut nu, mut board, mut off) = (0, None, 0);
-        for &(at, n) in &self.blocks[..self.nblocks] {
-            if at >= m {
-                board = Some(off);
-            } else {
-                for c in 0..n {
-                    uc[nu] = (local[at + c], off + c);
-                    nu += 1;
-                }
-            }
-            off += n;
+/// The undistorted ray of the camera pixel a projector observation was found through, kept
+/// for the next observation: the projectors of one circle follow its camera observation.
+#[derive(Default)]
+struct RayCache {
+    key: Option<(usize, [u64; 2])>,
+    value: Option<UndistortedPixel>,
+}
+
+impl RayCache {
+    fn undistort(&mut self, via: &Via, model: &CameraModel) -> Option<UndistortedPixel> {
+        let e = via.ellipse_center;
+        let key = (via.camera, [e.x.to_bits(), e.y.to_bits()]);
+        if self.key != Some(key) {
+            self.key = Some(key);
+            self.value = model.undistort_with_jacobians(e);
         }
-        let mut wj = [Vector2::zeros(); MAX_COLUMNS];
-        for (x, j) in wj.iter_mut().zip(&self.jac[..self.ncolumns]) {
-            *x = j * w;
-        }
-        let nl = acc.g.len();
-        let u = acc.u.as_mut_slice();
-        for (a, &(la, ja)) in uc[..nu].iter().enumerate() {
-            acc.g[la] += wj[ja].dot(e);
-            for &(lb, jb) in &uc[a..nu] {
-                let (r, c) = if la <= lb { (la, lb) } else { (lb, la) };
-                u[c * nl + r] += wj[ja].dot(&self.jac[jb]);
-            }
-            if let Some(bo) = board {
-                for t in 0..6 {
-                    acc.w[(la, t)] += wj[ja].dot(&self.jac[bo + t]);
-                }
-            }
-        }
-        if let Some(bo) = board {
-            for t in 0..6 {
-                acc.gv[t] += wj[bo + t].dot(e);
-                for t2 in t..6 {
-                    acc.v[(t, t2)] += wj[bo + t].dot(&self.jac[bo + t2]);
-                }
-            }
-        }
+        self.value
     }
 }
 
@@ -527,6 +502,7 @@ fn linearise(
     ob: &Observation,
     anchor: &Anchor,
     jacobian: bool,
+    rays: &mut RayCache,
 ) -> Option<Linearised> {
     let dev = &s.devices[ob.device];
     let rc = *dev.pose.rotation.to_rotation_matrix().matrix();
@@ -567,7 +543,7 @@ fn linearise(
             // r = (n, 1), n = undistort(e_c), meets the side's plane (normal N through Q,
             // in camera c's frame) at P_c = λ·r.
             let cam = &s.devices[via.camera];
-            let un = cam.model.undistort_with_jacobians(via.ellipse_center)?;
+            let un = rays.undistort(&via, &cam.model)?;
             let r = Vector3::new(un.normalised.x, un.normalised.y, 1.0);
             let to_board = s.boards[ob.pose];
             let plane_pose = cam.pose * to_board * side;
@@ -631,16 +607,143 @@ fn linearise(
     }
 }
 
-/// One board pose's share of the normal equations, in its local device columns.
+/// Rows buffered per Jacobian structure before they are multiplied out (32 observations).
+const GROUP_ROWS: usize = 64;
+
+/// Buffered rows of observations with one Jacobian structure (the same parameter blocks).
+struct Group {
+    blocks: [(usize, usize); MAX_BLOCKS],
+    nblocks: usize,
+    ncolumns: usize,
+    /// √w-weighted Jacobian rows, `ncolumns` values each.
+    rows: Vec<f64>,
+    /// √w-weighted residuals, one per row.
+    e: Vec<f64>,
+}
+
+/// One board pose's share of the normal equations, in its local device columns (the pose's
+/// device columns, then its own 6). Observations are buffered by Jacobian structure and
+/// multiplied out a group at a time (a matrix product, not one outer product per
+/// observation); flushes happen at fixed points of the input order, so the sums are the
+/// same for any thread count.
 struct PoseAcc {
-    /// Upper triangle of the local U block (column-major, `g.len()` square).
-    u: DMatrix<f64>,
-    g: DVector<f64>,
-    w: DMatrix<f64>,
-    v: Matrix6<f64>,
-    gv: Vector6<f64>,
+    /// Upper triangle of the local JᵀWJ (column-major, `g.len()` square): U_k, W_k and V_k
+    /// in one.
+    h: Vec<f64>,
+    /// The local JᵀW·e.
+    g: Vec<f64>,
     cost: f64,
     residuals: Vec<(usize, Vector2<f64>)>,
+    /// Local column of each device-parameter column (the pose's own block starts at
+    /// `g.len() − 6`).
+    local: Vec<usize>,
+    /// Device parameters (state columns below `m` are device columns).
+    m: usize,
+    groups: Vec<Group>,
+    /// The group of each (device, camera it was found through, side): within one board
+    /// pose these fix the Jacobian's structure.
+    group_of: HashMap<(usize, Option<usize>, Side), usize>,
+}
+
+impl PoseAcc {
+    fn new(cols: &[usize], m: usize, observations: usize) -> PoseAcc {
+        let nh = cols.len() + 6;
+        let mut local = vec![usize::MAX; m];
+        for (i, &c) in cols.iter().enumerate() {
+            local[c] = i;
+        }
+        PoseAcc {
+            h: vec![0.0; nh * nh],
+            g: vec![0.0; nh],
+            cost: 0.0,
+            residuals: Vec::with_capacity(observations),
+            local,
+            m,
+            groups: Vec::new(),
+            group_of: HashMap::new(),
+        }
+    }
+
+    /// Add one observation's rows with weight `w` and residual `e`.
+    fn add(&mut self, ob: &Observation, lin: &Linearised, w: f64, e: &Vector2<f64>) {
+        let key = (ob.device, ob.via.map(|v| v.camera), ob.side);
+        let gi = *self.group_of.entry(key).or_insert_with(|| {
+            self.groups.push(Group {
+                blocks: lin.blocks,
+                nblocks: lin.nblocks,
+                ncolumns: lin.ncolumns,
+                rows: Vec::with_capacity(GROUP_ROWS * lin.ncolumns),
+                e: Vec::with_capacity(GROUP_ROWS),
+            });
+            self.groups.len() - 1
+        });
+        let sw = w.sqrt();
+        let group = &mut self.groups[gi];
+        debug_assert!(group.blocks == lin.blocks, "one structure per group");
+        let jac = &lin.jac[..lin.ncolumns];
+        group.rows.extend(jac.iter().map(|j| sw * j.x));
+        group.rows.extend(jac.iter().map(|j| sw * j.y));
+        group.e.extend([sw * e.x, sw * e.y]);
+        if group.e.len() >= GROUP_ROWS {
+            self.flush(gi);
+        }
+    }
+
+    /// Multiply out group `gi`'s rows (BᵀB, Bᵀe) into the local sums and empty it.
+    fn flush(&mut self, gi: usize) {
+        let group = &mut self.groups[gi];
+        let (nr, nc) = (group.e.len(), group.ncolumns);
+        if nr == 0 {
+            return;
+        }
+        // The rows as Bᵀ (column-major, nc × nr) and B (the same data, strides swapped).
+        let bt = DMatrixView::from_slice(&group.rows, nc, nr);
+        let b = MatrixView::<f64, Dyn, Dyn, Dyn, Dyn>::from_slice_with_strides_generic(
+            &group.rows,
+            Dyn(nr),
+            Dyn(nc),
+            Dyn(nc),
+            Dyn(1),
+        );
+        let mut btb = DMatrix::zeros(nc, nc);
+        btb.gemm(1.0, &bt, &b, 0.0);
+        let bte = bt * DVectorView::from_slice(&group.e, nr);
+        let nh = self.g.len();
+        // (local start, columns, offset in the rows) of each non-empty block.
+        let mut blocks = [(0usize, 0usize, 0usize); MAX_BLOCKS];
+        let (mut nb, mut off) = (0, 0);
+        for &(at, n) in &group.blocks[..group.nblocks] {
+            if n > 0 {
+                let start = if at >= self.m { nh - 6 } else { self.local[at] };
+                blocks[nb] = (start, n, off);
+                nb += 1;
+            }
+            off += n;
+        }
+        for &(la, na, oa) in &blocks[..nb] {
+            for i in 0..na {
+                self.g[la + i] += bte[oa + i];
+            }
+            // The upper triangle: block `a` against every block starting at or after it.
+            for &(lb, nbc, ob) in blocks[..nb].iter().filter(|b| b.0 >= la) {
+                for j in 0..nbc {
+                    let col = &mut self.h[(lb + j) * nh + la..][..na];
+                    for (i, h) in col.iter_mut().enumerate() {
+                        *h += btb[(oa + i, ob + j)];
+                    }
+                }
+            }
+        }
+        group.rows.clear();
+        group.e.clear();
+    }
+
+    /// Flush every group, in the order they were first seen.
+    fn finish(&mut self) {
+        for gi in 0..self.groups.len() {
+            self.flush(gi);
+        }
+    }
 }
 
 fn weight(e: &Vector2<f64>, huber: Option<f64>) -> f64 {
@@ -669,8 +772,8 @@ fn residuals(
     p.observations
         .par_iter()
         .zip(an)
-        .map(|(ob, a)| {
-            let lin = linearise(p, s, l, ob, a.as_ref()?, false)?;
+        .map_init(RayCache::default, |rays, (ob, a)| {
+            let lin = linearise(p, s, l, ob, a.as_ref()?, false, rays)?;
             Some(ob.pixel - lin.predicted)
         })
         .collect()
@@ -708,33 +811,24 @@ fn pose_share(
     obs: &[usize],
     cols: &[usize],
 ) -> PoseAcc {
-    let nl = cols.len();
-    let mut local = vec![usize::MAX; l.m];
-    for (i, &c) in cols.iter().enumerate() {
-        local[c] = i;
-    }
-    let mut acc = PoseAcc {
-        u: DMatrix::zeros(nl, nl),
-        g: DVector::zeros(nl),
-        w: DMatrix::zeros(nl, 6),
-        v: Matrix6::zeros(),
-        gv: Vector6::zeros(),
-        cost: 0.0,
-        residuals: Vec::with_capacity(obs.len()),
-    };
+    let mut acc = PoseAcc::new(cols, l.m, obs.len());
+    let mut rays = RayCache::default();
     for &i in obs {
         let ob = &p.observations[i];
-        let Some(lin) = an[i].as_ref().and_then(|a| linearise(p, s, l, ob, a, true)) else {
+        let Some(lin) = an[i]
+            .as_ref()
+            .and_then(|a| linearise(p, s, l, ob, a, true, &mut rays))
+        else {
             continue;
         };
         let e = ob.pixel - lin.predicted;
         acc.residuals.push((i, e));
         if active[i] {
             acc.cost += loss(&e, huber);
-            lin.accumulate(weight(&e, huber), &e, l.m, &local, &mut acc);
+            acc.add(ob, &lin, weight(&e, huber), &e);
         }
     }
-    acc.v.fill_lower_triangle_with_upper_triangle();
+    acc.finish();
     acc
 }
 
@@ -759,7 +853,7 @@ fn linear_system(
     let mut res = vec![None; p.observations.len()];
     // A few poses per thread at a time bound the memory of the local blocks; the batch
     // size does not change any sum.
-    let batch = 2 * rayon::current_num_threads().max(1);
+    let batch = 8 * rayon::current_num_threads().max(1);
     let ks: Vec<usize> = (0..by_pose.len()).collect();
     for chunk in ks.chunks(batch) {
         let shares: Vec<(Vec<usize>, PoseAcc)> = chunk
@@ -771,22 +865,24 @@ fn linear_system(
             })
             .collect();
         for (cols, acc) in shares {
-            let nl = cols.len();
-            for c in 0..nl {
-                for r in 0..=c {
-                    u[(cols[r], cols[c])] += acc.u[(r, c)];
+            let (nl, h) = (cols.len(), &acc.h);
+            let nh = nl + 6;
+            for (c, &cc) in cols.iter().enumerate() {
+                for (r, &cr) in cols[..=c].iter().enumerate() {
+                    u[(cr, cc)] += h[c * nh + r];
                 }
-                g[cols[c]] += acc.g[c];
+                g[cc] += acc.g[c];
             }
             total += acc.cost;
             for (i, e) in acc.residuals {
                 res[i] = Some(e);
             }
+            let board = |a: usize, b: usize| h[(nl + a.max(b)) * nh + nl + a.min(b)];
             poses.push(PoseBlock {
+                w: DMatrix::from_fn(nl, 6, |r, t| h[(nl + t) * nh + r]),
                 cols,
-                w: acc.w,
-                v: acc.v,
-                g: acc.gv,
+                v: Matrix6::from_fn(board),
+                g: Vector6::from_fn(|t, _| acc.g[nl + t]),
             });
         }
     }
@@ -840,6 +936,13 @@ fn robust_set(
     (k, inliers(p, res, o))
 }
 
+/// The robust phase's first damping λ. Columns are scaled to a unit diagonal, so λ is
+/// relative to each parameter's own curvature; 10⁻⁵ (rather than Marquardt's 10⁻³) lets the
+/// well-determined directions move from the first step, and Nielsen's rule raises it at
+/// once where a step fails (paper rig: 12 iterations instead of 19 to the same minimum;
+/// docs/design.md §8).
+const LAMBDA0: f64 = 1e-5;
+
 /// Damped trials at most per LM iteration.
 const MAX_TRIALS: usize = 30;
 
@@ -849,13 +952,21 @@ struct Phase {
     iterations: usize,
     /// Whether it stopped at the minimum (rather than at the iteration limit or stalled).
     converged: bool,
+    /// The linear system, cost and residuals at `state`, when the phase ended there.
+    system: Option<LinearSystem>,
+    /// The damping it ended with.
+    lambda: f64,
 }
+
+/// A scaled linear system with its cost and residuals, as [`linear_system`] gives them.
+type LinearSystem = (Scaled, f64, Vec<Option<Vector2<f64>>>);
 
 /// Levenberg–Marquardt iterations (32) with Nielsen's damping update: after a step with gain
 /// ratio ρ (actual over predicted decrease), λ ← λ·max(1/3, 1 − (2ρ − 1)³); after a
 /// rejected one λ ← λ·ν, ν ← 2ν. Stops when the undamped step would lower the cost by less
 /// than 0.1·σ̂²: then the state is within ~0.3 standard deviations of the minimum in the
 /// parameters' own metric.
+#[allow(clippy::too_many_arguments)]
 fn levenberg_marquardt(
     p: &Problem,
     mut s: State,
@@ -864,8 +975,9 @@ fn levenberg_marquardt(
     active: &[bool],
     huber: Option<f64>,
     by_pose: &[Vec<usize>],
+    lambda: f64,
 ) -> Phase {
-    let (mut lambda, mut nu) = (1e-3, 2.0);
+    let (mut lambda, mut nu) = (lambda, 2.0);
     let n = 2 * active.iter().filter(|a| **a).count().max(1);
     let mut small_drop = false;
     let mut last: Option<Vec<Option<Vector2<f64>>>> = None;
@@ -894,6 +1006,8 @@ fn levenberg_marquardt(
                 state: s,
                 iterations: iteration,
                 converged: true,
+                system: Some((sys, c0, res)),
+                lambda,
             };
         }
         let fixed = held(&sys);
@@ -924,6 +1038,8 @@ fn levenberg_marquardt(
                 state: s,
                 iterations: iteration,
                 converged: at_minimum,
+                system: Some((sys, c0, res)),
+                lambda,
             };
         };
         s = trial;
@@ -933,6 +1049,8 @@ fn levenberg_marquardt(
         state: s,
         iterations: o.max_iterations,
         converged: false,
+        system: None,
+        lambda,
     }
 }
 
@@ -949,23 +1067,21 @@ fn robust_sigma(norms: &mut [f64]) -> f64 {
 /// Per device, the observations within `o.outlier_sigmas` robust σ of the residuals `res`
 /// (31).
 fn inliers(p: &Problem, res: &[Option<Vector2<f64>>], o: &Options) -> Vec<bool> {
-    let mut active = vec![false; p.observations.len()];
-    for d in 0..p.devices.len() {
-        let mut norms: Vec<f64> = p
-            .observations
-            .iter()
-            .zip(res)
-            .filter(|(ob, _)| ob.device == d)
-            .filter_map(|(_, r)| r.map(|e| e.norm()))
-            .collect();
-        let sigma = robust_sigma(&mut norms);
-        for (i, ob) in p.observations.iter().enumerate() {
-            if ob.device == d {
-                active[i] = res[i].is_some_and(|e| e.norm() <= o.outlier_sigmas * sigma.max(1e-9));
-            }
+    let mut norms = vec![Vec::new(); p.devices.len()];
+    for (ob, r) in p.observations.iter().zip(res) {
+        if let Some(e) = r {
+            norms[ob.device].push(e.norm());
         }
     }
-    active
+    let limits: Vec<f64> = norms
+        .iter_mut()
+        .map(|n| o.outlier_sigmas * robust_sigma(n).max(1e-9))
+        .collect();
+    p.observations
+        .iter()
+        .zip(res)
+        .map(|(ob, r)| r.is_some_and(|e| e.norm() <= limits[ob.device]))
+        .collect()
 }
 
 /// Refuses observations naming a device, board pose or camera out of range.
@@ -997,14 +1113,28 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         bend: Bend::flat(&p.board),
     };
     let all = vec![true; p.observations.len()];
-    let robust = levenberg_marquardt(p, start, &l, o, &all, Some(o.huber), &by_pose);
+    let robust = levenberg_marquardt(p, start, &l, o, &all, Some(o.huber), &by_pose, LAMBDA0);
     let res = residuals(p, &robust.state, &l, &anchors(p, &robust.state, o));
     let active = inliers(p, &res, o);
-    let plain = levenberg_marquardt(p, robust.state, &l, o, &active, None, &by_pose);
+    // The plain phase goes on from where the robust one stopped, with its damping: the
+    // minimum moves little when the outliers leave, and restarting at the first λ takes
+    // many damped steps along the weakest directions (paper rig: 11 iterations, not 3).
+    let plain = levenberg_marquardt(
+        p,
+        robust.state,
+        &l,
+        o,
+        &active,
+        None,
+        &by_pose,
+        robust.lambda,
+    );
     let s = plain.state;
-    let an = anchors(p, &s, o);
-    let (sys, cost, res) = linear_system(p, &s, &l, &an, &active, None, &by_pose);
-    let sys = sys.scaled();
+    let (sys, cost, res) = plain.system.unwrap_or_else(|| {
+        let (sys, cost, res) =
+            linear_system(p, &s, &l, &anchors(p, &s, o), &active, None, &by_pose);
+        (sys.scaled(), cost, res)
+    });
     let free = held(&sys).iter().filter(|h| !**h).count();
     let n = 2 * active
         .iter()
@@ -1209,7 +1339,16 @@ mod tests {
             pick(false, Side::Back),
         ] {
             let ob = &problem.observations[i];
-            let lin = linearise(&problem, &state, &l, ob, an[i].as_ref().unwrap(), true).unwrap();
+            let lin = linearise(
+                &problem,
+                &state,
+                &l,
+                ob,
+                an[i].as_ref().unwrap(),
+                true,
+                &mut RayCache::default(),
+            )
+            .unwrap();
             let mut analytic = DMatrix::<f64>::zeros(2, l.len);
             for (c, v) in lin.columns() {
                 analytic[(0, c)] += v.x;
@@ -1230,6 +1369,7 @@ mod tests {
                     ob,
                     an[i].as_ref().unwrap(),
                     false,
+                    &mut RayCache::default(),
                 )
                 .unwrap()
                 .predicted;
@@ -1241,6 +1381,7 @@ mod tests {
                     ob,
                     an[i].as_ref().unwrap(),
                     false,
+                    &mut RayCache::default(),
                 )
                 .unwrap()
                 .predicted;

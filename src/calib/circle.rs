@@ -45,7 +45,7 @@ pub fn ellipse_center(
         ata += row * row.transpose();
         atb += row * (-q.x * q.x);
     }
-    let s = ata.lu().solve(&atb)?;
+    let s = ata.cholesky()?.solve(&atb);
     let (b, c, d, e) = (s[0], s[1], s[2], s[3]);
     // Centre: ∇ = 0 → [1 B/2; B/2 C]·x = −(D/2, E/2).
     let m = Matrix2::new(1.0, b / 2.0, b / 2.0, c);

@@ -633,11 +633,14 @@ pub fn worst_deviation(
 
 /// Build the case's rig, adjust it from the case's start and compare with the truth.
 pub fn run_case(case: &Case) -> Result<CaseResult, super::CalibError> {
-    let rig = case.rig();
+    let mut rig = case.rig();
+    let observations = rig.observations.len();
     let t = std::time::Instant::now();
     let (sol, device_index, pose_index, excluded) = match case.start {
         Start::Perturbed => {
             let start = rig.perturbed_start(case.seed + 1);
+            // The start holds its own copy; millions of observations on the largest rigs.
+            rig.observations = Vec::new();
             let sol = super::bundle::adjust(&start, &super::bundle::Options::default())?;
             let n = (rig.devices.len(), rig.boards.len());
             (sol, (0..n.0).collect(), (0..n.1).collect(), 0)
@@ -672,7 +675,7 @@ pub fn run_case(case: &Case) -> Result<CaseResult, super::CalibError> {
     Ok(CaseResult {
         devices: rig.devices.len(),
         excluded,
-        observations: rig.observations.len(),
+        observations,
         dof: sol.dof,
         iterations: sol.iterations,
         converged: sol.converged,
@@ -715,26 +718,49 @@ mod tests {
     fn the_bias_model_matches_an_independent_conic_on_every_test_geometry() {
         // The synthetic observations are made with the solver's own `ellipse_center`, so a
         // wrong bias model could not fail the calibration tests: check it against the
-        // simulator's dense rim fit on the geometries those tests use (the paper rig of each
-        // seed, the ring rigs of the convergence tests), far below the 0.1 px noise.
-        let mut rigs: Vec<(String, SyntheticRig, usize)> = [7, 21, 31, 51, 61, 100]
+        // simulator's dense rim fit on the geometries those tests use (every paper and ring
+        // rig the unit and integration tests build), far below the 0.1 px noise.
+        // (poses, seed) of every paper rig a test builds (the bent board's devices and poses
+        // are those of its seed), the NEES draws' seeds 100–129 included.
+        let mut paper: Vec<(usize, u64)> = vec![
+            (10, 7),
+            (8, 21),
+            (10, 51),
+            (10, 61),
+            (10, 41),
+            (10, 2),
+            (5, 3),
+            (4, 9),
+            (3, 5),
+            (10, 3),
+            (10, 71),
+            (9, 41),
+            (8, 17),
+            (10, 11),
+        ];
+        paper.extend((31..36).map(|s| (10, s)));
+        paper.extend((100..130).map(|s| (10, s)));
+        let mut rigs: Vec<(String, SyntheticRig, usize)> = paper
             .into_iter()
-            .map(|seed| {
-                (
-                    format!("paper {seed}"),
-                    SyntheticRig::paper(10, 0.0, seed),
-                    1,
-                )
+            .map(|(poses, seed)| {
+                let name = format!("paper {poses} poses, seed {seed}");
+                (name, SyntheticRig::paper(poses, 0.0, seed), 13)
             })
             .collect();
-        for (c, p, k, seed) in [
+        let mut rings = vec![
             (20, 4, 20, 1),
             (8, 4, 40, 1),
             (20, 4, 40, 1),
             (12, 0, 10, 3),
-        ] {
+            (12, 0, 10, 1),
+            (20, 4, 4, 1),
+            (4, 0, 6, 7),
+            (2, 2, 5, 11),
+        ];
+        rings.extend((50..53).map(|s| (8, 0, 10, s)));
+        for (c, p, k, seed) in rings {
             let rig = SyntheticRig::ring(c, p, k, 0.0, seed);
-            rigs.push((format!("ring {c}/{p}/{k}"), rig, 7));
+            rigs.push((format!("ring {c}/{p}/{k} seed {seed}"), rig, 29));
         }
         for (name, rig, stride) in &rigs {
             let worst = worst_bias_model_error(rig, *stride);
