@@ -12,7 +12,7 @@ use crate::calib::bundle::{Device, DeviceKind};
 use crate::calib::diagnostics::{kind_name, residual_table, ResidualRow};
 use crate::calib::solve::Calibration;
 use crate::calib::verify::PairCheck;
-use crate::camera::{LensParam, LensParams};
+use crate::camera::LensParam;
 use nalgebra::{Point2, Point3, Vector2, Vector3};
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
@@ -57,6 +57,7 @@ ul.warn{margin:4px 0;padding:8px 12px 8px 30px;background:#fff6e0;border:1px sol
 figure{margin:0}figcaption{font-size:12px;color:#555;max-width:410px;margin-top:2px}
 svg text{font-family:system-ui,'DejaVu Sans',sans-serif}
 .note{font-size:12px;color:#555}
+.scroll{overflow-x:auto;max-width:100%}td.why{white-space:normal;min-width:360px}
 ";
 
 /// The report as one self-contained HTML page.
@@ -77,6 +78,7 @@ pub fn html_report(input: &ReportInput) -> String {
         .into_iter()
         .chain(crate::calib::diagnostics::verification_warnings(
             input.verification,
+            |name| is_projector(cal, name),
         ))
         .chain(input.warnings.iter().cloned())
         .collect();
@@ -94,6 +96,7 @@ pub fn html_report(input: &ReportInput) -> String {
     h.push_str("</div>\n<div>\n");
     rig_section(&mut h, cal);
     h.push_str("</div>\n</div>\n");
+    lens_section(&mut h, cal);
     device_sections(&mut h, cal, &rows);
     uncertainty_section(&mut h, cal);
     if !input.verification.is_empty() {
@@ -106,6 +109,13 @@ pub fn html_report(input: &ReportInput) -> String {
         env!("CARGO_PKG_VERSION")
     );
     h
+}
+
+/// Whether the device named `name` is a projector.
+pub fn is_projector(cal: &Calibration, name: &str) -> bool {
+    cal.devices
+        .iter()
+        .any(|d| d.name == name && d.kind == DeviceKind::Projector)
 }
 
 /// Write [`html_report`] to `path` atomically.
@@ -1092,14 +1102,52 @@ fn with_std(value: f64, std: f64) -> String {
     }
 }
 
-/// The free lens parameters whose stds the solution lists (k3 fixed when one is missing).
-fn free_params(dev: &Device, stds: usize) -> LensParams {
-    let all = LensParams::for_model(&dev.model);
-    if stds + 1 == all.len() {
-        all.fix(LensParam::K3)
-    } else {
-        all
+/// Per device, the distortion terms it estimates and those fixed, with the evidence
+/// (docs/design.md §8, "Lens model").
+fn lens_section(h: &mut String, cal: &Calibration) {
+    h.push_str(
+        "<h2 id=\"lens-model\">Lens model chosen by the data</h2>\n<p class=\"note\">\
+         The highest radial term still estimated is fixed at 0 when its estimate lies within \
+         3σ of zero, and the adjustment repeated; k1, p1, p2 are always estimated.</p>\n\
+         <div class=\"scroll\"><table>\n<tr><th class=\"l\">device</th><th class=\"l\">\
+         estimates</th><th class=\"l\">fixed</th><th class=\"l\">why</th></tr>\n",
+    );
+    for (dev, choice) in cal.devices.iter().zip(&cal.lens) {
+        let names = |estimated: bool| {
+            let v: Vec<&str> = choice
+                .terms
+                .iter()
+                .filter(|t| t.estimated == estimated)
+                .map(|t| t.param.name())
+                .collect();
+            if v.is_empty() {
+                "—".to_string()
+            } else {
+                v.join(" ")
+            }
+        };
+        let why: Vec<String> = choice
+            .terms
+            .iter()
+            .filter(|t| t.tested || !t.estimated)
+            .map(|t| esc(&t.reason()))
+            .collect();
+        let _ = writeln!(
+            h,
+            "<tr><td class=\"l {}\">{}</td><td class=\"l\">{}</td><td class=\"l\">{}</td>\
+             <td class=\"l why\">{}</td></tr>",
+            kind_class(dev.kind),
+            esc(&dev.name),
+            names(true),
+            names(false),
+            if why.is_empty() {
+                "every term estimated".to_string()
+            } else {
+                why.join("<br>")
+            }
+        );
     }
+    h.push_str("</table></div>\n");
 }
 
 /// Every device's parameters with standard deviations, and its pose.
@@ -1113,7 +1161,8 @@ fn uncertainty_section(h: &mut String, cal: &Calibration) {
     h.push_str(
         "<h2 id=\"parameters\">Parameters and standard deviations</h2>\n<p class=\"note\">\
          Standard deviations from σ̂²(JᵀJ)⁻¹ of the final adjustment; focal lengths and \
-         principal points in px.</p>\n<table>\n<tr><th class=\"l\">device</th>",
+         principal points in px.</p>\n<div class=\"scroll\"><table>\n<tr><th class=\"l\">\
+         device</th>",
     );
     for p in &params {
         let _ = write!(h, "<th>{p}</th>");
@@ -1121,7 +1170,7 @@ fn uncertainty_section(h: &mut String, cal: &Calibration) {
     h.push_str("</tr>\n");
     for (d, dev) in cal.devices.iter().enumerate() {
         let stds = &sol.intrinsic_std[d];
-        let free = free_params(dev, stds.len());
+        let free = sol.free[d];
         let v = dev.model.lens_vector();
         let _ = write!(
             h,
@@ -1140,7 +1189,8 @@ fn uncertainty_section(h: &mut String, cal: &Calibration) {
         h.push_str("</tr>\n");
     }
     h.push_str(
-        "</table>\n<table>\n<tr><th class=\"l\">device</th><th>position in the reference \
+        "</table></div>\n<div class=\"scroll\"><table>\n<tr><th class=\"l\">device</th>\
+         <th>position in the reference \
          frame (mm)</th><th>viewing direction</th><th>σ rotation (mrad)</th><th>σ \
          translation (mm)</th></tr>\n",
     );
@@ -1172,7 +1222,7 @@ fn uncertainty_section(h: &mut String, cal: &Calibration) {
         );
     }
     h.push_str(
-        "</table>\n<p class=\"note\">Pose σ: of the left increment of T_device_ref, rotation \
+        "</table></div>\n<p class=\"note\">Pose σ: of the left increment of T_device_ref, rotation \
          (ω) about and translation (τ) along the device's x, y, z axes.</p>\n",
     );
     if sol.bend_std.iter().any(|s| *s > 0.0) {
