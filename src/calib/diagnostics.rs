@@ -137,6 +137,30 @@ pub fn projection_uncertainty(cal: &Calibration, d: usize, pixel: Point2<f64>) -
     Some(s.symmetric_eigenvalues().max().max(0.0).sqrt())
 }
 
+/// Uncertainty (px, 1σ along the worst direction) of device `d`'s lens at `pixel` relative
+/// to its image centre: the lens covariance propagated to the difference of the two
+/// projections, (J_p − J_c)·Σ·(J_p − J_c)ᵀ with J the lens Jacobian (J5) at each pixel's
+/// ray. A shift common to the whole image (principal point against the device's rotation)
+/// cancels, so what remains is how uncertain the lens's shape is there: where the model
+/// extrapolates (docs/design.md §8, "Warnings").
+pub fn shape_uncertainty(cal: &Calibration, d: usize, pixel: Point2<f64>) -> Option<f64> {
+    let m = &cal.devices[d].model;
+    let (free, cov) = lens_covariance(cal, d);
+    let centre = Point2::new(m.width as f64 / 2.0 - 0.5, m.height as f64 / 2.0 - 0.5);
+    let jac = |p: Point2<f64>| {
+        let ray = m.ray(p)?;
+        let j = m
+            .project_with_jacobians(&Isometry3::identity(), &Point3::from(ray))?
+            .d_lens;
+        Some(DMatrix::from_fn(2, free.len(), |r, c| {
+            j[(r, free[c].index())]
+        }))
+    };
+    let js = jac(pixel)? - jac(centre)?;
+    let s = &js * cov * js.transpose();
+    Some(s.symmetric_eigenvalues().max().max(0.0).sqrt())
+}
+
 /// Projection uncertainty (px) below which a pixel counts as well determined: mrcal's
 /// default for its valid-intrinsics region.
 pub const VALID_UNCERTAINTY: f64 = 1.0;
@@ -193,11 +217,9 @@ const REGION_NAMES: [&str; 9] = [
 ];
 
 /// Where device `d`'s lens model extrapolates: over the corners and centres of its
-/// [`COVERAGE_CELLS`] (image corners included), the points whose
-/// [`projection_uncertainty`] exceeds both the noise σ̂ of one observation and twice the
-/// smallest uncertainty of those points (where the data determine the lens best; the
-/// uncertainty holds the pose, so even there it includes what the pose would absorb), as
-/// (uncertainty, pixel, region index), worst first.
+/// [`COVERAGE_CELLS`] (image corners included), the points whose [`shape_uncertainty`]
+/// exceeds the noise σ̂ of one observation (the model is less sure there than a single
+/// measurement), as (uncertainty, pixel, region index), worst first.
 fn uncertain_points(cal: &Calibration, d: usize) -> Vec<(f64, Point2<f64>, usize)> {
     let m = &cal.devices[d].model;
     let (w, h) = (m.width as f64 - 1.0, m.height as f64 - 1.0);
@@ -215,21 +237,20 @@ fn uncertain_points(cal: &Calibration, d: usize) -> Vec<(f64, Point2<f64>, usize
         let third = |x: f64, size: f64| ((3.0 * x / size) as usize).min(2);
         3 * third(p.y, h + 1.0) + third(p.x, w + 1.0)
     };
-    let all: Vec<(f64, Point2<f64>, usize)> = at
+    let mut out: Vec<(f64, Point2<f64>, usize)> = at
         .into_iter()
-        .filter_map(|p| Some((projection_uncertainty(cal, d, p)?, p, region(&p))))
+        .filter_map(|p| Some((shape_uncertainty(cal, d, p)?, p, region(&p))))
+        .filter(|u| u.0 > cal.solution.sigma)
         .collect();
-    let best = all.iter().map(|u| u.0).fold(f64::INFINITY, f64::min);
-    let limit = cal.solution.sigma.max(2.0 * best);
-    let mut out: Vec<_> = all.into_iter().filter(|u| u.0 > limit).collect();
     out.sort_by(|a, b| b.0.total_cmp(&a.0));
     out
 }
 
 /// Distortion terms of device `d` still estimated whose estimate lies within 3σ of zero
 /// while their 1σ moves the farthest image corner by more than the noise σ̂ (a term that
-/// matters and is not known), as "k1 = v ± s (…)". The radial terms the data cannot
-/// determine are fixed before ([`super::lens_model`]); this names the others.
+/// matters and is not known), as "k1 = v ± s (…)". The
+/// radial terms the data cannot determine are fixed before ([`super::lens_model`]); this
+/// names the others.
 fn undetermined_terms(cal: &Calibration, d: usize) -> Vec<String> {
     let (free, cov) = lens_covariance(cal, d);
     let m = &cal.devices[d].model;
@@ -250,7 +271,7 @@ fn undetermined_terms(cal: &Calibration, d: usize) -> Vec<String> {
         let col = jac.d_lens.column(p.index()).norm();
         if value.abs() < 3.0 * std && col * std > cal.solution.sigma {
             terms.push(format!(
-                "{} = {value:.4} ± {std:.4} (its σ moves the corner by {:.2} px)",
+                "{} = {value:.4} ± {std:.4} (its σ moves the corner by {:.3} px)",
                 p.name(),
                 col * std
             ));
@@ -281,9 +302,9 @@ fn lens_warnings(cal: &Calibration, w: &mut Vec<String>) {
         if let Some(&(worst, at, _)) = points.first() {
             text += &format!(
                 " the lens model extrapolates in its {}: projection uncertainty up to \
-                 {worst:.3} px (at pixel {:.0}, {:.0}), above the {:.3} px noise of one \
-                 observation and twice that where the data determine it best; {:.0} % of \
-                 its {nx} × {ny} image cells hold no observed point.",
+                 {worst:.3} px relative to its centre (at pixel {:.0}, {:.0}), above the \
+                 {:.3} px noise of one observation; {:.0} % of its {nx} × {ny} image cells \
+                 hold no observed point.",
                 names.join(", "),
                 at.x,
                 at.y,
@@ -546,8 +567,13 @@ mod tests {
         for (d, (empty, _)) in coverage(cal).into_iter().enumerate() {
             let u: Vec<String> = corners(cal, d)
                 .iter()
-                .filter_map(|&p| projection_uncertainty(cal, d, p))
-                .map(|u| format!("{u:.3}"))
+                .filter_map(|&p| {
+                    Some((
+                        projection_uncertainty(cal, d, p)?,
+                        shape_uncertainty(cal, d, p)?,
+                    ))
+                })
+                .map(|(u, s)| format!("{u:.3} (shape {s:.3})"))
                 .collect();
             eprintln!(
                 "{}: {:.0} % cells empty, corner uncertainty {} px (σ̂ {:.3})",
@@ -625,8 +651,8 @@ mod tests {
         assert!(
             about(
                 "cam0",
-                "extrapolates in its top-left corner, top edge, top-right corner, left edge, \
-             right edge, bottom-left corner, bottom edge, bottom-right corner"
+                "extrapolates in its top-left corner, top-right corner, left edge, right edge, \
+                 bottom-left corner, bottom-right corner"
             ),
             "{w:#?}"
         );
@@ -635,14 +661,10 @@ mod tests {
         for s in w.iter().filter(|s| s.contains("outliers")) {
             assert!(s.starts_with("cam2"), "{s}");
         }
-        // cam0's corners are far less certain than those of the cameras that cover theirs.
-        let worst = |d: usize| {
-            corners(&cal, d)
-                .iter()
-                .filter_map(|&p| projection_uncertainty(&cal, d, p))
-                .fold(0.0, f64::max)
-        };
-        assert!((1..6).all(|d| worst(0) > 5.0 * worst(d)));
+        // Its corners are less certain than where it has points (a centre-only camera's
+        // k1, k2 still extrapolate).
+        let far = shape_uncertainty(&cal, 0, Point2::new(0.0, 0.0)).unwrap();
+        assert!(far > cal.solution.sigma, "{far}");
         // Its valid-intrinsics region is smaller than any other camera's, and each
         // vertex is where the uncertainty is still below the threshold.
         let area = |d: usize| {
