@@ -173,13 +173,13 @@ pub fn adjust_selecting(
     // solution (fixing one device's term moves the others'), until no term is fixed.
     for _round in 0..CANDIDATES.len() * n {
         let mut changed = false;
-        for d in 0..n {
+        for (d, tested) in evidence.iter_mut().enumerate() {
             let Some(param) = next_candidate(&sol, d) else {
                 continue;
             };
             let (estimate, std) = estimate(&sol, d, param).expect("a candidate is estimated");
             if std > 0.0 && estimate.abs() < SIGNIFICANCE * std {
-                evidence[d].push(TermChoice {
+                tested.push(TermChoice {
                     param,
                     estimated: false,
                     estimate,
