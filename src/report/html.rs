@@ -1478,7 +1478,7 @@ mod tests {
     fn the_paper_rig_is_warned_of_its_corners_only_and_no_verification_without_checks() {
         let html = page(calibration(), &[], Vec::new());
         assert!(!html.contains("<p class=\"ok\">None"));
-        assert!(html.contains("extrapolates in the image corners"));
+        assert!(html.contains("the lens model extrapolates in its"));
         assert!(!html.contains("outliers,") && !html.contains("the median"));
         assert!(!html.contains("id=\"verification\""));
     }
