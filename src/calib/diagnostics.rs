@@ -586,13 +586,18 @@ mod tests {
     }
 
     /// The paper rig's poses leave the image corners without points (a third of the
-    /// cameras' cells, half of the projectors'). Whatever is said is one warning per
+    /// cameras' cells, half of the projectors'); its lens models are chosen as
+    /// `lens_model::tests` requires. Whatever is said is one warning per
     /// device at most of each kind, and only of the kinds that are true of it: extrapolated
     /// regions and poorly determined terms (no outliers, RMS or pose counts: none apply).
     #[test]
     fn the_paper_rig_says_only_what_is_true_of_it() {
         let cal = paper(|_, _| true);
         figures(&cal);
+        crate::calib::lens_model::tests::the_paper_rig_fixes_what_its_data_cannot_determine(
+            &SyntheticRig::paper(10, 0.1, 3),
+            &cal,
+        );
         let w = warnings(&cal, &residual_table(&cal));
         eprintln!("{} warnings: {w:#?}", w.len());
         let kinds = ["extrapolates", "cannot determine"];
