@@ -272,6 +272,7 @@ pub fn summarise(outcome: &hexcal::app::progress::Outcome, progress: Progress) {
         "{}",
         hexcal::report::format_table(&hexcal::calib::diagnostics::residual_table(cal))
     );
+    print!("{}", hexcal::report::format_lens_models(cal));
     for e in &cal.excluded {
         println!("not calibrated: {}: {}", e.name, e.reason);
     }
@@ -328,7 +329,7 @@ pub fn report_line(
         return;
     };
     let n = warnings(cal, &residual_table(cal)).len()
-        + verification_warnings(verification).len()
+        + verification_warnings(verification, |n| hexcal::report::html::is_projector(cal, n)).len()
         + extra;
     println!(
         "report: {} ({n} warning{})",

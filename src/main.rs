@@ -272,6 +272,7 @@ fn calibrate(
         "{}",
         hexcal::report::format_table(&hexcal::calib::diagnostics::residual_table(cal))
     );
+    print!("{}", hexcal::report::format_lens_models(cal));
     println!(
         "σ {:.4} px; {} of {} unanchored views registered",
         cal.solution.sigma,

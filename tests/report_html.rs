@@ -64,7 +64,7 @@ fn report_renders_as_a_page_with_figures() {
     );
     let rig = SyntheticRig::paper(10, 0.1, 11);
     let (train, test): (Vec<_>, Vec<_>) = rig.views().into_iter().partition(|v| v.pose < 8);
-    let cal = calibrate(
+    let mut cal = calibrate(
         &rig.board,
         &rig.device_infos(),
         rig.boards.len(),
@@ -72,6 +72,11 @@ fn report_renders_as_a_page_with_figures() {
         &CalibrateOptions::default(),
     )
     .unwrap();
+    // A few gross outliers (50 px), whose magnified vectors would cross the page.
+    for r in cal.solution.residuals.iter_mut().step_by(997) {
+        r.error = nalgebra::Vector2::new(50.0, -30.0);
+        r.outlier = true;
+    }
     let checks = verify(&rig.board, &cal.devices, &test);
     assert!(!checks.is_empty());
     let dir = scratch("report-html");
@@ -91,6 +96,7 @@ fn report_renders_as_a_page_with_figures() {
     for d in &cal.devices {
         assert!(html.contains(&d.name));
     }
+    plots_are_labelled(&html, cal.devices.len());
 
     let png = dir.join("report.png");
     screenshot(&page, &png, &dir.join("profile"));
@@ -141,4 +147,38 @@ fn report_renders_as_a_page_with_figures() {
         100.0 * ink as f64 / total as f64,
         colours.len()
     );
+}
+
+/// The figures' labelling, read from the page's SVG: pixel axes with units on every image
+/// figure, each histogram with its device's own σ, the lens-model table, the parameter
+/// tables in scrolling boxes, board poses labelled, and every residual vector (outliers
+/// included) at most 40 figure px long.
+fn plots_are_labelled(html: &str, devices: usize) {
+    let count = |s: &str| html.matches(s).count();
+    assert_eq!(count(">x (px)</text>"), 2 * devices, "pixel axes");
+    assert_eq!(count(">y (px)</text>"), 2 * devices, "pixel axes");
+    assert_eq!(count("Rayleigh distribution of this device"), devices);
+    assert!(html.contains("id=\"lens-model\""));
+    assert!(
+        count("<div class=\"scroll\"><table>") >= 3,
+        "scrolling tables"
+    );
+    assert!(
+        html.contains("paint-order=\"stroke\""),
+        "pose labels on a halo"
+    );
+    let mut vectors = 0;
+    for chunk in html.split("<path d=\"").skip(1) {
+        let (d, rest) = chunk.split_once('"').unwrap();
+        if !(rest.starts_with(" stroke=\"#9aa3ad\"") || rest.starts_with(" stroke=\"#d62728\"")) {
+            continue;
+        }
+        for seg in d.split('M').filter(|s| !s.is_empty()) {
+            let (_, rel) = seg.split_once('l').unwrap();
+            let v: Vec<f64> = rel.split(' ').map(|x| x.parse().unwrap()).collect();
+            assert!(v[0].hypot(v[1]) <= 40.2, "a vector of {v:?} figure px");
+            vectors += 1;
+        }
+    }
+    assert!(vectors > 1000, "{vectors} vectors");
 }

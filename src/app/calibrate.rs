@@ -147,7 +147,7 @@ fn held_out_file(
 }
 
 /// Verify held-out views against the calibrated devices (views re-indexed to the kept
-/// devices; poses renumbered from 0).
+/// devices; poses renumbered from 0 for the check, then named by their index in the run).
 fn verify_held_out(
     board: &Board,
     cal: &Calibration,
@@ -174,7 +174,14 @@ fn verify_held_out(
         })
         .collect();
     let devices: Vec<Device> = cal.devices.clone();
+    // Each check names its pose as the run numbered it (the held-out poses' real index).
     verify(board, &devices, &views)
+        .into_iter()
+        .map(|k| PairCheck {
+            pose: k.pose + held_from,
+            ..k
+        })
+        .collect()
 }
 
 /// `hexcal calibrate DATASET`: every complete pose's views (from `views.json`, or decoded

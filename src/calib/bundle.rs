@@ -73,7 +73,7 @@ pub struct Observation {
 }
 
 /// Solver options.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Options {
     /// Device whose frame is the reference (its pose is fixed to the identity).
     pub reference: usize,
@@ -90,6 +90,9 @@ pub struct Options {
     /// Hold k3 at its start (the lens parameters estimated are otherwise those of each
     /// device's model: nine, or twelve with the rational terms).
     pub fix_k3: bool,
+    /// Per device (by index), lens parameters held at their start (none for a device
+    /// beyond the list); chosen by [`super::lens_model`].
+    pub fixed: Vec<Vec<LensParam>>,
     /// Maximum LM iterations per phase.
     pub max_iterations: usize,
 }
@@ -104,6 +107,7 @@ impl Default for Options {
             huber: 1.0,
             outlier_sigmas: 4.0,
             fix_k3: false,
+            fixed: Vec::new(),
             max_iterations: 50,
         }
     }
@@ -189,6 +193,8 @@ pub struct Solution {
     pub dof: (usize, usize),
     /// Standard deviation of every device's intrinsics, in the lens parameter order.
     pub intrinsic_std: Vec<Vec<f64>>,
+    /// Every device's estimated lens parameters (the order of `intrinsic_std`).
+    pub free: Vec<LensParams>,
     /// Standard deviation of every device's pose increment (ω in rad, τ in mm).
     pub pose_std: Vec<[f64; 6]>,
     /// Parameter covariance σ²(JᵀJ)⁻¹ in [`Solution::index`] order (zero rows and columns
@@ -240,6 +246,9 @@ impl Layout {
             let mut params = LensParams::for_model(&d.model);
             if o.fix_k3 {
                 params = params.fix(LensParam::K3);
+            }
+            for &t in o.fixed.get(i).map_or(&[][..], Vec::as_slice) {
+                params = params.fix(t);
             }
             lens.push((at, params));
             at += params.len();
@@ -1181,6 +1190,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         sigma,
         dof: (n, free),
         intrinsic_std,
+        free: l.lens.iter().map(|&(_, params)| params).collect(),
         pose_std,
         index: l
             .lens

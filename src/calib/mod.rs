@@ -2,7 +2,8 @@
 //! projector coordinates, [`geometric`] by a first calibration's predictions), Zhang's
 //! planar initialisation per device ([`zhang`]), the pose graph ([`posegraph`]) and one
 //! bundle adjustment over all devices, board poses and both sides ([`bundle`], with the
-//! circle model of [`circle`]); [`solve::calibrate`] runs them in order.
+//! circle model of [`circle`]), repeated with the distortion terms the data cannot determine
+//! fixed ([`lens_model`]); [`solve::calibrate`] runs them in order.
 //!
 //! Takes labelled camera views with projector coordinates at their circles and gives every
 //! device's model and pose in the reference device's frame, with residuals and covariance.
@@ -11,6 +12,7 @@ pub mod bundle;
 pub mod circle;
 pub mod diagnostics;
 pub mod geometric;
+pub mod lens_model;
 pub mod posegraph;
 pub mod schur;
 pub mod solve;

@@ -8,6 +8,7 @@
 //! views not registered), each reported by name.
 
 use super::bundle::{self, Device, DeviceKind, Observation, Options, Problem, Solution};
+use super::lens_model::{adjust_selecting, LensChoice};
 use super::posegraph::{chain, PairEstimate};
 use super::views::{observations, register, CameraView, RegisterParams, Registration};
 use super::zhang;
@@ -113,7 +114,7 @@ pub fn check_input(
 }
 
 /// Settings of [`calibrate`].
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct CalibrateOptions {
     /// Registration of unanchored views.
     pub register: RegisterParams,
@@ -164,6 +165,9 @@ pub struct Calibration {
     pub observations: Vec<Observation>,
     /// The adjustment.
     pub solution: Solution,
+    /// Per device, the distortion terms the data determine and those fixed
+    /// ([`super::lens_model`]).
+    pub lens: Vec<LensChoice>,
 }
 
 /// Zhang's start of one device: views grouped by (pose, side), each view's pose.
@@ -383,7 +387,7 @@ pub fn calibrate(
     let (pose_index, boards, observations) = kept_poses(&graph.boards, &obs, &new_device);
     let bundle_options = Options {
         reference: new_device[reference].expect("the reference is kept"),
-        ..options.bundle
+        ..options.bundle.clone()
     };
     let problem = Problem {
         board: board.clone(),
@@ -391,7 +395,7 @@ pub fn calibrate(
         boards,
         observations,
     };
-    let solution = bundle::adjust(&problem, &bundle_options)?;
+    let (solution, lens) = adjust_selecting(&problem, &bundle_options)?;
     Ok(Calibration {
         board: board.clone(),
         devices: solution.devices.clone(),
@@ -402,5 +406,6 @@ pub fn calibrate(
         registration,
         observations: problem.observations,
         solution,
+        lens,
     })
 }

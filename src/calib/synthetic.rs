@@ -358,6 +358,59 @@ impl SyntheticRig {
         Self::build(&cams, &projs, poses, sigma, seed, None)
     }
 
+    /// A small rig whose board poses cover every device's whole image, corners included:
+    /// cameras at azimuths 0° and 25° facing the front and 180° facing the back, one
+    /// projector (principal point centred) at −15°; twelve board poses, a 3 × 3 grid of
+    /// shifts (±330 mm across, ±210 mm up) with alternating yaw ±20° and pitch ∓15°, and
+    /// three strongly turned poses at the centre. The cameras' k3 is `k3`; noise σ px.
+    pub fn covered(sigma: f64, seed: u64, k3: f64) -> SyntheticRig {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let board = Board::hex600();
+        let bend = Bend::flat(&board);
+        let cameras = [(0.0, 0.0), (25.0, -10.0), (180.0, 5.0)];
+        let (mut devices, ref_from_world) = place_devices(&cameras, &[-15.0], &mut rng);
+        devices[3].model.intrinsics.cy = 540.0 + rng.random_range(-10.0..10.0);
+        for d in &mut devices[..3] {
+            d.model.distortion.k3 = k3;
+        }
+        let mut world = Vec::new();
+        for (i, y) in [-210.0, 0.0, 210.0].into_iter().enumerate() {
+            for (j, x) in [-330.0, 0.0, 330.0].into_iter().enumerate() {
+                let s = if (i + j) % 2 == 0 { 1.0 } else { -1.0 };
+                world.push((x, y, 20f64 * s, -15f64 * s));
+            }
+        }
+        world.extend([
+            (0.0, 0.0, 35.0, 10.0),
+            (0.0, 0.0, -35.0, -10.0),
+            (0.0, 0.0, 0.0, 30.0),
+        ]);
+        let boards = world
+            .into_iter()
+            .map(|(x, y, yaw, pitch)| {
+                let r = UnitQuaternion::from_euler_angles(
+                    f64::to_radians(pitch),
+                    f64::to_radians(yaw),
+                    0.0,
+                );
+                ref_from_world * Isometry3::from_parts(Translation3::new(x, y, 0.0), r)
+            })
+            .collect::<Vec<_>>();
+        let observer = Observer {
+            board: &board,
+            bend: &bend,
+            devices: &devices,
+            noise: Normal::new(0.0, sigma.max(1e-300)).expect("finite σ"),
+        };
+        let observations = observer.observations(&boards, &mut rng);
+        SyntheticRig {
+            board,
+            devices,
+            boards,
+            observations,
+        }
+    }
+
     /// Cameras at (azimuth, elevation) in degrees at 1500 mm, projectors at azimuths at
     /// 1300 mm and 5° elevation, all looking at the origin.
     fn build(

@@ -12,7 +12,7 @@ use crate::calib::bundle::{Device, DeviceKind};
 use crate::calib::diagnostics::{kind_name, residual_table, ResidualRow};
 use crate::calib::solve::Calibration;
 use crate::calib::verify::PairCheck;
-use crate::camera::{LensParam, LensParams};
+use crate::camera::LensParam;
 use nalgebra::{Point2, Point3, Vector2, Vector3};
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
@@ -57,6 +57,7 @@ ul.warn{margin:4px 0;padding:8px 12px 8px 30px;background:#fff6e0;border:1px sol
 figure{margin:0}figcaption{font-size:12px;color:#555;max-width:410px;margin-top:2px}
 svg text{font-family:system-ui,'DejaVu Sans',sans-serif}
 .note{font-size:12px;color:#555}
+.scroll{overflow-x:auto;max-width:100%}td.why{white-space:normal;min-width:360px}
 ";
 
 /// The report as one self-contained HTML page.
@@ -77,6 +78,7 @@ pub fn html_report(input: &ReportInput) -> String {
         .into_iter()
         .chain(crate::calib::diagnostics::verification_warnings(
             input.verification,
+            |name| is_projector(cal, name),
         ))
         .chain(input.warnings.iter().cloned())
         .collect();
@@ -94,6 +96,7 @@ pub fn html_report(input: &ReportInput) -> String {
     h.push_str("</div>\n<div>\n");
     rig_section(&mut h, cal);
     h.push_str("</div>\n</div>\n");
+    lens_section(&mut h, cal);
     device_sections(&mut h, cal, &rows);
     uncertainty_section(&mut h, cal);
     if !input.verification.is_empty() {
@@ -106,6 +109,13 @@ pub fn html_report(input: &ReportInput) -> String {
         env!("CARGO_PKG_VERSION")
     );
     h
+}
+
+/// Whether the device named `name` is a projector.
+pub fn is_projector(cal: &Calibration, name: &str) -> bool {
+    cal.devices
+        .iter()
+        .any(|d| d.name == name && d.kind == DeviceKind::Projector)
 }
 
 /// Write [`html_report`] to `path` atomically.
@@ -378,8 +388,12 @@ fn device_data(cal: &Calibration, d: usize) -> DeviceData {
     data
 }
 
+/// Height of the pixel axis under an image frame (px).
+const AXIS_HEIGHT: f64 = 30.0;
 /// Width of the per-device image figures (px).
 const IMAGE_FIG_WIDTH: f64 = 400.0;
+/// Longest residual vector drawn (figure px); longer ones are cut.
+const MAX_VECTOR: f64 = 40.0;
 /// Most inlier residual vectors drawn per device.
 const MAX_VECTORS: usize = 2500;
 /// Inliers a grid cell needs for its mean residual arrow.
@@ -403,7 +417,7 @@ impl ImageFrame {
             f64::from(dev.model.height.max(1)),
         );
         ImageFrame {
-            x0: 6.0,
+            x0: 40.0,
             y0: 6.0,
             k: IMAGE_FIG_WIDTH / w,
             w,
@@ -416,6 +430,24 @@ impl ImageFrame {
             self.x0 + self.k * (p.x + 0.5),
             self.y0 + self.k * (p.y + 0.5),
         )
+    }
+
+    /// The figure vector `d` drawn from figure point `a`, cut to [`MAX_VECTOR`] px and to
+    /// the image frame (an outlier's magnified residual would cross the page).
+    fn clip(&self, a: (f64, f64), d: Vector2<f64>) -> Vector2<f64> {
+        let (w, h) = self.size();
+        let mut t = (MAX_VECTOR / d.norm().max(1e-12)).min(1.0);
+        for (from, step, lo, hi) in [
+            (a.0, d.x, self.x0, self.x0 + w),
+            (a.1, d.y, self.y0, self.y0 + h),
+        ] {
+            if from + t * step > hi {
+                t = t.min((hi - from) / step);
+            } else if from + t * step < lo {
+                t = t.min((lo - from) / step);
+            }
+        }
+        d * t.max(0.0)
     }
 
     fn size(&self) -> (f64, f64) {
@@ -437,10 +469,55 @@ impl ImageFrame {
             .then_some((i as usize, j as usize))
     }
 
-    /// An SVG with room for the frame and `below` px of text under it.
+    /// An SVG with room for the frame, its pixel axes and `below` px of text under them.
     fn svg(&self, below: f64) -> Svg {
         let (w, h) = self.size();
-        Svg::new(w + 2.0 * self.x0, h + self.y0 + below)
+        Svg::new(w + self.x0 + 12.0, h + self.y0 + AXIS_HEIGHT + below)
+    }
+
+    /// Pixel axes along the frame's bottom and left edges: ticks every 250, 500, … px
+    /// (about four per side) labelled in image pixels, and "x (px)", "y (px)".
+    fn axes(&self, svg: &mut Svg) {
+        let (w, h) = self.size();
+        let (bottom, grey) = (self.y0 + h, "stroke=\"#777\"");
+        let step = nice_below(self.w / 3.0);
+        let mut t = 0.0;
+        while t <= self.w {
+            let x = self.x0 + self.k * t;
+            svg.line((x, bottom), (x, bottom + 4.0), grey);
+            svg.text(x, bottom + 14.0, 10.0, "middle", "fill=\"#444\"", &short(t));
+            t += step;
+        }
+        svg.text(
+            self.x0 + w,
+            bottom + 26.0,
+            10.0,
+            "end",
+            "fill=\"#444\"",
+            "x (px)",
+        );
+        let mut t = 0.0;
+        while t <= self.h {
+            let y = self.y0 + self.k * t;
+            svg.line((self.x0 - 4.0, y), (self.x0, y), grey);
+            svg.text(
+                self.x0 - 6.0,
+                y + 4.0,
+                10.0,
+                "end",
+                "fill=\"#444\"",
+                &short(t),
+            );
+            t += step;
+        }
+        svg.text(
+            self.x0 - 6.0,
+            bottom + 26.0,
+            10.0,
+            "end",
+            "fill=\"#444\"",
+            "y (px)",
+        );
     }
 }
 
@@ -468,12 +545,14 @@ fn residual_figure(dev: &Device, data: &DeviceData) -> (String, String) {
     let stride = norms.len().div_ceil(MAX_VECTORS).max(1);
     residual_vectors(&mut svg, &f, data, scale, stride);
     cell_mean_arrows(&mut svg, &f, data, mean_scale);
+    f.axes(&mut svg);
     residual_legend(&mut svg, &f, dev, scale, mean_scale);
     let (cols, rows, _) = f.grid();
     let caption = format!(
         "Residual vectors (observed − predicted){}, magnified ×{}; blue: the mean of each \
          {}×{} grid cell with {MIN_CELL_POINTS} or more, ×{}; red: outliers. Systematic patterns in the blue arrows point to \
-         an unmodelled error.",
+         an unmodelled error. Vectors are cut at {MAX_VECTOR} figure px and at the image \
+         border.",
         if stride > 1 {
             format!(" of one in {stride} of the {} inliers", norms.len())
         } else {
@@ -510,7 +589,7 @@ fn residual_vectors(svg: &mut Svg, f: &ImageFrame, data: &DeviceData, scale: f64
             }
         }
         let a = f.at(*p);
-        let d = e * scale * f.k;
+        let d = f.clip(a, e * scale * f.k);
         let _ = write!(
             if *o { &mut out } else { &mut inl },
             "M{:.1} {:.1}l{:.1} {:.1}",
@@ -569,7 +648,7 @@ fn cell_mean_arrows(svg: &mut Svg, f: &ImageFrame, data: &DeviceData, mean_scale
 fn residual_legend(svg: &mut Svg, f: &ImageFrame, dev: &Device, scale: f64, mean_scale: f64) {
     let (w, h) = f.size();
     // Scale bar: the residual length that is 10 % of the width at each magnification.
-    let y = f.y0 + h + 16.0;
+    let y = f.y0 + h + AXIS_HEIGHT + 12.0;
     let len = nice_below(0.12 * f.w / scale);
     svg.line(
         (f.x0, y),
@@ -638,8 +717,9 @@ fn coverage_figure(dev: &Device, data: &DeviceData) -> (String, String) {
         }
     }
     svg.rect(f.x0, f.y0, w, h, "fill=\"none\" stroke=\"#888\"");
+    f.axes(&mut svg);
     // Colour bar.
-    let y = f.y0 + h + 10.0;
+    let y = f.y0 + h + AXIS_HEIGHT + 6.0;
     let steps = 40;
     let bar = 200.0;
     for s in 0..steps {
@@ -684,13 +764,17 @@ fn coverage_figure(dev: &Device, data: &DeviceData) -> (String, String) {
     (svg.finish(), caption)
 }
 
-/// Histogram of the inliers' residual norms with the Rayleigh density of σ̂.
-fn histogram_figure(data: &DeviceData, sigma: f64) -> (String, String) {
+/// Histogram of the inliers' residual norms with the Rayleigh density of the device's own
+/// σ per coordinate, √(Σ|r|²/2n), beside the rig's σ̂.
+fn histogram_figure(data: &DeviceData, rig_sigma: f64) -> (String, String) {
     let norms = inlier_norms(data);
+    let sigma = (norms.iter().map(|r| r * r).sum::<f64>() / (2 * norms.len().max(1)) as f64)
+        .sqrt()
+        .max(1e-12);
     let plot = Plot {
         w: 300.0,
         h: 200.0,
-        left: 44.0,
+        left: 54.0,
         bottom: 36.0,
         top: 10.0,
     };
@@ -724,15 +808,18 @@ fn histogram_figure(data: &DeviceData, sigma: f64) -> (String, String) {
     plot.bars_and_curve(&mut svg, &count, &expect, ymax);
     plot.axes(&mut svg, hi, ymax);
     let caption = format!(
-        "Residual norms of the {} inliers{}; red: the Rayleigh distribution of the posterior \
-         σ̂ = {:.4} px per coordinate.",
+        "Residual norms |r| (px) of the {} inliers, count per {} px bin{}; red: the \
+         Rayleigh distribution of this device's σ = {:.4} px per coordinate (the whole rig's \
+         σ̂ = {:.4} px).",
         norms.len(),
+        short(bw),
         if beyond > 0 {
             format!(" ({beyond} beyond {} px not shown)", short(hi))
         } else {
             String::new()
         },
-        sigma
+        sigma,
+        rig_sigma
     );
     (svg.finish(), caption)
 }
@@ -821,6 +908,18 @@ impl Plot {
             "middle",
             "fill=\"#444\"",
             "|r| (px)",
+        );
+        svg.text(
+            x0 - 42.0,
+            self.top + h / 2.0,
+            11.0,
+            "middle",
+            &format!(
+                "fill=\"#444\" transform=\"rotate(-90 {:.1} {:.1})\"",
+                x0 - 42.0,
+                self.top + h / 2.0
+            ),
+            "count",
         );
         let yt = nice_below(ymax / 3.0).max(1.0);
         let mut c = 0.0;
@@ -1011,27 +1110,42 @@ impl Canvas {
 }
 
 /// The board poses' `outlines` (plane points), numbered when there are at most 40, into
-/// `svg`.
+/// `svg`. The poses overlap near the rig's centre, so each number sits just outside its
+/// outline's corner farthest from the poses' common centre, in dark text on a white halo.
 fn board_outlines(svg: &mut Svg, cal: &Calibration, outlines: &[Vec<(f64, f64)>], canvas: &Canvas) {
-    for (i, o) in outlines.iter().enumerate() {
-        let pts: Vec<(f64, f64)> = o.iter().map(|p| canvas.map(*p)).collect();
+    let mapped: Vec<Vec<(f64, f64)>> = outlines
+        .iter()
+        .map(|o| o.iter().map(|p| canvas.map(*p)).collect())
+        .collect();
+    let n = mapped.iter().map(Vec::len).sum::<usize>().max(1) as f64;
+    let mid = mapped
+        .iter()
+        .flatten()
+        .fold((0.0, 0.0), |s, p| (s.0 + p.0 / n, s.1 + p.1 / n));
+    for pts in &mapped {
         svg.polygon(
-            &pts,
+            pts,
             "fill=\"#88888818\" stroke=\"#8a8a8a\" stroke-width=\"1\"",
         );
-        let c = pts
-            .iter()
-            .fold((0.0, 0.0), |s, p| (s.0 + p.0 / 4.0, s.1 + p.1 / 4.0));
-        if outlines.len() <= 40 {
-            svg.text(
-                c.0,
-                c.1 + 3.0,
-                9.0,
-                "middle",
-                "fill=\"#999\"",
-                &cal.pose_index[i].to_string(),
-            );
-        }
+    }
+    if outlines.len() > 40 {
+        return;
+    }
+    for (i, pts) in mapped.iter().enumerate() {
+        let dist = |p: &&(f64, f64)| (p.0 - mid.0).hypot(p.1 - mid.1);
+        let Some(far) = pts.iter().max_by(|a, b| dist(a).total_cmp(&dist(b))) else {
+            continue;
+        };
+        let (dx, dy) = (far.0 - mid.0, far.1 - mid.1);
+        let len = dx.hypot(dy).max(1e-9);
+        svg.text(
+            far.0 + 9.0 * dx / len,
+            far.1 + 9.0 * dy / len + 4.0,
+            11.0,
+            "middle",
+            "fill=\"#333\" stroke=\"#fff\" stroke-width=\"3\" paint-order=\"stroke\"",
+            &cal.pose_index[i].to_string(),
+        );
     }
 }
 
@@ -1092,14 +1206,52 @@ fn with_std(value: f64, std: f64) -> String {
     }
 }
 
-/// The free lens parameters whose stds the solution lists (k3 fixed when one is missing).
-fn free_params(dev: &Device, stds: usize) -> LensParams {
-    let all = LensParams::for_model(&dev.model);
-    if stds + 1 == all.len() {
-        all.fix(LensParam::K3)
-    } else {
-        all
+/// Per device, the distortion terms it estimates and those fixed, with the evidence
+/// (docs/design.md §8, "Lens model").
+fn lens_section(h: &mut String, cal: &Calibration) {
+    h.push_str(
+        "<h2 id=\"lens-model\">Lens model chosen by the data</h2>\n<p class=\"note\">\
+         The highest radial term still estimated is fixed at 0 when its estimate lies within \
+         3σ of zero, and the adjustment repeated; k1, p1, p2 are always estimated.</p>\n\
+         <div class=\"scroll\"><table>\n<tr><th class=\"l\">device</th><th class=\"l\">\
+         estimates</th><th class=\"l\">fixed</th><th class=\"l\">why</th></tr>\n",
+    );
+    for (dev, choice) in cal.devices.iter().zip(&cal.lens) {
+        let names = |estimated: bool| {
+            let v: Vec<&str> = choice
+                .terms
+                .iter()
+                .filter(|t| t.estimated == estimated)
+                .map(|t| t.param.name())
+                .collect();
+            if v.is_empty() {
+                "—".to_string()
+            } else {
+                v.join(" ")
+            }
+        };
+        let why: Vec<String> = choice
+            .terms
+            .iter()
+            .filter(|t| t.tested || !t.estimated)
+            .map(|t| esc(&t.reason()))
+            .collect();
+        let _ = writeln!(
+            h,
+            "<tr><td class=\"l {}\">{}</td><td class=\"l\">{}</td><td class=\"l\">{}</td>\
+             <td class=\"l why\">{}</td></tr>",
+            kind_class(dev.kind),
+            esc(&dev.name),
+            names(true),
+            names(false),
+            if why.is_empty() {
+                "every term estimated".to_string()
+            } else {
+                why.join("<br>")
+            }
+        );
     }
+    h.push_str("</table></div>\n");
 }
 
 /// Every device's parameters with standard deviations, and its pose.
@@ -1113,7 +1265,8 @@ fn uncertainty_section(h: &mut String, cal: &Calibration) {
     h.push_str(
         "<h2 id=\"parameters\">Parameters and standard deviations</h2>\n<p class=\"note\">\
          Standard deviations from σ̂²(JᵀJ)⁻¹ of the final adjustment; focal lengths and \
-         principal points in px.</p>\n<table>\n<tr><th class=\"l\">device</th>",
+         principal points in px.</p>\n<div class=\"scroll\"><table>\n<tr><th class=\"l\">\
+         device</th>",
     );
     for p in &params {
         let _ = write!(h, "<th>{p}</th>");
@@ -1121,7 +1274,7 @@ fn uncertainty_section(h: &mut String, cal: &Calibration) {
     h.push_str("</tr>\n");
     for (d, dev) in cal.devices.iter().enumerate() {
         let stds = &sol.intrinsic_std[d];
-        let free = free_params(dev, stds.len());
+        let free = sol.free[d];
         let v = dev.model.lens_vector();
         let _ = write!(
             h,
@@ -1140,7 +1293,8 @@ fn uncertainty_section(h: &mut String, cal: &Calibration) {
         h.push_str("</tr>\n");
     }
     h.push_str(
-        "</table>\n<table>\n<tr><th class=\"l\">device</th><th>position in the reference \
+        "</table></div>\n<div class=\"scroll\"><table>\n<tr><th class=\"l\">device</th>\
+         <th>position in the reference \
          frame (mm)</th><th>viewing direction</th><th>σ rotation (mrad)</th><th>σ \
          translation (mm)</th></tr>\n",
     );
@@ -1172,7 +1326,7 @@ fn uncertainty_section(h: &mut String, cal: &Calibration) {
         );
     }
     h.push_str(
-        "</table>\n<p class=\"note\">Pose σ: of the left increment of T_device_ref, rotation \
+        "</table></div>\n<p class=\"note\">Pose σ: of the left increment of T_device_ref, rotation \
          (ω) about and translation (τ) along the device's x, y, z axes.</p>\n",
     );
     if sol.bend_std.iter().any(|s| *s > 0.0) {
@@ -1324,7 +1478,7 @@ mod tests {
     fn the_paper_rig_is_warned_of_its_corners_only_and_no_verification_without_checks() {
         let html = page(calibration(), &[], Vec::new());
         assert!(!html.contains("<p class=\"ok\">None"));
-        assert!(html.contains("extrapolates in the image corners"));
+        assert!(html.contains("the lens model extrapolates in its"));
         assert!(!html.contains("outliers,") && !html.contains("the median"));
         assert!(!html.contains("id=\"verification\""));
     }

@@ -14,6 +14,7 @@ use crate::calib::bundle::DeviceKind;
 use crate::calib::diagnostics::{
     lens_covariance, residual_table, valid_region, ResidualRow, VALID_UNCERTAINTY,
 };
+use crate::calib::lens_model::TermChoice;
 use crate::calib::solve::Calibration;
 use crate::camera::{CameraModel, Distortion, Intrinsics};
 use nalgebra::{Isometry3, Matrix3, Vector3};
@@ -79,6 +80,66 @@ pub struct DeviceRecord {
     /// Covariance of the free lens parameters (px², docs/design.md (33)), row by row.
     #[serde(default)]
     pub lens_covariance: Vec<Vec<f64>>,
+    /// Every distortion term: estimated or fixed, and why (docs/design.md §8, "Lens model";
+    /// empty in files of older builds).
+    #[serde(default)]
+    pub lens_model: Vec<TermRecord>,
+}
+
+/// One distortion term of a device in a [`CalibrationFile`]: whether the data determine
+/// it, the evidence, and the reason in words.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TermRecord {
+    /// The term ("k1", …).
+    pub term: String,
+    /// Whether it was estimated (otherwise held: at zero when the data could not determine
+    /// it).
+    pub estimated: bool,
+    /// Its estimate: the final value when estimated, the rejected estimate when fixed.
+    pub estimate: f64,
+    /// Standard deviation of that estimate.
+    pub std: f64,
+    /// Why, in words.
+    pub reason: String,
+}
+
+impl TermRecord {
+    fn new(t: &TermChoice) -> TermRecord {
+        TermRecord {
+            term: t.param.name().to_string(),
+            estimated: t.estimated,
+            estimate: t.estimate,
+            std: t.std,
+            reason: t.reason(),
+        }
+    }
+}
+
+/// Per device, one line: the distortion terms it estimates, those fixed, and the evidence
+/// for each term the data tested.
+pub fn format_lens_models(cal: &Calibration) -> String {
+    let mut s = String::new();
+    for (dev, choice) in cal.devices.iter().zip(&cal.lens) {
+        let tested: Vec<String> = choice
+            .terms
+            .iter()
+            .filter(|t| t.tested)
+            .map(TermChoice::reason)
+            .collect();
+        let _ = writeln!(
+            s,
+            "lens model {}: {}{}",
+            dev.name,
+            choice.summary(),
+            if tested.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", tested.join("; "))
+            }
+        );
+    }
+    s
 }
 
 impl DeviceRecord {
@@ -201,6 +262,7 @@ impl CalibrationFile {
                         let c = lens_covariance(cal, i).1;
                         c.row_iter().map(|r| r.iter().copied().collect()).collect()
                     },
+                    lens_model: cal.lens[i].terms.iter().map(TermRecord::new).collect(),
                 })
                 .collect(),
             sigma: sol.sigma,
@@ -255,6 +317,7 @@ impl CalibrationFile {
             limits::count(d.lens_std.len(), crate::camera::LENS_PARAM_COUNT, "values")
                 .map_err(|m| (at("lens_std"), m))?;
             check_covariance(d).map_err(|(k, m)| (at(k), m))?;
+            check_lens_model(d).map_err(|m| (at("lens_model"), m))?;
         }
         if !self.devices.iter().any(|d| d.name == self.reference) {
             return Err((
@@ -272,6 +335,22 @@ impl CalibrationFile {
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("plain data serialises")
     }
+}
+
+/// The first problem of a record's lens-model terms: at most one per lens parameter, each
+/// named as one, with finite figures.
+fn check_lens_model(d: &DeviceRecord) -> Result<(), String> {
+    crate::limits::count(d.lens_model.len(), crate::camera::LENS_PARAM_COUNT, "terms")?;
+    for t in &d.lens_model {
+        if !crate::camera::LensParam::ALL
+            .iter()
+            .any(|p| p.name() == t.term)
+        {
+            return Err(format!("{:?} is no lens parameter", t.term));
+        }
+        crate::limits::finite(&[t.estimate, t.std])?;
+    }
+    Ok(())
 }
 
 /// The first problem of a record's labelled covariance: names of lens parameters, as many
