@@ -10,7 +10,7 @@
 
 use crate::board::{Board, Hex, Side};
 use crate::calib::bundle::{Device, DeviceKind};
-use crate::calib::diagnostics::lens_covariance;
+use crate::calib::diagnostics::{lens_covariance, lens_uncertainty};
 use crate::calib::solve::{Calibration, DeviceInfo};
 use crate::camera::{CameraModel, LensParam};
 use nalgebra::{
@@ -159,25 +159,7 @@ pub fn sightings(
     out
 }
 
-/// Projection uncertainty (px, 1σ along the worst direction) at `pixel` of a device with
-/// lens `m` whose free lens parameters `free` have covariance `cov`: J·Σ·Jᵀ with J the
-/// lens Jacobian (J5) at the pixel's ray, as `calib::diagnostics::projection_uncertainty`.
-fn uncertainty(
-    m: &CameraModel,
-    free: &[LensParam],
-    cov: &DMatrix<f64>,
-    pixel: Point2<f64>,
-) -> Option<f64> {
-    let ray = m.ray(pixel)?;
-    let j = m
-        .project_with_jacobians(&Isometry3::identity(), &Point3::from(ray))?
-        .d_lens;
-    let js = DMatrix::from_fn(2, free.len(), |r, c| j[(r, free[c].index())]);
-    let s = &js * cov * js.transpose();
-    Some(s.symmetric_eigenvalues().max().max(0.0).sqrt())
-}
-
-/// The worst [`uncertainty`] over a [`GRID`] of `m`'s image, and where.
+/// The worst [`lens_uncertainty`] over a [`GRID`] of `m`'s image, and where.
 fn worst(m: &CameraModel, free: &[LensParam], cov: &DMatrix<f64>) -> Option<(f64, [f64; 2])> {
     let (nx, ny) = GRID;
     let (w, h) = (f64::from(m.width) - 1.0, f64::from(m.height) - 1.0);
@@ -188,7 +170,7 @@ fn worst(m: &CameraModel, free: &[LensParam], cov: &DMatrix<f64>) -> Option<(f64
                 w * i as f64 / (nx - 1) as f64,
                 h * j as f64 / (ny - 1) as f64,
             );
-            let u = uncertainty(m, free, cov, p)?;
+            let u = lens_uncertainty(m, free, cov, p)?;
             if best.is_none_or(|(b, _)| u > b) {
                 best = Some((u, [p.x, p.y]));
             }

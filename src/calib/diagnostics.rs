@@ -6,7 +6,7 @@
 use super::bundle::DeviceKind;
 use super::solve::Calibration;
 use super::verify::PairCheck;
-use crate::camera::LensParam;
+use crate::camera::{CameraModel, LensParam};
 use nalgebra::{DMatrix, Isometry3, Point2, Point3};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
@@ -126,8 +126,19 @@ pub fn lens_covariance(cal: &Calibration, d: usize) -> (Vec<LensParam>, DMatrix<
 /// the lens covariance propagated to the pixel of the ray through it, J·Σ·Jᵀ with J the
 /// lens Jacobian (J5) at that ray; the device's pose is held (docs/design.md §8).
 pub fn projection_uncertainty(cal: &Calibration, d: usize, pixel: Point2<f64>) -> Option<f64> {
-    let m = &cal.devices[d].model;
     let (free, cov) = lens_covariance(cal, d);
+    lens_uncertainty(&cal.devices[d].model, &free, &cov, pixel)
+}
+
+/// Projection uncertainty (px, 1σ along the worst direction) at `pixel` of lens `m` whose
+/// parameters `free` have covariance `cov`: J·Σ·Jᵀ with J the lens Jacobian (J5) at the
+/// ray through the pixel.
+pub fn lens_uncertainty(
+    m: &CameraModel,
+    free: &[LensParam],
+    cov: &DMatrix<f64>,
+    pixel: Point2<f64>,
+) -> Option<f64> {
     let ray = m.ray(pixel)?;
     let j = m
         .project_with_jacobians(&Isometry3::identity(), &Point3::from(ray))?

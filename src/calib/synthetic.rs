@@ -396,19 +396,7 @@ impl SyntheticRig {
                 ref_from_world * Isometry3::from_parts(Translation3::new(x, y, 0.0), r)
             })
             .collect::<Vec<_>>();
-        let observer = Observer {
-            board: &board,
-            bend: &bend,
-            devices: &devices,
-            noise: Normal::new(0.0, sigma.max(1e-300)).expect("finite σ"),
-        };
-        let observations = observer.observations(&boards, &mut rng);
-        SyntheticRig {
-            board,
-            devices,
-            boards,
-            observations,
-        }
+        Self::observed(board, &bend, devices, boards, sigma, &mut rng)
     }
 
     /// Cameras at (azimuth, elevation) in degrees at 1500 mm, projectors at azimuths at
@@ -429,13 +417,26 @@ impl SyntheticRig {
         };
         let (devices, ref_from_world) = place_devices(cameras, projectors, &mut rng);
         let boards = board_poses(poses, &ref_from_world, &mut rng);
+        Self::observed(board, &bend, devices, boards, sigma, &mut rng)
+    }
+
+    /// The rig of `devices` seeing `board` (bent by `bend`) in `boards`, each observation
+    /// with noise σ px.
+    fn observed(
+        board: Board,
+        bend: &Bend,
+        devices: Vec<Device>,
+        boards: Vec<Isometry3<f64>>,
+        sigma: f64,
+        rng: &mut StdRng,
+    ) -> SyntheticRig {
         let observer = Observer {
             board: &board,
-            bend: &bend,
+            bend,
             devices: &devices,
             noise: Normal::new(0.0, sigma.max(1e-300)).expect("finite σ"),
         };
-        let observations = observer.observations(&boards, &mut rng);
+        let observations = observer.observations(&boards, rng);
         SyntheticRig {
             board,
             devices,
