@@ -215,6 +215,7 @@ pub fn run(
         options.settle_each_pose = true;
     }
     let button = console.as_ref().map(Console::captures);
+    let prompts = console.as_ref().map(Console::prompts);
     let t = std::time::Instant::now();
     let file = hexcal::rig::file::RigFile::load(rig)?;
     if let Some(c) = console.as_mut() {
@@ -226,7 +227,20 @@ pub fn run(
         }
     };
     let (outcome, jitter) = match hexcal::app::script::plan_of(&file)? {
-        Some(plan) => script::run(file, plan, (rig, out), &options, progress, &mut show)?,
+        Some(plan) => {
+            let hooks = script::ConsoleHooks {
+                button,
+                prompts: prompts.map(|p| Box::new(p) as hexcal::app::script::Asking),
+            };
+            script::run(
+                file,
+                plan,
+                (rig, out),
+                &options,
+                progress,
+                (&mut show, hooks),
+            )?
+        }
         None => {
             let mut place = placer(auto, false, options.stop.clone(), button);
             let mut print = printer(progress);

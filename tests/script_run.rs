@@ -3,7 +3,8 @@
 //! that matches its ground truth; `--dry-run` prints the timeline and touches nothing; a
 //! stage that faults, stays silent or replies garbage stops the run naming the step and the
 //! positioner, keeping every pose captured, and the same command then resumes the script
-//! after the last pose captured; Ctrl-C during a move stops the run (exit 130).
+//! after the last pose captured; Ctrl-C during a move stops the run (exit 130); the
+//! operator console shows a prompt and its button answers it.
 
 #[path = "support/cli.rs"]
 mod cli;
@@ -453,5 +454,79 @@ fn a_serial_positioner_on_a_pty_moves_and_its_fault_stops_the_capture() {
         );
     }
     assert!(!out.join("pose-002/pose.json").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// One HTTP request to the console at `addr`: the status line and the body.
+fn http(addr: &str, request: &str) -> (String, String) {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    write!(
+        s,
+        "{request} HTTP/1.1\r\nHost: {addr}\r\nContent-Length: 0\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut all = Vec::new();
+    let _ = s.read_to_end(&mut all);
+    let all = text(&all);
+    let (head, body) = all.split_once("\r\n\r\n").unwrap_or((&all, ""));
+    (
+        head.lines().next().unwrap_or("").to_string(),
+        body.to_string(),
+    )
+}
+
+#[test]
+fn the_console_shows_a_prompt_and_its_button_answers_it() {
+    use std::io::{BufRead, BufReader};
+    let dir = scratch("script-console-prompt");
+    // The prompt waits for the operator (no timeout) and stdin is closed: only the
+    // console's button can answer it (without it the run stops: "the input ended").
+    let prompt = "prompt = \"Mount the board\"\n";
+    let rig_text = tiny().replace(&format!("{prompt}timeout_s = 0.2\n"), prompt);
+    assert!(
+        rig_text.contains(&format!("{prompt}[[script]]")),
+        "{rig_text}"
+    );
+    let rig = write(&dir, "prompt.toml", &rig_text);
+    let out = dir.join("out");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hexcal"))
+        .args(["run", "--console", "127.0.0.1:0", "--rig"])
+        .arg(&rig)
+        .arg("--out")
+        .arg(&out)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let addr = loop {
+        let line = lines.next().expect("the console's address").unwrap();
+        if let Some(url) = line.strip_prefix("console: http://") {
+            break url.split(['/', ' ']).next().unwrap().to_string();
+        }
+    };
+    let rest = std::thread::spawn(move || lines.map_while(Result::ok).collect::<Vec<_>>());
+    // The page's state shows the prompt while the script waits for it.
+    let t = Instant::now();
+    loop {
+        let (_, body) = http(&addr, "GET /state");
+        if body.contains("\"prompt\":\"Mount the board\"") {
+            break;
+        }
+        assert!(t.elapsed() < Duration::from_secs(120), "no prompt: {body}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (status, body) = http(&addr, "POST /capture");
+    assert!(status.contains(" 200 "), "{status}: {body}");
+    let status = child.wait().unwrap();
+    let stderr = rest.join().unwrap().join("\n");
+    assert!(status.success(), "{stderr}");
+    let record = script_json(&out);
+    let prompt = &record["sessions"][0]["steps"][0];
+    assert_eq!(prompt["kind"], "prompt", "{prompt}");
+    assert_eq!(prompt["outcome"], "done", "{prompt}");
     let _ = std::fs::remove_dir_all(&dir);
 }

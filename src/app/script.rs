@@ -204,9 +204,15 @@ pub struct ScriptRun<'a> {
     operator: Receiver<bool>,
     stop: Option<Arc<AtomicBool>>,
     say: &'a mut dyn FnMut(&str),
+    /// Hears a prompt's text when it starts and `None` when it ends (the operator console
+    /// shows it and lets its button answer).
+    asking: Option<Asking<'a>>,
     /// A failure of the steps after the last capture (they run while poses are processed).
     failure: Option<AppError>,
 }
+
+/// Hears a prompt's text when it starts and `None` when it ends.
+pub type Asking<'a> = Box<dyn FnMut(Option<&str>) + 'a>;
 
 /// The seconds one pose's capture is planned to take: its frames, repeated, and the pause.
 pub fn capture_seconds(rig: &RigFile) -> Result<f64, AppError> {
@@ -256,8 +262,15 @@ impl<'a> ScriptRun<'a> {
             operator,
             stop,
             say,
+            asking: None,
             failure: None,
         }
+    }
+
+    /// `asking` hears each prompt's text when it starts and `None` when it ends.
+    pub fn with_prompts_to(mut self, asking: Asking<'a>) -> Self {
+        self.asking = Some(asking);
+        self
     }
 
     /// The steps of this session so far.
@@ -498,14 +511,37 @@ impl<'a> ScriptRun<'a> {
         }
     }
 
+    /// Show `text` (the console too) and wait for the operator's answer or the timeout.
     fn prompt(&mut self, step: &str, text: &str, timeout: Option<f64>) -> Result<Ended, AppError> {
-        let until = timeout.map(|t| self.now() + t);
         let tail = match timeout {
             Some(t) => format!(" (Enter, or going on in {t} s)"),
             None => " (press Enter)".into(),
         };
         (self.say)(&format!("{text}{tail}"));
+        // An answer given before the prompt appeared (a late press of an earlier prompt's
+        // button) does not answer this one.
         let mut input_ended = false;
+        while let Ok(more) = self.operator.try_recv() {
+            input_ended |= !more;
+        }
+        if let Some(asking) = self.asking.as_mut() {
+            asking(Some(text));
+        }
+        let ended = self.await_operator(step, timeout, input_ended);
+        if let Some(asking) = self.asking.as_mut() {
+            asking(None);
+        }
+        ended
+    }
+
+    /// Wait for the operator's answer (`input_ended`: no more will come) or the timeout.
+    fn await_operator(
+        &mut self,
+        step: &str,
+        timeout: Option<f64>,
+        mut input_ended: bool,
+    ) -> Result<Ended, AppError> {
+        let until = timeout.map(|t| self.now() + t);
         loop {
             if self.stopped() {
                 return Ok(Ended::Stopped);

@@ -158,10 +158,12 @@ fn restart(p: &Problem, sol: &Solution, fixed: &[Vec<LensParam>]) -> Problem {
 }
 
 /// Adjust `p`, fixing at zero, round by round, every device's highest-order radial term
-/// the data cannot determine (module comment), and say per device what it uses and why.
+/// the data cannot determine (module comment), when `select`; say per device what it uses
+/// and why.
 pub fn adjust_selecting(
     p: &Problem,
     options: &Options,
+    select: bool,
 ) -> Result<(Solution, Vec<LensChoice>), CalibError> {
     let n = p.devices.len();
     let mut o = options.clone();
@@ -171,7 +173,8 @@ pub fn adjust_selecting(
     let mut evidence: Vec<Vec<TermChoice>> = vec![Vec::new(); n];
     // Every round retests each device's highest estimated candidate against the latest
     // solution (fixing one device's term moves the others'), until no term is fixed.
-    for _round in 0..CANDIDATES.len() * n {
+    let rounds = if select { CANDIDATES.len() * n } else { 0 };
+    for _round in 0..rounds {
         let mut changed = false;
         for (d, tested) in evidence.iter_mut().enumerate() {
             let Some(param) = next_candidate(&sol, d) else {

@@ -122,6 +122,9 @@ pub struct CalibrateOptions {
     pub bundle: Options,
     /// Points a (device, pose, side) view needs to count for initialisation.
     pub min_view_points: usize,
+    /// Fix the distortion terms the data cannot determine ([`super::lens_model`]); off,
+    /// every term of the model is estimated (the solver's own tests against the truth).
+    pub select_lens: bool,
 }
 
 impl Default for CalibrateOptions {
@@ -130,6 +133,7 @@ impl Default for CalibrateOptions {
             register: RegisterParams::default(),
             bundle: Options::default(),
             min_view_points: 12,
+            select_lens: true,
         }
     }
 }
@@ -395,7 +399,7 @@ pub fn calibrate(
         boards,
         observations,
     };
-    let (solution, lens) = adjust_selecting(&problem, &bundle_options)?;
+    let (solution, lens) = adjust_selecting(&problem, &bundle_options, options.select_lens)?;
     Ok(Calibration {
         board: board.clone(),
         devices: solution.devices.clone(),

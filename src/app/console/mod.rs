@@ -72,7 +72,7 @@ impl Shared {
     /// The capture button: taken when the run waits for the board and places by hand.
     fn press_capture(&self) -> Result<(), String> {
         let s = lock(&self.state);
-        if s.auto || s.status != "waiting" {
+        if s.prompt.is_none() && (s.auto || s.status != "waiting") {
             return Err(format!("not waiting for the board ({})", s.status));
         }
         match self.capture.try_send(()) {
@@ -196,6 +196,17 @@ impl Console {
     /// The capture button's presses (one message per press taken).
     pub fn captures(&self) -> Receiver<()> {
         self.captures.clone()
+    }
+
+    /// What a capture script calls with its prompt's text when the prompt starts and with
+    /// `None` when it ends: the page shows the text, and its button answers the prompt.
+    pub fn prompts(&self) -> impl FnMut(Option<&str>) + Send + 'static {
+        let shared = Arc::clone(&self.shared);
+        move |text| {
+            let mut state = lock(&shared.state);
+            state.prompt = text.map(str::to_string);
+            shared.publish(&mut state);
+        }
     }
 
     /// The tap that makes the thumbnails from the captured frames.

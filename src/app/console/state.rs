@@ -40,6 +40,8 @@ pub struct State {
     pub message: String,
     /// Poses are placed without waiting (`--auto`): no capture button.
     pub auto: bool,
+    /// A capture script's prompt waiting for the operator (the button answers it).
+    pub prompt: Option<String>,
     /// The pose being placed or captured, and the poses in all.
     pub pose: Option<[usize; 2]>,
     /// Frames captured of the current pose, and the frames of a pose.
