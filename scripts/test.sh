@@ -19,6 +19,8 @@ if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
 fi
 
 rustup component add rustfmt clippy >/dev/null 2>&1 || true
+# A fresh clone builds everything once: incremental compilation would only cost time.
+export CARGO_INCREMENTAL=0
 # Everything is built once, with the hardware drivers (features `aravis`, `v4l2`, `window`)
 # and the benchmark harnesses (`bench`) switched on, so the driver tests run in the same
 # pass as the rest: the Aravis driver through the GigE Vision loopback camera; the V4L2
