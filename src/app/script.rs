@@ -518,30 +518,20 @@ impl<'a> ScriptRun<'a> {
             None => " (press Enter)".into(),
         };
         (self.say)(&format!("{text}{tail}"));
-        // An answer given before the prompt appeared (a late press of an earlier prompt's
-        // button) does not answer this one.
-        let mut input_ended = false;
-        while let Ok(more) = self.operator.try_recv() {
-            input_ended |= !more;
-        }
         if let Some(asking) = self.asking.as_mut() {
             asking(Some(text));
         }
-        let ended = self.await_operator(step, timeout, input_ended);
+        let ended = self.await_operator(step, timeout);
         if let Some(asking) = self.asking.as_mut() {
             asking(None);
         }
         ended
     }
 
-    /// Wait for the operator's answer (`input_ended`: no more will come) or the timeout.
-    fn await_operator(
-        &mut self,
-        step: &str,
-        timeout: Option<f64>,
-        mut input_ended: bool,
-    ) -> Result<Ended, AppError> {
+    /// Wait for the operator's answer (Enter typed ahead counts) or the timeout.
+    fn await_operator(&mut self, step: &str, timeout: Option<f64>) -> Result<Ended, AppError> {
         let until = timeout.map(|t| self.now() + t);
+        let mut input_ended = false;
         loop {
             if self.stopped() {
                 return Ok(Ended::Stopped);
