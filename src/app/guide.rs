@@ -53,7 +53,7 @@ pub struct Suggestion {
     /// What to do, in one sentence.
     pub sentence: String,
     /// Per rig device (cameras first), the board's outline (px) in its image at the pose,
-    /// when it would see at least [`MIN_SEEN`] points.
+    /// when it would see at least `MIN_SEEN` points.
     pub outlines: Vec<Option<Vec<[f32; 2]>>>,
     /// The pose T_ref_board, in the calibration's reference frame.
     #[serde(skip)]

@@ -46,7 +46,7 @@ pub struct FormatRow {
 pub struct FormatsReport {
     /// Views per format.
     pub views: usize,
-    /// One row per format, in [`FORMATS`] order.
+    /// One row per format, in `FORMATS` order.
     pub rows: Vec<FormatRow>,
 }
 

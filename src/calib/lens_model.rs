@@ -55,7 +55,7 @@ pub struct TermChoice {
     pub estimate: f64,
     /// Standard deviation of that estimate (0 when never estimated).
     pub std: f64,
-    /// Whether the data tested it ([`CANDIDATES`]): a term fixed by the test, or the
+    /// Whether the data tested it (`CANDIDATES`): a term fixed by the test, or the
     /// highest candidate still estimated (tested against the final adjustment); false
     /// for k1, p1, p2, for terms below a determined one and for terms the user fixed.
     pub tested: bool,
