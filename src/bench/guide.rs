@@ -298,15 +298,7 @@ pub fn bench_guide(
         )));
     }
     let (truth, ref_rig) = truth_devices(&world);
-    let devices: Vec<DeviceInfo> = truth
-        .iter()
-        .map(|d| DeviceInfo {
-            name: d.name.clone(),
-            kind: d.kind,
-            width: d.model.width,
-            height: d.model.height,
-        })
-        .collect();
+    let devices: Vec<DeviceInfo> = truth.iter().map(DeviceInfo::from).collect();
     let schedule: Vec<Isometry3<f64>> = world.board_poses.iter().map(|b| ref_rig * b).collect();
     let setup = Setup {
         board: &board,

@@ -31,6 +31,18 @@ pub struct DeviceInfo {
     pub height: u32,
 }
 
+impl From<&Device> for DeviceInfo {
+    /// The name, kind and image size of an adjusted device.
+    fn from(d: &Device) -> Self {
+        DeviceInfo {
+            name: d.name.clone(),
+            kind: d.kind,
+            width: d.model.width,
+            height: d.model.height,
+        }
+    }
+}
+
 /// Everything calibration needs from the stages before it, as a file (JSON): the board,
 /// the devices, the number of board poses, and every camera's labelled views with projector
 /// pixels at their circles.

@@ -490,15 +490,7 @@ impl SyntheticRig {
 
     /// The devices as [`DeviceInfo`]s.
     pub fn device_infos(&self) -> Vec<DeviceInfo> {
-        self.devices
-            .iter()
-            .map(|d| DeviceInfo {
-                name: d.name.clone(),
-                kind: d.kind,
-                width: d.model.width,
-                height: d.model.height,
-            })
-            .collect()
+        self.devices.iter().map(DeviceInfo::from).collect()
     }
 
     /// A start for the adjustment: every focal length off by up to ±5 % (fy = fx), no

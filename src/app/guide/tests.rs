@@ -60,15 +60,7 @@ fn predicted_worst(
 }
 
 fn device_infos(cal: &Calibration) -> Vec<DeviceInfo> {
-    cal.devices
-        .iter()
-        .map(|d| DeviceInfo {
-            name: d.name.clone(),
-            kind: d.kind,
-            width: d.model.width,
-            height: d.model.height,
-        })
-        .collect()
+    cal.devices.iter().map(DeviceInfo::from).collect()
 }
 
 #[test]
