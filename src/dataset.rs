@@ -70,6 +70,11 @@ pub struct CameraEntry {
     pub height: u32,
     /// Bits per sample.
     pub bits: u8,
+    /// The pixel format the camera delivered, as its driver names it (`Mono12`,
+    /// `BayerRG8`, `MJPG (quality 85)`, …; docs/design.md §11); absent in datasets written
+    /// before it was recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixel_format: Option<String>,
 }
 
 /// A projector of the dataset.
@@ -231,6 +236,9 @@ impl DatasetInfo {
                     format!("{} bits: 8, 12 or 16", c.bits),
                 ));
             }
+            if let Some(f) = &c.pixel_format {
+                limits::label(f).map_err(|m| (format!("cameras[{i}].pixel_format"), m))?;
+            }
         }
         let codes = self.sequence.projectors();
         if codes.len() != self.projectors.len() {
@@ -313,6 +321,21 @@ impl PoseFile for PoseInfo {
     }
 }
 
+/// The first camera of both `found` and `now` (by name) whose recorded pixel formats
+/// differ: (name, format found, format now). A dataset that recorded none matches any.
+fn changed_format<'a>(
+    found: &'a DatasetInfo,
+    now: &'a DatasetInfo,
+) -> Option<(&'a str, &'a str, &'a str)> {
+    found.cameras.iter().find_map(|a| {
+        let b = now.cameras.iter().find(|b| b.name == a.name)?;
+        match (&a.pixel_format, &b.pixel_format) {
+            (Some(x), Some(y)) if x != y => Some((a.name.as_str(), x.as_str(), y.as_str())),
+            _ => None,
+        }
+    })
+}
+
 /// A JSON file of a pose folder, checked against its dataset before use.
 pub trait PoseFile: for<'de> Deserialize<'de> {
     /// The first problem of the file of pose `pose` in a dataset of `info`: (JSON path,
@@ -327,11 +350,23 @@ impl Dataset {
         let path = root.join("dataset.json");
         if path.exists() {
             let found = Dataset::open(root)?;
-            if (
-                &found.info.cameras,
-                &found.info.projectors,
-                &found.info.sequence,
-            ) != (&info.cameras, &info.projectors, &info.sequence)
+            if let Some((name, was, now)) = changed_format(&found.info, &info) {
+                return Err(DatasetError::Invalid {
+                    path,
+                    reason: format!(
+                        "camera {name} delivered {was} here and now delivers {now}; \
+                         choose another folder"
+                    ),
+                });
+            }
+            let same_camera = |a: &CameraEntry, b: &CameraEntry| {
+                (&a.name, a.width, a.height, a.bits) == (&b.name, b.width, b.height, b.bits)
+            };
+            let same_cameras = found.info.cameras.len() == info.cameras.len()
+                && found.info.cameras.iter().zip(&info.cameras).all(|(a, b)| same_camera(a, b));
+            if !same_cameras
+                || (&found.info.projectors, &found.info.sequence)
+                    != (&info.projectors, &info.sequence)
             {
                 return Err(DatasetError::Invalid {
                     path,

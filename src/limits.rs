@@ -139,6 +139,21 @@ pub fn device_name(name: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// `Err` unless `text` is a one-line label (a pixel format's name, …): not empty, at most
+/// [`MAX_NAME_BYTES`], no control character.
+pub fn label(text: &str) -> Result<(), String> {
+    if text.is_empty() || text.len() > MAX_NAME_BYTES {
+        return Err(format!(
+            "a label of {} bytes: 1 to {MAX_NAME_BYTES}",
+            text.len()
+        ));
+    }
+    if text.chars().any(char::is_control) {
+        return Err(format!("{text:?} holds a control character"));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

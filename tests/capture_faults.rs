@@ -248,6 +248,7 @@ fn a_frame_written_to_a_full_disk_is_an_error_and_leaves_no_file() {
             width: 16,
             height: 16,
             bits: 8,
+            pixel_format: None,
         }],
         projectors: vec![ProjectorEntry {
             name: "p0".into(),

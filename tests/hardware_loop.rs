@@ -363,6 +363,7 @@ fn start(
             width: W,
             height: H,
             bits: 8,
+            pixel_format: None,
         }],
         projectors: vec![ProjectorEntry {
             name: "proj".into(),

@@ -27,7 +27,10 @@ pub struct Prepared {
 pub fn prepare(rig_path: &Path, out: &Path) -> Result<Prepared, AppError> {
     let rig = RigFile::load(rig_path)?;
     let opened = crate::rig::open(&rig)?;
-    let info = rig.dataset_info(&opened.sequence);
+    let mut info = rig.dataset_info(&opened.sequence);
+    for (entry, camera) in info.cameras.iter_mut().zip(&opened.devices.cameras) {
+        entry.pixel_format = camera.pixel_format();
+    }
     let data = Dataset::create_or_resume(out, info)?;
     let rig_copy = out.join("rig.toml");
     if !rig_copy.exists() {
@@ -178,4 +181,86 @@ fn finish_leftovers(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::prepare;
+
+    /// Two simulated 64×48 cameras, one Bayer and one MJPEG, and no projector.
+    const RIG: &str = r#"
+name = "formats"
+[timing]
+frame_period_ms = 20.0
+[poses]
+count = 2
+yaw_deg = 10.0
+tilt_deg = 10.0
+shift_mm = 10.0
+seed = 1
+[[camera]]
+name = "colour"
+driver = "sim"
+format = "BayerGB"
+width = 64
+height = 48
+exposure_ms = 10.0
+sim.intrinsics = { fx = 300.0, fy = 300.0, cx = 31.5, cy = 23.5 }
+sim.pose = { eye = [0.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
+[[camera]]
+name = "webcam"
+driver = "sim"
+format = "MJPG"
+jpeg_quality = 90
+width = 64
+height = 48
+exposure_ms = 10.0
+sim.intrinsics = { fx = 300.0, fy = 300.0, cx = 31.5, cy = 23.5 }
+sim.pose = { eye = [100.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
+"#;
+
+    #[test]
+    fn the_dataset_records_each_cameras_pixel_format_and_a_resume_must_match_it() {
+        let dir = std::env::temp_dir().join(format!("hexcal-formats-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let rig = dir.join("rig.toml");
+        std::fs::write(&rig, RIG).unwrap();
+        let out = dir.join("data");
+        let first = prepare(&rig, &out).unwrap();
+        let cameras = &first.data.info.cameras;
+        let formats: Vec<Option<String>> = cameras.iter().map(|c| c.pixel_format.clone()).collect();
+        let bits = first.data.info.cameras[0].bits;
+        assert_eq!(
+            formats,
+            [
+                Some(format!("BayerGB{bits}")),
+                Some("MJPG (quality 90)".into())
+            ]
+        );
+        drop(first);
+        // Read back from dataset.json, and resumed with the same formats.
+        let again = prepare(&rig, &out).unwrap();
+        assert_eq!(again.data.info.cameras[1].pixel_format, formats[1]);
+        drop(again);
+        // The webcam now delivers another quality: a different capture, refused by name.
+        std::fs::write(&rig, RIG.replace("jpeg_quality = 90", "jpeg_quality = 80")).unwrap();
+        let err = prepare(&rig, &out).err().unwrap().to_string();
+        assert!(
+            err.contains("dataset.json")
+                && err.contains("camera webcam delivered MJPG (quality 90) here and now \
+                                 delivers MJPG (quality 80)"),
+            "{err}"
+        );
+        // A dataset written before formats were recorded resumes.
+        let path = out.join("dataset.json");
+        let mut json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        for c in json["cameras"].as_array_mut().unwrap() {
+            c.as_object_mut().unwrap().remove("pixel_format");
+        }
+        std::fs::write(&path, json.to_string()).unwrap();
+        assert!(prepare(&rig, &out).is_ok());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

@@ -237,6 +237,7 @@ fn info(seq: &Sequence) -> DatasetInfo {
                 width: 320,
                 height: 240,
                 bits: 8,
+                pixel_format: None,
             })
             .to_vec(),
         projectors: ["p0", "p1"]

@@ -477,6 +477,7 @@ impl RigFile {
                     width: c.width,
                     height: c.height,
                     bits: c.bits,
+                    pixel_format: None,
                 })
                 .collect(),
             projectors: self
