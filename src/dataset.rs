@@ -321,21 +321,6 @@ impl PoseFile for PoseInfo {
     }
 }
 
-/// The first camera of both `found` and `now` (by name) whose recorded pixel formats
-/// differ: (name, format found, format now). A dataset that recorded none matches any.
-fn changed_format<'a>(
-    found: &'a DatasetInfo,
-    now: &'a DatasetInfo,
-) -> Option<(&'a str, &'a str, &'a str)> {
-    found.cameras.iter().find_map(|a| {
-        let b = now.cameras.iter().find(|b| b.name == a.name)?;
-        match (&a.pixel_format, &b.pixel_format) {
-            (Some(x), Some(y)) if x != y => Some((a.name.as_str(), x.as_str(), y.as_str())),
-            _ => None,
-        }
-    })
-}
-
 /// A JSON file of a pose folder, checked against its dataset before use.
 pub trait PoseFile: for<'de> Deserialize<'de> {
     /// The first problem of the file of pose `pose` in a dataset of `info`: (JSON path,
@@ -350,20 +335,16 @@ impl Dataset {
         let path = root.join("dataset.json");
         if path.exists() {
             let found = Dataset::open(root)?;
-            if let Some((name, was, now)) = changed_format(&found.info, &info) {
-                return Err(DatasetError::Invalid {
-                    path,
-                    reason: format!(
-                        "camera {name} delivered {was} here and now delivers {now}; \
-                         choose another folder"
-                    ),
-                });
-            }
             let same_camera = |a: &CameraEntry, b: &CameraEntry| {
                 (&a.name, a.width, a.height, a.bits) == (&b.name, b.width, b.height, b.bits)
             };
             let same_cameras = found.info.cameras.len() == info.cameras.len()
-                && found.info.cameras.iter().zip(&info.cameras).all(|(a, b)| same_camera(a, b));
+                && found
+                    .info
+                    .cameras
+                    .iter()
+                    .zip(&info.cameras)
+                    .all(|(a, b)| same_camera(a, b));
             if !same_cameras
                 || (&found.info.projectors, &found.info.sequence)
                     != (&info.projectors, &info.sequence)
@@ -383,6 +364,36 @@ impl Dataset {
             root: root.to_owned(),
             info,
         })
+    }
+
+    /// Record the pixel format each camera delivers (`formats`, in camera order; `None`
+    /// where the driver does not say) in `dataset.json`. A camera whose recorded format
+    /// differs is refused by name: frames of two formats would share one stack.
+    pub fn record_formats(&mut self, formats: &[Option<String>]) -> Result<(), DatasetError> {
+        let path = self.root.join("dataset.json");
+        let mut info = self.info.clone();
+        for (entry, now) in info.cameras.iter_mut().zip(formats) {
+            match (&entry.pixel_format, now) {
+                (Some(was), Some(now)) if was != now => {
+                    return Err(DatasetError::Invalid {
+                        path,
+                        reason: format!(
+                            "camera {} delivered {was} here and now delivers {now}; choose \
+                             another folder",
+                            entry.name
+                        ),
+                    })
+                }
+                (_, Some(now)) => entry.pixel_format = Some(now.clone()),
+                (_, None) => {}
+            }
+        }
+        if info != self.info {
+            info.check().map_err(invalid(&path))?;
+            write_json(&path, &info)?;
+            self.info = info;
+        }
+        Ok(())
     }
 
     /// Open the dataset at `root`.

@@ -27,10 +27,7 @@ pub struct Prepared {
 pub fn prepare(rig_path: &Path, out: &Path) -> Result<Prepared, AppError> {
     let rig = RigFile::load(rig_path)?;
     let opened = crate::rig::open(&rig)?;
-    let mut info = rig.dataset_info(&opened.sequence);
-    for (entry, camera) in info.cameras.iter_mut().zip(&opened.devices.cameras) {
-        entry.pixel_format = camera.pixel_format();
-    }
+    let info = rig.dataset_info(&opened.sequence);
     let data = Dataset::create_or_resume(out, info)?;
     let rig_copy = out.join("rig.toml");
     if !rig_copy.exists() {
@@ -101,7 +98,11 @@ pub fn capture_dataset(
     log: &mut dyn FnMut(Note),
 ) -> Result<CaptureSummary, AppError> {
     let (poses, exposures) = (options.poses, &options.exposures);
-    let Prepared { rig, opened, data } = prepare(rig_path, out)?;
+    let Prepared {
+        rig,
+        opened,
+        mut data,
+    } = prepare(rig_path, out)?;
     let pause = std::time::Duration::from_secs_f64(rig.timing.pose_pause_s);
     data.remove_stale_temporaries()?;
     finish_leftovers(&data, poses, log)?;
@@ -109,6 +110,7 @@ pub fn capture_dataset(
     let world = opened.world.clone();
     let cameras = opened.devices.cameras.len();
     let mut session = Session::start(opened.devices, &opened.sequence)?;
+    data.record_formats(&session.pixel_formats())?;
     let mut summary = CaptureSummary::default();
     for k in 0..poses {
         if done.contains(&k) {
@@ -185,7 +187,8 @@ fn finish_leftovers(
 
 #[cfg(test)]
 mod tests {
-    use super::prepare;
+    use super::{capture_dataset, CaptureOptions};
+    use crate::dataset::Dataset;
 
     /// Two simulated 64×48 cameras, one Bayer and one MJPEG, and no projector.
     const RIG: &str = r#"
@@ -193,7 +196,7 @@ name = "formats"
 [timing]
 frame_period_ms = 20.0
 [poses]
-count = 2
+count = 3
 yaw_deg = 10.0
 tilt_deg = 10.0
 shift_mm = 10.0
@@ -219,6 +222,21 @@ sim.intrinsics = { fx = 300.0, fy = 300.0, cx = 31.5, cy = 23.5 }
 sim.pose = { eye = [100.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
 "#;
 
+    /// Capture `poses` poses of `rig` into `out`; the error's text if it fails.
+    fn capture(rig: &std::path::Path, out: &std::path::Path, poses: usize) -> Result<(), String> {
+        let options = CaptureOptions {
+            poses,
+            ..CaptureOptions::default()
+        };
+        let mut place = |k: usize, world: Option<&crate::rig::sim::SimWorld>| {
+            world.expect("a simulated rig").place(k);
+            Ok(true)
+        };
+        capture_dataset(rig, out, &options, &mut place, &mut |_| {})
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    }
+
     #[test]
     fn the_dataset_records_each_cameras_pixel_format_and_a_resume_must_match_it() {
         let dir = std::env::temp_dir().join(format!("hexcal-formats-{}", std::process::id()));
@@ -227,10 +245,11 @@ sim.pose = { eye = [100.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
         let rig = dir.join("rig.toml");
         std::fs::write(&rig, RIG).unwrap();
         let out = dir.join("data");
-        let first = prepare(&rig, &out).unwrap();
-        let cameras = &first.data.info.cameras;
+        capture(&rig, &out, 1).unwrap();
+        let data = Dataset::open(&out).unwrap();
+        let cameras = &data.info.cameras;
         let formats: Vec<Option<String>> = cameras.iter().map(|c| c.pixel_format.clone()).collect();
-        let bits = first.data.info.cameras[0].bits;
+        let bits = cameras[0].bits;
         assert_eq!(
             formats,
             [
@@ -238,21 +257,22 @@ sim.pose = { eye = [100.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
                 Some("MJPG (quality 90)".into())
             ]
         );
-        drop(first);
-        // Read back from dataset.json, and resumed with the same formats.
-        let again = prepare(&rig, &out).unwrap();
-        assert_eq!(again.data.info.cameras[1].pixel_format, formats[1]);
-        drop(again);
-        // The webcam now delivers another quality: a different capture, refused by name.
+        // Resumed with the same formats: pose 1 joins pose 0.
+        capture(&rig, &out, 2).unwrap();
+        assert_eq!(Dataset::open(&out).unwrap().completed().unwrap(), [0, 1]);
+        // The webcam now delivers another quality: refused by name, nothing written.
         std::fs::write(&rig, RIG.replace("jpeg_quality = 90", "jpeg_quality = 80")).unwrap();
-        let err = prepare(&rig, &out).err().unwrap().to_string();
+        let err = capture(&rig, &out, 3).unwrap_err();
         assert!(
             err.contains("dataset.json")
-                && err.contains("camera webcam delivered MJPG (quality 90) here and now \
-                                 delivers MJPG (quality 80)"),
+                && err.contains(
+                    "camera webcam delivered MJPG (quality 90) here and now delivers MJPG \
+                     (quality 80)"
+                ),
             "{err}"
         );
-        // A dataset written before formats were recorded resumes.
+        assert_eq!(Dataset::open(&out).unwrap().completed().unwrap(), [0, 1]);
+        // A dataset written before formats were recorded resumes and records them.
         let path = out.join("dataset.json");
         let mut json: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
@@ -260,7 +280,13 @@ sim.pose = { eye = [100.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
             c.as_object_mut().unwrap().remove("pixel_format");
         }
         std::fs::write(&path, json.to_string()).unwrap();
-        assert!(prepare(&rig, &out).is_ok());
+        capture(&rig, &out, 3).unwrap();
+        let data = Dataset::open(&out).unwrap();
+        assert_eq!(
+            data.info.cameras[1].pixel_format.as_deref(),
+            Some("MJPG (quality 80)")
+        );
+        assert_eq!(data.completed().unwrap(), [0, 1, 2]);
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

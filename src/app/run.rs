@@ -150,6 +150,7 @@ pub fn run(
     let mut stream = Stream::new(data, &opened, poses, held_from, events);
     stream.resume()?;
     let mut session = Session::start(opened.devices, &opened.sequence)?;
+    stream.data.record_formats(&session.pixel_formats())?;
     let captured = capture_todo(
         &mut stream,
         &mut session,

@@ -95,6 +95,8 @@ struct Worker {
     /// The configured (exposure µs, gain dB), and the one set now.
     configured: (f64, f64),
     current: (f64, f64),
+    /// The pixel format the configured camera delivers, as its driver names it.
+    pixel_format: Option<String>,
 }
 
 /// A running capture: cameras started in their threads, projectors prepared.
@@ -150,6 +152,7 @@ impl Session {
             cam.configure(&config)?;
             cam.start()?;
             let name = cam.name().to_string();
+            let pixel_format = cam.pixel_format();
             let (cmd_tx, cmd_rx) = bounded::<Command>(4);
             let (frame_tx, frame_rx) = bounded(4);
             let timeout = timing.frame_timeout;
@@ -165,6 +168,7 @@ impl Session {
                 last_counter: None,
                 configured: (config.exposure_us, config.gain_db),
                 current: (config.exposure_us, config.gain_db),
+                pixel_format,
             });
         }
         Ok(Session {
@@ -179,6 +183,14 @@ impl Session {
     /// Camera names, in order.
     pub fn camera_names(&self) -> Vec<String> {
         self.workers.iter().map(|w| w.name.clone()).collect()
+    }
+
+    /// The pixel format each configured camera delivers (its driver's name), in order.
+    pub fn pixel_formats(&self) -> Vec<Option<String>> {
+        self.workers
+            .iter()
+            .map(|w| w.pixel_format.clone())
+            .collect()
     }
 
     /// The sequence shown.
