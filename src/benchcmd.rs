@@ -124,10 +124,21 @@ pub enum Bench {
     /// Detection on rendered views through each camera pixel format (mono, Bayer raw and
     /// balanced, MJPEG at quality 95 and 85): recall, labelled points, centre error and the
     /// conversion's time per frame.
+    ///
+    /// With `--rig R` (a simulated rig with projectors): the rig's cameras in each format
+    /// through the real capture path, `--poses` poses each: phase error against the
+    /// simulator's projector coordinates beside the decoder's predicted σ, detection recall
+    /// and centre error, labelled points and projector observations.
     Formats {
         /// Noise draws of each of the two detect-grid scenes.
         #[arg(long, default_value_t = 4)]
         seeds: u64,
+        /// A simulated rig file: compare its cameras' formats side by side instead.
+        #[arg(long)]
+        rig: Option<PathBuf>,
+        /// Board poses per format (with `--rig`).
+        #[arg(long, default_value_t = 2)]
+        poses: usize,
     },
     /// Decode one camera's default phase-shift stack (synthetic scene, gamma 2.2).
     Decode {
@@ -304,9 +315,13 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
             println!("{}", hexcal::bench::render::bench_render(&scene, repeat)?);
         }
         Bench::Detect { images, runs } => bench_detect(&images, runs)?,
-        Bench::Formats { seeds } => {
-            print!("{}", hexcal::bench::formats::bench_formats(seeds)?);
-        }
+        Bench::Formats { seeds, rig, poses } => match rig {
+            Some(rig) => print!(
+                "{}",
+                hexcal::bench::formats_rig::bench_formats_rig(&rig, poses)?
+            ),
+            None => print!("{}", hexcal::bench::formats::bench_formats(seeds)?),
+        },
         Bench::DetectGrid { runs, out } => {
             use hexcal::bench::detect_grid as bench;
             // The views go to --out, else to a temporary directory, for OpenCV's run.

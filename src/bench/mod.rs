@@ -4,6 +4,7 @@
 pub mod decode;
 pub mod detect_grid;
 pub mod formats;
+pub mod formats_rig;
 pub mod guide;
 pub mod render;
 pub mod script;

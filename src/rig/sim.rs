@@ -285,20 +285,14 @@ impl SimWorld {
         self.stack_renderer_at(c, pose, board, sequence)
     }
 
-    /// The stack renderer of camera `c` with the board at `board` (T_rig_board) for pose
-    /// `pose` (its noise seed).
-    pub fn stack_renderer_at(
-        &self,
-        c: usize,
-        pose: usize,
-        board: Isometry3<f64>,
-        sequence: &Sequence,
-    ) -> Result<StackRenderer, SimError> {
+    /// The scene camera `c` sees with the board at `board` (T_rig_board) for pose `pose`
+    /// (its noise seed): what its stacks are rendered from, and its ground truth.
+    pub fn scene_at(&self, c: usize, pose: usize, board: Isometry3<f64>) -> Scene {
         let cam = &self.cameras[c];
         let cam_from_board = cam.pose * board;
         let r = cam_from_board.rotation.scaled_axis();
         let t = cam_from_board.translation.vector;
-        let scene = Scene {
+        Scene {
             name: format!("{}-pose{pose}", cam.name),
             seed: 1000 * pose as u64 + c as u64,
             camera: cam.model,
@@ -309,7 +303,19 @@ impl SimWorld {
             },
             imaging: self.imaging,
             board: self.board.clone(),
-        };
+        }
+    }
+
+    /// The stack renderer of camera `c` with the board at `board` (T_rig_board) for pose
+    /// `pose` (its noise seed).
+    pub fn stack_renderer_at(
+        &self,
+        c: usize,
+        pose: usize,
+        board: Isometry3<f64>,
+        sequence: &Sequence,
+    ) -> Result<StackRenderer, SimError> {
+        let scene = self.scene_at(c, pose, board);
         let gain = (WHITE_DN - AMBIENT_DN) / self.projectors.len().max(1) as f64;
         // Without projectors the room light is what lights the board, up to the white level.
         let ambient = match self.projectors.is_empty() {
