@@ -162,14 +162,14 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> (Vec<CircleError
         let truth = renderer.truth(p);
         let (mut sq, mut n, mut worst) = (0.0, 0usize, 0.0f64);
         let (mut interior, mut interior_valid) = (0usize, 0usize);
-        for (i, (&lit, &a)) in truth.lit.iter().zip(albedo).enumerate() {
-            if !(lit && a > 0.9 && uniform(i)) {
+        for (i, &a) in albedo.iter().enumerate() {
+            if !(truth.lit(i) && a > 0.9 && uniform(i)) {
                 continue;
             }
             interior += 1;
             if maps.valid.as_slice()[i] {
                 interior_valid += 1;
-                let e = f64::from(maps.u.as_raw()[i] - truth.u[i]);
+                let e = f64::from(maps.u.as_raw()[i] - truth.u(i));
                 sq += e * e;
                 n += 1;
                 worst = worst.max(e.abs());
@@ -303,10 +303,10 @@ fn lit_pairs(
         }
         .white_pixels(e, false, size.width, size.height);
         for p in 0..projectors().len() {
-            let lit = &renderer.truth(p).lit;
+            let truth = renderer.truth(p);
             if whole
                 .iter()
-                .all(|&(x, y)| lit[(y * size.width + x) as usize])
+                .all(|&(x, y)| truth.lit((y * size.width + x) as usize))
             {
                 let count = if lp.ringed {
                     &mut pairs.ringed
