@@ -52,13 +52,15 @@ impl CandidateMaps {
             .zip(split(reliability, bounds))
             .zip(split(modulation, bounds))
             .zip(split(valid, bounds))
-            .map(|((((u, v), reliability), modulation), valid)| CandidateRow {
-                u,
-                v,
-                reliability,
-                modulation,
-                valid,
-            })
+            .map(
+                |((((u, v), reliability), modulation), valid)| CandidateRow {
+                    u,
+                    v,
+                    reliability,
+                    modulation,
+                    valid,
+                },
+            )
             .collect()
     }
 }
@@ -251,7 +253,11 @@ impl Sink {
     /// `row_slots[y]..row_slots[y + 1]`.
     pub(super) fn rows(&mut self, w: usize, row_slots: &[u32]) -> Vec<RowSink<'_>> {
         let mut ambient = self.ambient.chunks_mut(w);
-        let mut modulation: Vec<_> = self.modulation.iter_mut().map(|m| m.chunks_mut(w)).collect();
+        let mut modulation: Vec<_> = self
+            .modulation
+            .iter_mut()
+            .map(|m| m.chunks_mut(w))
+            .collect();
         let mut candidates: Vec<_> = self
             .candidates
             .iter_mut()
@@ -261,8 +267,14 @@ impl Sink {
             .map_while(|_| {
                 Some(RowSink {
                     ambient: ambient.next()?,
-                    modulation: modulation.iter_mut().map(|m| m.next()).collect::<Option<_>>()?,
-                    candidates: candidates.iter_mut().map(|c| c.next()).collect::<Option<_>>()?,
+                    modulation: modulation
+                        .iter_mut()
+                        .map(|m| m.next())
+                        .collect::<Option<_>>()?,
+                    candidates: candidates
+                        .iter_mut()
+                        .map(|c| c.next())
+                        .collect::<Option<_>>()?,
                 })
             })
             .collect()

@@ -517,7 +517,8 @@ fn compact_stack_gives_the_full_maps_at_its_candidates() {
     let (w, h) = (200, 150);
     let setups = setups(2, GAMMA);
     let seq = Sequence::default_for(&setups).unwrap();
-    let mut renderer = Renderer::new(&Scene::standard(w, h, &setups, 3), &seq);
+    let scene = Scene::standard(w, h, &setups, 3);
+    let mut renderer = Renderer::new(&scene, &seq);
     let mut full = Decoder::<u8>::new(&seq, "c", w, h, 255.0).unwrap();
     let mut compact = Decoder::<u8>::new(&seq, "c", w, h, 255.0).unwrap();
     for k in 0..seq.frame_count() {
@@ -538,12 +539,29 @@ fn compact_stack_gives_the_full_maps_at_its_candidates() {
         let dense = compact.dense_maps(p);
         assert_eq!(bits(maps.u.as_raw()), bits(&dense.u), "projector {p}: u");
         assert_eq!(bits(maps.v.as_raw()), bits(&dense.v), "projector {p}: v");
-        assert_eq!(maps.valid.as_slice(), &dense.valid[..], "projector {p}: valid");
-        assert!(maps.valid.count() > 1000, "projector {p}: {}", maps.valid.count());
+        assert_eq!(
+            maps.valid.as_slice(),
+            &dense.valid[..],
+            "projector {p}: valid"
+        );
+        assert!(
+            maps.valid.count() > 1000,
+            "projector {p}: {}",
+            maps.valid.count()
+        );
         assert_eq!(maps.noise, compact.projectors[p].noise);
         // The modulation: the same wherever the pixel is a candidate (0 elsewhere).
-        for (i, (&b, &d)) in maps.modulation.as_raw().iter().zip(&dense.modulation).enumerate() {
-            assert!(d == b || (d == 0.0 && maps.u.as_raw()[i].is_nan()), "pixel {i}");
+        for (i, (&b, &d)) in maps
+            .modulation
+            .as_raw()
+            .iter()
+            .zip(&dense.modulation)
+            .enumerate()
+        {
+            assert!(
+                d == b || (d == 0.0 && maps.u.as_raw()[i].is_nan()),
+                "pixel {i}"
+            );
         }
     }
 }

@@ -232,7 +232,14 @@ impl StackRenderer {
         let lit_box = truth
             .iter()
             .filter_map(ProjectorTruth::bounds)
-            .reduce(|a, b| [a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])]);
+            .reduce(|a, b| {
+                [
+                    a[0].min(b[0]),
+                    a[1].min(b[1]),
+                    a[2].max(b[2]),
+                    a[3].max(b[3]),
+                ]
+            });
         let lit_box = lit_box.map(|[x0, y0, x1, y1]| {
             [
                 x0.saturating_sub(reach),
