@@ -459,3 +459,25 @@ fn decoded_stack_gives_projector_pixels_at_circle_centres() {
         }
     }
 }
+
+#[test]
+fn truth_is_kept_over_the_lit_rectangle() {
+    let (w, h) = (8, 6);
+    let mut u = vec![f32::NAN; w * h];
+    let mut v = u.clone();
+    for (x, y) in [(2, 1), (5, 3), (3, 2)] {
+        u[y * w + x] = 10.0 * x as f32;
+        v[y * w + x] = y as f32;
+    }
+    let t = ProjectorTruth::cropped(w, &u, &v);
+    assert_eq!(t.bounds(), Some([2, 1, 6, 4]));
+    for i in 0..w * h {
+        assert_eq!(t.u(i).to_bits(), u[i].to_bits(), "pixel {i}");
+        assert_eq!(t.v(i).to_bits(), v[i].to_bits(), "pixel {i}");
+        assert_eq!(t.lit(i), !u[i].is_nan(), "pixel {i}");
+    }
+    let dark = vec![f32::NAN; w * h];
+    let t = ProjectorTruth::cropped(w, &dark, &dark);
+    assert_eq!(t.bounds(), None);
+    assert!((0..w * h).all(|i| !t.lit(i)));
+}
