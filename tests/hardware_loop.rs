@@ -457,7 +457,7 @@ fn assert_decodes_to_truth(data: &Dataset, pose: usize, truth: &StackRenderer) {
     let (mut su, mut sv, mut n) = (0.0, 0.0, 0usize);
     let (mut noisy, mut gross_noisy) = (0usize, 0usize);
     for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
-        if !(ok && t.lit[i] && uniform(i)) {
+        if !(ok && t.lit(i) && uniform(i)) {
             continue;
         }
         let b = f64::from(maps.modulation.as_raw()[i]);
@@ -467,8 +467,8 @@ fn assert_decodes_to_truth(data: &Dataset, pose: usize, truth: &StackRenderer) {
             f64::from(W) * sigma_phi / norm_u,
             f64::from(H) * sigma_phi / norm_v,
         );
-        let eu = f64::from(maps.u.as_raw()[i] - t.u[i]);
-        let ev = f64::from(maps.v.as_raw()[i] - t.v[i]);
+        let eu = f64::from(maps.u.as_raw()[i] - t.u(i));
+        let ev = f64::from(maps.v.as_raw()[i] - t.v(i));
         let gross = eu.abs() > 6.0 * sigma_u || ev.abs() > 6.0 * sigma_v;
         if sigma_phi > 0.10 {
             noisy += 1;

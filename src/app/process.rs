@@ -14,7 +14,7 @@ use crate::grid::{build, GridParams};
 use crate::images::{CameraFrame, GrayImage, Pixels};
 use crate::pattern::Sequence;
 use crate::phase::files::decode_dir;
-use crate::phase::{DecodedStack, Decoder, FrameRef};
+use crate::phase::{CompactStack, DecodedStack, Decoder, DenseMaps, FrameRef};
 use crossbeam_channel::Receiver;
 use serde::{Deserialize, Serialize};
 
@@ -153,6 +153,31 @@ pub fn process_decoded(
         first_projector,
     };
     process_image(&decoded.ambient, &decoded.camera, board, &maps, at)
+}
+
+/// Detection, grid and projector fits on one camera's compactly held stack: each
+/// projector's maps are spread over the image only for this call.
+pub fn process_compact(
+    stack: &CompactStack,
+    board: &Board,
+    camera: usize,
+    pose: usize,
+    first_projector: usize,
+) -> StackResult {
+    let dense: Vec<DenseMaps> = (0..stack.projectors.len())
+        .map(|p| stack.dense_maps(p))
+        .collect();
+    let maps: Vec<ProjectorMap> = dense
+        .iter()
+        .enumerate()
+        .map(|(p, m)| ProjectorMap::from_dense(first_projector + p, m))
+        .collect();
+    let at = ViewAt {
+        camera,
+        pose,
+        first_projector,
+    };
+    process_image(&stack.ambient, &stack.camera, board, &maps, at)
 }
 
 /// Where a processed image belongs: the camera's device index, the pose, and the device
@@ -315,17 +340,18 @@ pub(crate) fn stack_worker(frames: Receiver<CameraFrame>, job: StackJob) -> Stac
             return failed(e.to_string());
         }
     }
-    // One stack at a time turns its phases into maps and detects (bounds the memory of the
-    // maps while the next pose's decoders fill up).
-    let _turn = finishing.lock().unwrap_or_else(|e| e.into_inner());
+    // The maps at once, held compactly (the decoder's buffers are freed) while the stack
+    // waits for its turn; one stack at a time spreads its maps over the image and detects
+    // (bounds the memory of full-image maps while the next pose's decoders fill up).
     let decoded = match decoder {
-        Some(Ok(AnyDecoder::Eight(d))) => d.finish(),
-        Some(Ok(AnyDecoder::Sixteen(d))) => d.finish(),
+        Some(Ok(AnyDecoder::Eight(d))) => d.finish_compact(),
+        Some(Ok(AnyDecoder::Sixteen(d))) => d.finish_compact(),
         Some(Err(e)) => return failed(e.to_string()),
         None => return failed("empty sequence".into()),
     };
+    let _turn = finishing.lock().unwrap_or_else(|e| e.into_inner());
     match decoded {
-        Ok(d) => process_decoded(&d, &board, camera, pose, first_projector),
+        Ok(d) => process_compact(&d, &board, camera, pose, first_projector),
         Err(e) => failed(e.to_string()),
     }
 }

@@ -369,8 +369,8 @@ fn decoded_stack_folders_match_the_projector_truth() {
     };
     let (mut sq, mut n) = (0.0, 0usize);
     for (i, (&u, &ok)) in u.iter().zip(valid.as_raw()).enumerate() {
-        if ok == 255 && truth.truth(0).lit[i] && uniform(i) {
-            let e = f64::from(u - truth.truth(0).u[i]);
+        if ok == 255 && truth.truth(0).lit(i) && uniform(i) {
+            let e = f64::from(u - truth.truth(0).u(i));
             assert!(e.abs() < (6.0 * p.noise.sigma_u).max(1.0), "pixel {i}: {e}");
             sq += e * e;
             n += 1;

@@ -132,6 +132,20 @@ impl<'a> ProjectorMap<'a> {
             modulation: Some(maps.modulation.as_raw()),
         }
     }
+
+    /// The view of one projector's maps spread from a compact stack, for projector
+    /// `projector`.
+    pub fn from_dense(projector: usize, maps: &'a crate::phase::DenseMaps) -> Self {
+        ProjectorMap {
+            projector,
+            width: maps.width,
+            height: maps.height,
+            u: &maps.u,
+            v: &maps.v,
+            valid: &maps.valid,
+            modulation: Some(&maps.modulation),
+        }
+    }
 }
 
 /// Settings of the local fit.

@@ -17,6 +17,7 @@
 //! a pixel estimates σ_I²/N with G − 1 degrees of freedom (free of projector harmonics); a
 //! fit σ_I² = a + b·A over all unsaturated pixels gives the read + shot noise model.
 
+use super::compact::{CompactStack, RowSink, Sink};
 use super::unwrap::Constellation;
 use crate::pattern::MAX_COUNTS;
 use crate::pattern::{pattern_harmonic, Direction, ProjectorCode, Sequence};
@@ -220,9 +221,9 @@ pub struct PhaseNoise {
 /// A per-pixel yes/no image.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Mask {
-    width: u32,
-    height: u32,
-    bits: Vec<bool>,
+    pub(super) width: u32,
+    pub(super) height: u32,
+    pub(super) bits: Vec<bool>,
 }
 
 impl Mask {
@@ -279,7 +280,7 @@ pub struct ProjectorMaps {
     /// Run-level noise predictions.
     pub noise: PhaseNoise,
     /// Fundamental amplitude a_1(γ) of a full-swing pattern (½ when linear).
-    fundamental: f32,
+    pub(super) fundamental: f32,
 }
 
 impl ProjectorMaps {
@@ -309,15 +310,15 @@ pub struct DecodedStack {
     pub projectors: Vec<ProjectorMaps>,
 }
 
+/// A pixel's level statistics over the groups (12 bytes; saturation is kept apart).
 #[derive(Clone, Copy, Default)]
-struct PixelStats {
+struct Level {
     /// Mean level of the first group.
     first_mean: f32,
     /// Σ of the other groups' mean minus the first group's.
     sum_dev: f32,
     /// Σ of those deviations squared.
     sum_dev2: f32,
-    saturated: bool,
 }
 
 /// Streaming decoder of one camera's stack.
@@ -335,13 +336,18 @@ pub struct Decoder<T: Sample> {
     /// Per completed group: per candidate pixel and projector (wrapped phase, modulation),
     /// 16 bit.
     groups: Vec<Vec<u16>>,
-    /// Per pixel: its slot among the candidates (pixels where some projector's modulation
-    /// in the first group reached [`CANDIDATE`] of full scale), or `u32::MAX`.
-    slots: Vec<u32>,
+    /// Per pixel: whether it is a candidate (some projector's modulation in the first group
+    /// reached [`CANDIDATE`] of full scale); filled by the first group.
+    candidate: Vec<bool>,
+    /// Per image row: the slot of its first candidate among all candidates in row-major
+    /// order (height + 1 entries, the last one the number of candidates).
+    row_slots: Vec<u32>,
     /// Per pixel and projector: Σ over groups of the quantised B² (every pixel, for the
     /// modulation and ambient images).
     bsq: Vec<f32>,
-    pixels: Vec<PixelStats>,
+    levels: Vec<Level>,
+    /// Pixels with a sample at full scale in some frame.
+    saturated: Vec<bool>,
     columns: Constellation,
     rows: Constellation,
 }
@@ -355,6 +361,10 @@ const CANDIDATE: f32 = 0.015;
 
 /// Pixels per strip in the DFT kernel.
 const CHUNK: usize = 64;
+
+/// Image rows per band when a group is closed: the band's 16-bit (ψ, B) pairs are all that
+/// is held besides the decoder's state (not a whole image's).
+const BAND_ROWS: usize = 32;
 
 /// 1.5·2^23: x + ROUNDER, for 0 ≤ x < 2^22, holds round(x) in its low mantissa bits.
 const ROUNDER: f32 = 12_582_912.0;
@@ -389,7 +399,8 @@ impl<T: Sample> Decoder<T> {
         // modulation per projector and pixel.
         let per_pixel = n * std::mem::size_of::<T>()
             + 4 * projectors
-            + std::mem::size_of::<PixelStats>()
+            + std::mem::size_of::<Level>()
+            + 2
             + seq.groups() * 4 * projectors;
         let bytes = (npx as u64).saturating_mul(per_pixel as u64);
         if bytes > crate::limits::MAX_DECODER_BYTES {
@@ -425,23 +436,27 @@ impl<T: Sample> Decoder<T> {
             frames: vec![T::default(); n * npx],
             twiddles,
             groups: Vec::with_capacity(seq.groups()),
-            slots: Vec::new(),
+            candidate: Vec::new(),
+            row_slots: Vec::new(),
             bsq: vec![0.0; npx * seq.projectors().len()],
-            pixels: vec![PixelStats::default(); npx],
+            levels: vec![Level::default(); npx],
+            saturated: vec![false; npx],
             columns: cons(Direction::Columns),
             rows: cons(Direction::Rows),
         })
     }
 
     /// Bytes the decoder holds now: the group's frame buffer, the candidates' 16-bit phases
-    /// and modulations, the per-pixel slots, B² sums and statistics (once every group is in,
-    /// its peak before [`Self::finish`]).
+    /// and modulations, the candidate flags and row slots, B² sums, level statistics and
+    /// saturation flags (once every group is in, its peak before [`Self::finish`]).
     pub fn buffer_bytes(&self) -> usize {
         self.frames.len() * std::mem::size_of::<T>()
             + self.groups.iter().map(|g| g.len() * 2).sum::<usize>()
-            + self.slots.len() * 4
+            + self.candidate.len()
+            + self.row_slots.len() * 4
             + self.bsq.len() * 4
-            + self.pixels.len() * std::mem::size_of::<PixelStats>()
+            + self.levels.len() * std::mem::size_of::<Level>()
+            + self.saturated.len()
     }
 
     /// Feed frame k (frames must come in sequence order, each exactly once).
@@ -494,26 +509,46 @@ impl<T: Sample> Decoder<T> {
         Ok(())
     }
 
-    /// Take the DFT of the completed group g, row by row on all cores.
+    /// Take the DFT of the completed group g, band by band of [`BAND_ROWS`] rows (each band's
+    /// rows on all cores): every pixel's B² into its sums, the candidates' (ψ, B) pairs kept
+    /// (the first group chooses the candidates).
     fn close_group(&mut self, g: usize) {
+        let (w, h) = (self.width as usize, self.height as usize);
         let np = self.seq.projectors().len();
-        let out = self.group_dft(g);
-        self.add_modulation_squares(&out);
         if g == 0 {
-            self.slots = candidate_slots(&out, np);
+            self.candidate = vec![false; w * h];
         }
-        let kept: Vec<u16> = out
-            .chunks_exact(np * 2)
-            .zip(&self.slots)
-            .filter(|(_, &slot)| slot != u32::MAX)
-            .flat_map(|(px, _)| px.iter().copied())
-            .collect();
+        let slots = self.row_slots.last().map_or(0, |&n| n as usize);
+        let mut kept: Vec<u16> = Vec::with_capacity(slots * np * 2);
+        let mut band = vec![0u16; BAND_ROWS.min(h) * w * np * 2];
+        for y0 in (0..h).step_by(BAND_ROWS) {
+            let rows = BAND_ROWS.min(h - y0);
+            let out = &mut band[..rows * w * np * 2];
+            self.band_dft(g, y0, out);
+            self.add_modulation_squares(y0, out);
+            let candidate = &mut self.candidate[y0 * w..(y0 + rows) * w];
+            if g == 0 {
+                mark_candidates(out, np, candidate);
+            }
+            // The candidates' pairs in pixel order: candidate k of the image at slot k.
+            kept.extend(
+                out.chunks_exact(np * 2)
+                    .zip(candidate.iter())
+                    .filter(|(_, &c)| c)
+                    .flat_map(|(px, _)| px.iter().copied()),
+            );
+        }
+        if g == 0 {
+            kept.shrink_to_fit();
+            self.row_slots = row_slots(&self.candidate, w);
+        }
         self.groups.push(kept);
     }
 
-    /// Group g's DFT over the frame buffer, row by row on all cores: per pixel and projector
-    /// the 16-bit (ψ, B) pair; updates every pixel's level statistics and saturation flag.
-    fn group_dft(&mut self, g: usize) -> Vec<u16> {
+    /// Group g's DFT of the rows from `y0` on (as many as `out` holds), row by row on all
+    /// cores: per pixel and projector the 16-bit (ψ, B) pair into `out`; updates each
+    /// pixel's level statistics and saturation flag.
+    fn band_dft(&mut self, g: usize, y0: usize, out: &mut [u16]) {
         let w = self.width as usize;
         let npx = w * self.height as usize;
         let n = self.seq.steps() as usize;
@@ -531,26 +566,26 @@ impl<T: Sample> Decoder<T> {
             b_scale: B_STEPS / fs,
             inv_n: 1.0 / n as f32,
         };
-        let mut out = vec![0u16; npx * np * 2];
+        let pixels = y0 * w..y0 * w + out.len() / (np * 2);
         out.par_chunks_mut(w * np * 2)
-            .zip(self.pixels.par_chunks_mut(w))
+            .zip(self.levels[pixels.clone()].par_chunks_mut(w))
+            .zip(self.saturated[pixels].par_chunks_mut(w))
             .enumerate()
             .for_each_init(
                 || Strip::new(np),
-                |strip, (y, (out_row, stats_row))| kernel.row(y, strip, out_row, stats_row),
+                |strip, (i, ((out_row, levels), saturated))| {
+                    kernel.row(y0 + i, strip, out_row, levels, saturated)
+                },
             );
-        out
     }
 
-    /// Adds every pixel's B² of the group (16-bit `out` pairs) to its per-projector Σ B².
-    fn add_modulation_squares(&mut self, out: &[u16]) {
+    /// Adds every pixel's B² of the band from row `y0` (its 16-bit `out` pairs) to its
+    /// per-projector Σ B².
+    fn add_modulation_squares(&mut self, y0: usize, out: &[u16]) {
         let w = self.width as usize;
         let np = self.seq.projectors().len();
-        // Σ B² of every pixel; then keep (ψ, B) of the candidates only (docs/design.md §6: a
-        // pixel needs B ≥ 3 % of full scale to be valid, so one below half that in the first
-        // group cannot be).
         let inv_b_scale = self.full_scale / B_STEPS;
-        self.bsq
+        self.bsq[y0 * w * np..][..out.len() / 2]
             .par_chunks_mut(w * np)
             .zip(out.par_chunks(w * np * 2))
             .for_each(|(acc, o)| {
@@ -562,7 +597,19 @@ impl<T: Sample> Decoder<T> {
     }
 
     /// Unwrap, fuse and judge every pixel; fails when frames are missing.
-    pub fn finish(mut self) -> Result<DecodedStack, DecodeError> {
+    pub fn finish(self) -> Result<DecodedStack, DecodeError> {
+        Ok(self.judge(true)?.into_decoded())
+    }
+
+    /// As [`Self::finish`], but held compactly: the ambient image and saturation flags for
+    /// every pixel, the maps only at the candidate pixels (no modulation image).
+    pub fn finish_compact(self) -> Result<CompactStack, DecodeError> {
+        self.judge(false)
+    }
+
+    /// The final pass (noise fit, then every pixel unwrapped, fused and judged), with the
+    /// modulation image of every pixel when `dense_modulation`.
+    fn judge(mut self, dense_modulation: bool) -> Result<CompactStack, DecodeError> {
         let count = self.seq.frame_count();
         if self.next != count {
             return Err(DecodeError::Incomplete {
@@ -573,34 +620,58 @@ impl<T: Sample> Decoder<T> {
         }
         drop(std::mem::take(&mut self.frames));
         let n = self.seq.steps() as f64;
-        let noise = fit_noise(&noise_sums(&self.pixels, n, self.seq.groups()));
+        let noise = fit_noise(&noise_sums(
+            &self.levels,
+            &self.saturated,
+            n,
+            self.seq.groups(),
+        ));
         let (fundamental, mean_ratio) = harmonics(self.seq.projectors());
-        let w = self.width as usize;
-        let mut maps = Maps::new(w * self.height as usize, self.seq.projectors().len());
-        let stats = Judge::new(&self, noise, mean_ratio).rows(maps.rows(w));
-        let camera = std::mem::take(&mut self.camera);
-        let size = (self.width, self.height);
-        // The groups' phases, the slots and the B² sums are not needed any more.
-        drop(self);
-        Ok(maps.into_stack(camera, size, noise, &stats, &fundamental))
+        let (w, h) = (self.width as usize, self.height as usize);
+        let np = self.seq.projectors().len();
+        let mut sink = Sink::new(w * h, np, self.candidates(), dense_modulation);
+        let stats = Judge::new(&self, noise, mean_ratio).rows(sink.rows(w, &self.row_slots));
+        // The groups' phases, the B² sums and the statistics are dropped with the decoder.
+        let saturated = Mask {
+            width: self.width,
+            height: self.height,
+            bits: std::mem::take(&mut self.saturated),
+        };
+        Ok(sink.into_stack(
+            std::mem::take(&mut self.camera),
+            noise,
+            saturated,
+            std::mem::take(&mut self.candidate),
+            &stats,
+            &fundamental,
+        ))
+    }
+
+    /// Candidate pixels (0 before the first group is in).
+    fn candidates(&self) -> usize {
+        self.row_slots.last().map_or(0, |&n| n as usize)
     }
 }
 
-/// Candidate slots from the first group's (ψ, B) pairs (P per pixel): a pixel's index among
-/// those where some projector's B reached [`CANDIDATE`] of full scale, else `u32::MAX`.
-fn candidate_slots(out: &[u16], np: usize) -> Vec<u32> {
+/// Marks the candidates among the pixels of `out` (P (ψ, B) pairs per pixel, one flag each
+/// in `candidate`): where some projector's B reached [`CANDIDATE`] of full scale.
+fn mark_candidates(out: &[u16], np: usize, candidate: &mut [bool]) {
     let floor = (CANDIDATE * B_STEPS).round() as u16;
+    for (c, px) in candidate.iter_mut().zip(out.chunks_exact(np * 2)) {
+        *c = px.chunks_exact(2).any(|pair| pair[1] >= floor);
+    }
+}
+
+/// Per image row of `w` pixels, the slot of its first candidate (and the count at the end).
+fn row_slots(candidate: &[bool], w: usize) -> Vec<u32> {
+    let mut slots = Vec::with_capacity(candidate.len() / w + 1);
     let mut next = 0u32;
-    out.chunks_exact(np * 2)
-        .map(|px| {
-            if px.chunks_exact(2).any(|pair| pair[1] >= floor) {
-                next += 1;
-                next - 1
-            } else {
-                u32::MAX
-            }
-        })
-        .collect()
+    slots.push(next);
+    for row in candidate.chunks(w) {
+        next += row.iter().filter(|&&c| c).count() as u32;
+        slots.push(next);
+    }
+    slots
 }
 
 /// One worker's sums for a strip of [`CHUNK`] pixels over a group's N steps.
@@ -665,20 +736,26 @@ struct GroupKernel<'a, T> {
 
 impl<T: Sample> GroupKernel<'_, T> {
     /// Row y, strip by strip of [`CHUNK`] pixels (the sums stay in L1 over the N frames):
-    /// the DFT into `strip`, then the pixels' saturation flags and level statistics
-    /// (`stats_row`) and their 16-bit (ψ, B) pairs (`out_row`).
-    fn row(&self, y: usize, strip: &mut Strip, out_row: &mut [u16], stats_row: &mut [PixelStats]) {
+    /// the DFT into `strip`, then the pixels' level statistics (`levels`), saturation flags
+    /// (`saturated`) and their 16-bit (ψ, B) pairs (`out_row`).
+    fn row(
+        &self,
+        y: usize,
+        strip: &mut Strip,
+        out_row: &mut [u16],
+        levels: &mut [Level],
+        saturated: &mut [bool],
+    ) {
         let np = self.np;
         for x0 in (0..self.w).step_by(CHUNK) {
             let len = CHUNK.min(self.w - x0);
             let at = y * self.w + x0;
             self.dft(at, len, strip);
-            let stats = &mut stats_row[x0..x0 + len];
             // Saturation is rare: look per pixel only when the strip reached it.
             if strip.peak.iter().any(|&m| m >= self.fs) {
-                self.mark_saturated(at, stats);
+                self.mark_saturated(at, &mut saturated[x0..x0 + len]);
             }
-            self.add_level(&strip.dc, stats);
+            self.add_level(&strip.dc, &mut levels[x0..x0 + len]);
             self.quantise(strip, &mut out_row[x0 * np * 2..(x0 + len) * np * 2]);
         }
     }
@@ -776,19 +853,19 @@ impl<T: Sample> GroupKernel<'_, T> {
         }
     }
 
-    /// Flags the pixels from `at` (one per entry of `stats`) that reach full scale in any
-    /// step.
-    fn mark_saturated(&self, at: usize, stats: &mut [PixelStats]) {
-        let len = stats.len();
+    /// Flags the pixels from `at` (one per entry of `saturated`) that reach full scale in
+    /// any step.
+    fn mark_saturated(&self, at: usize, saturated: &mut [bool]) {
+        let len = saturated.len();
         for s in 0..self.n {
-            for (st, &v) in stats.iter_mut().zip(self.samples(s, at, len)) {
-                st.saturated |= v.value() >= self.fs;
+            for (st, &v) in saturated.iter_mut().zip(self.samples(s, at, len)) {
+                *st |= v.value() >= self.fs;
             }
         }
     }
 
     /// Adds the group's mean level of each pixel (from its X_0 in `dc`) to its statistics.
-    fn add_level(&self, dc: &[f32; CHUNK], stats: &mut [PixelStats]) {
+    fn add_level(&self, dc: &[f32; CHUNK], stats: &mut [Level]) {
         for (st, &d) in stats.iter_mut().zip(dc.iter()) {
             // A = X_0/N (docs/design.md §6).
             let a = d * self.inv_n;
@@ -830,7 +907,7 @@ impl<T: Sample> GroupKernel<'_, T> {
     }
 }
 
-impl PixelStats {
+impl Level {
     /// The mean level Ā over the `groups` groups and the per-frame variance σ_I² from the
     /// spread of the group means (N `steps`).
     fn mean_and_var(&self, steps: f64, groups: usize) -> (f64, f64) {
@@ -843,14 +920,15 @@ impl PixelStats {
     }
 }
 
-/// The sums [count, ΣA, ΣA², Σσ_I², ΣA·σ_I²] over the unsaturated pixels (N `steps`, G
-/// `groups`), on all cores, for the least-squares line σ_I² = a + b·A.
-fn noise_sums(pixels: &[PixelStats], steps: f64, groups: usize) -> [f64; 5] {
-    pixels
+/// The sums [count, ΣA, ΣA², Σσ_I², ΣA·σ_I²] over the pixels not `saturated` (N `steps`,
+/// G `groups`), on all cores, for the least-squares line σ_I² = a + b·A.
+fn noise_sums(levels: &[Level], saturated: &[bool], steps: f64, groups: usize) -> [f64; 5] {
+    levels
         .par_chunks(4096)
-        .map(|chunk| {
+        .zip(saturated.par_chunks(4096))
+        .map(|(chunk, sat)| {
             let mut s = [0f64; 5];
-            for st in chunk.iter().filter(|st| !st.saturated) {
+            for (st, _) in chunk.iter().zip(sat).filter(|(_, &sat)| !sat) {
                 let (a, v) = st.mean_and_var(steps, groups);
                 s[0] += 1.0;
                 s[1] += a;
@@ -878,145 +956,10 @@ fn harmonics(codes: &[ProjectorCode]) -> (Vec<f32>, Vec<f32>) {
     (fundamental, mean_ratio)
 }
 
-/// The images [`Decoder::finish`] fills, row-major: the ambient and saturation, and per
-/// projector u, v, modulation B, reliability and validity.
-struct Maps {
-    ambient: Vec<f32>,
-    saturated: Vec<bool>,
-    u: Vec<Vec<f32>>,
-    v: Vec<Vec<f32>>,
-    b: Vec<Vec<f32>>,
-    r: Vec<Vec<f32>>,
-    valid: Vec<Vec<bool>>,
-}
-
-/// One image row of every map of [`Maps`].
-struct RowMaps<'a> {
-    ambient: &'a mut [f32],
-    saturated: &'a mut [bool],
-    u: Vec<&'a mut [f32]>,
-    v: Vec<&'a mut [f32]>,
-    b: Vec<&'a mut [f32]>,
-    r: Vec<&'a mut [f32]>,
-    valid: Vec<&'a mut [bool]>,
-}
-
-impl Maps {
-    /// Zeroed maps of `npx` pixels for `np` projectors.
-    fn new(npx: usize, np: usize) -> Self {
-        let image = || vec![0f32; npx];
-        Maps {
-            ambient: image(),
-            saturated: vec![false; npx],
-            u: (0..np).map(|_| image()).collect(),
-            v: (0..np).map(|_| image()).collect(),
-            b: (0..np).map(|_| image()).collect(),
-            r: (0..np).map(|_| image()).collect(),
-            valid: (0..np).map(|_| vec![false; npx]).collect(),
-        }
-    }
-
-    /// Every map cut into rows of `w` pixels: one [`RowMaps`] per image row.
-    fn rows(&mut self, w: usize) -> Vec<RowMaps<'_>> {
-        let np = self.u.len();
-        let mut out_rows: Vec<RowMaps> = self
-            .ambient
-            .chunks_mut(w)
-            .zip(self.saturated.chunks_mut(w))
-            .map(|(a, s)| RowMaps {
-                ambient: a,
-                saturated: s,
-                u: Vec::with_capacity(np),
-                v: Vec::with_capacity(np),
-                b: Vec::with_capacity(np),
-                r: Vec::with_capacity(np),
-                valid: Vec::with_capacity(np),
-            })
-            .collect();
-        for ((((um, vm), bm), rm), okm) in self
-            .u
-            .iter_mut()
-            .zip(self.v.iter_mut())
-            .zip(self.b.iter_mut())
-            .zip(self.r.iter_mut())
-            .zip(self.valid.iter_mut())
-        {
-            for (row, ((((u, v), b), r), ok)) in out_rows.iter_mut().zip(
-                um.chunks_mut(w)
-                    .zip(vm.chunks_mut(w))
-                    .zip(bm.chunks_mut(w))
-                    .zip(rm.chunks_mut(w))
-                    .zip(okm.chunks_mut(w)),
-            ) {
-                row.u.push(u);
-                row.v.push(v);
-                row.b.push(b);
-                row.r.push(r);
-                row.valid.push(ok);
-            }
-        }
-        out_rows
-    }
-
-    /// The decoded stack of `camera`: the maps as images of `size` (width, height), with
-    /// the noise model, each projector's noise from its sums in `stats` and its pattern
-    /// fundamental.
-    fn into_stack(
-        self,
-        camera: String,
-        (width, height): (u32, u32),
-        noise: NoiseModel,
-        stats: &[[f64; 6]],
-        fundamental: &[f32],
-    ) -> DecodedStack {
-        let to_image = |data: Vec<f32>| {
-            FloatImage::from_raw(width, height, data).expect("map has width × height values")
-        };
-        let mask = |bits: Vec<bool>| Mask {
-            width,
-            height,
-            bits,
-        };
-        let Maps {
-            ambient,
-            saturated,
-            u,
-            v,
-            b,
-            r,
-            valid,
-        } = self;
-        let projectors = u
-            .into_iter()
-            .zip(v)
-            .zip(b)
-            .zip(r)
-            .zip(valid)
-            .enumerate()
-            .map(|(p, ((((u, v), b), r), ok))| ProjectorMaps {
-                u: to_image(u),
-                v: to_image(v),
-                modulation: to_image(b),
-                reliability: to_image(r),
-                valid: mask(ok),
-                noise: PhaseNoise::from_sums(&stats[p]),
-                fundamental: fundamental[p],
-            })
-            .collect();
-        DecodedStack {
-            camera,
-            ambient: to_image(ambient),
-            saturated: mask(saturated),
-            noise,
-            projectors,
-        }
-    }
-}
-
 impl PhaseNoise {
     /// From a projector's sums over its valid pixels: [count, Σ B, Σ σ_I², Σ σ_φ², Σ σ_u²,
     /// Σ σ_v²].
-    fn from_sums(a: &[f64; 6]) -> Self {
+    pub(super) fn from_sums(a: &[f64; 6]) -> Self {
         let c = a[0].max(1.0);
         PhaseNoise {
             valid_pixels: a[0] as usize,
@@ -1096,7 +1039,7 @@ impl<'a, T: Sample> Judge<'a, T> {
 
     /// Every row into `rows`, on all cores; per projector, over its valid pixels: count,
     /// Σ B, Σ σ_I², Σ σ_φ², Σ σ_u², Σ σ_v².
-    fn rows(&self, rows: Vec<RowMaps<'_>>) -> Vec<[f64; 6]> {
+    fn rows(&self, rows: Vec<RowSink<'_>>) -> Vec<[f64; 6]> {
         let np = self.mean_ratio.len();
         rows.into_par_iter()
             .enumerate()
@@ -1112,46 +1055,55 @@ impl<'a, T: Sample> Judge<'a, T> {
             )
     }
 
-    /// Row y into `row`: each pixel's ambient, saturation and per projector modulation,
-    /// and u, v, reliability and validity; gives the row's sums as [`Self::rows`].
-    fn row(&self, y: usize, row: &mut RowMaps<'_>) -> Vec<[f64; 6]> {
+    /// Row y into `row`: each pixel's ambient and per projector modulation, and at its
+    /// candidates u, v, reliability and validity; gives the row's sums as [`Self::rows`].
+    fn row(&self, y: usize, row: &mut RowSink<'_>) -> Vec<[f64; 6]> {
         let dec = self.dec;
         let (w, np) = (dec.width as usize, self.mean_ratio.len());
         let mut acc = vec![[0f64; 6]; np];
+        // The row's candidates are slots row_slots[y].. in pixel order; `k` counts them.
+        let first = dec.row_slots[y];
+        let mut k = 0usize;
         for x in 0..w {
             let px = y * w + x;
-            let st = &dec.pixels[px];
-            let (mean, _) = st.mean_and_var(self.steps, self.groups);
+            let (mean, _) = dec.levels[px].mean_and_var(self.steps, self.groups);
             let sigma = self.noise.sigma(mean) as f32;
             let var4 = 4.0 * sigma * sigma / self.n32;
-            row.saturated[x] = st.saturated;
+            let (saturated, candidate) = (dec.saturated[px], dec.candidate[px]);
             let mut amb = mean as f32;
             for (p, acc) in acc.iter_mut().enumerate() {
                 let bsq = dec.bsq[px * np + p];
-                let slot = dec.slots[px];
                 let bmod = (bsq / self.groups as f32 - var4).max(0.0).sqrt();
                 amb -= self.mean_ratio[p] * bmod;
-                row.b[p][x] = bmod;
-                if st.saturated || slot == u32::MAX || bmod < self.min_b.max(5.0 * sigma) {
-                    // Invalid whatever the phases say: not unwrapped.
-                    row.u[p][x] = f32::NAN;
-                    row.v[p][x] = f32::NAN;
-                    row.r[p][x] = f32::NAN;
-                    row.valid[p][x] = false;
+                if let Some(m) = row.modulation.get_mut(p) {
+                    m[x] = bmod;
+                }
+                if !candidate {
                     continue;
                 }
-                let pos = self.position(slot, p, sigma);
+                let c = &mut row.candidates[p];
+                c.modulation[k] = bmod;
+                if saturated || bmod < self.min_b.max(5.0 * sigma) {
+                    // Invalid whatever the phases say: not unwrapped.
+                    c.u[k] = f32::NAN;
+                    c.v[k] = f32::NAN;
+                    c.reliability[k] = f32::NAN;
+                    c.valid[k] = false;
+                    continue;
+                }
+                let pos = self.position(first + k as u32, p, sigma);
                 let ok = pos.distance[0] < self.half_spacing[0]
                     && pos.distance[1] < self.half_spacing[1]
                     && pos.clear_of_wrap;
-                row.u[p][x] = pos.fused[0];
-                row.v[p][x] = pos.fused[1];
-                row.r[p][x] = pos.distance[0].max(pos.distance[1]);
-                row.valid[p][x] = ok;
+                c.u[k] = pos.fused[0];
+                c.v[k] = pos.fused[1];
+                c.reliability[k] = pos.distance[0].max(pos.distance[1]);
+                c.valid[k] = ok;
                 if ok {
                     self.add_valid(acc, bmod, sigma, pos.sigma);
                 }
             }
+            k += usize::from(candidate);
             row.ambient[x] = amb;
         }
         acc

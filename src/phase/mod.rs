@@ -5,10 +5,12 @@
 
 #[cfg(any(test, feature = "bench"))]
 pub mod accuracy;
+mod compact;
 mod decode;
 pub mod files;
 mod unwrap;
 
+pub use compact::*;
 pub use decode::*;
 pub use unwrap::*;
 

@@ -510,3 +510,58 @@ fn sixteen_bit_and_float_frames_decode_like_eight_bit() {
     assert_eq!(bits(&a.ambient), bits(&c.ambient));
     assert_eq!(a.projectors[0].valid, c.projectors[0].valid);
 }
+
+#[test]
+fn compact_stack_gives_the_full_maps_at_its_candidates() {
+    // 150 rows: four whole bands of BAND_ROWS and a partial one.
+    let (w, h) = (200, 150);
+    let setups = setups(2, GAMMA);
+    let seq = Sequence::default_for(&setups).unwrap();
+    let scene = Scene::standard(w, h, &setups, 3);
+    let mut renderer = Renderer::new(&scene, &seq);
+    let mut full = Decoder::<u8>::new(&seq, "c", w, h, 255.0).unwrap();
+    let mut compact = Decoder::<u8>::new(&seq, "c", w, h, 255.0).unwrap();
+    for k in 0..seq.frame_count() {
+        let f = renderer.frame(k);
+        full.push_frame(k, FrameRef::from(&f)).unwrap();
+        compact.push_frame(k, FrameRef::from(&f)).unwrap();
+    }
+    let (full, compact) = (full.finish().unwrap(), compact.finish_compact().unwrap());
+    let npx = (w * h) as usize;
+    // The board covers part of the image: some pixels are candidates, not all.
+    assert!((1..npx).contains(&compact.candidates()));
+    assert!(compact.bytes() < npx * (6 + 2 * 17));
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(full.ambient.as_raw()), bits(compact.ambient.as_raw()));
+    assert_eq!(full.saturated, compact.saturated);
+    assert_eq!(full.noise, compact.noise);
+    for (p, maps) in full.projectors.iter().enumerate() {
+        let dense = compact.dense_maps(p);
+        assert_eq!(bits(maps.u.as_raw()), bits(&dense.u), "projector {p}: u");
+        assert_eq!(bits(maps.v.as_raw()), bits(&dense.v), "projector {p}: v");
+        assert_eq!(
+            maps.valid.as_slice(),
+            &dense.valid[..],
+            "projector {p}: valid"
+        );
+        assert!(
+            maps.valid.count() > 1000,
+            "projector {p}: {}",
+            maps.valid.count()
+        );
+        assert_eq!(maps.noise, compact.projectors[p].noise);
+        // The modulation: the same wherever the pixel is a candidate (0 elsewhere).
+        for (i, (&b, &d)) in maps
+            .modulation
+            .as_raw()
+            .iter()
+            .zip(&dense.modulation)
+            .enumerate()
+        {
+            assert!(
+                d == b || (d == 0.0 && maps.u.as_raw()[i].is_nan()),
+                "pixel {i}"
+            );
+        }
+    }
+}

@@ -2,8 +2,9 @@
 //! with every projector lighting the board at once.
 //!
 //! The geometry pass runs once: per camera pixel its footprint-integrated albedo and the
-//! board point behind its centre; per projector the projector pixel (u, v) of that point and
-//! whether the projector lights it (the side it faces, inside its raster). Each frame k is
+//! board point behind its centre; per projector the projector pixel (u, v) of that point
+//! where the projector lights it (the side it faces, inside its raster), kept over the lit
+//! pixels' rectangle only. Each frame k is
 //! then cheap: I = albedo·(ambient + Σ_p gain_p·light_p(pattern_p,k(u_p, v_p))), with each
 //! projector's response (gamma) applied to its own pattern inside the sum, then the sensor
 //! chain (PSF, shot and read noise, camera gamma, quantisation), seeded per frame.
@@ -28,15 +29,73 @@ pub struct StackProjector {
     pub gain_dn: f64,
 }
 
-/// Ground truth of one projector in the camera: per pixel, row-major.
+/// Ground truth of one projector in the camera, held over the smallest pixel rectangle that
+/// holds every pixel it lights (a board covers part of the image).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ProjectorTruth {
-    /// Projector column of the board point behind each pixel centre (NaN where unlit).
-    pub u: Vec<f32>,
-    /// Projector row (NaN where unlit).
-    pub v: Vec<f32>,
-    /// Whether the projector lights the board point behind the pixel centre.
-    pub lit: Vec<bool>,
+    /// Image width (px).
+    width: usize,
+    /// The rectangle (x0, y0, x1, y1), exclusive ends; empty when nothing is lit.
+    bounds: [usize; 4],
+    /// Projector column per rectangle pixel, row-major (NaN where unlit).
+    u: Vec<f32>,
+    /// Projector row per rectangle pixel (NaN where unlit).
+    v: Vec<f32>,
+}
+
+impl ProjectorTruth {
+    /// The truth of an image `width` pixels wide from per-pixel (u, v) over the whole image
+    /// (NaN where unlit), kept over the lit pixels' rectangle.
+    fn cropped(width: usize, u: &[f32], v: &[f32]) -> Self {
+        let mut b: Option<[usize; 4]> = None;
+        for (i, _) in u.iter().enumerate().filter(|(_, u)| !u.is_nan()) {
+            let (x, y) = (i % width, i / width);
+            let r = b.get_or_insert([x, y, x + 1, y + 1]);
+            *r = [r[0].min(x), r[1].min(y), r[2].max(x + 1), r[3].max(y + 1)];
+        }
+        let bounds = b.unwrap_or([0; 4]);
+        let [x0, y0, x1, y1] = bounds;
+        let crop = |m: &[f32]| -> Vec<f32> {
+            (y0..y1)
+                .flat_map(|y| m[y * width + x0..y * width + x1].iter().copied())
+                .collect()
+        };
+        ProjectorTruth {
+            width,
+            bounds,
+            u: crop(u),
+            v: crop(v),
+        }
+    }
+
+    /// The rectangle (x0, y0, x1, y1) of the lit pixels, exclusive ends; `None` when the
+    /// projector lights nothing.
+    pub fn bounds(&self) -> Option<[usize; 4]> {
+        (self.bounds[2] > self.bounds[0]).then_some(self.bounds)
+    }
+
+    /// Where pixel i (row-major) is in the rectangle.
+    fn index(&self, i: usize) -> Option<usize> {
+        let (x, y) = (i % self.width, i / self.width);
+        let [x0, y0, x1, y1] = self.bounds;
+        (x >= x0 && x < x1 && y >= y0 && y < y1).then(|| (y - y0) * (x1 - x0) + x - x0)
+    }
+
+    /// Projector column of the board point behind pixel i's centre (row-major; NaN where
+    /// unlit).
+    pub fn u(&self, i: usize) -> f32 {
+        self.index(i).map_or(f32::NAN, |j| self.u[j])
+    }
+
+    /// Projector row at pixel i (NaN where unlit).
+    pub fn v(&self, i: usize) -> f32 {
+        self.index(i).map_or(f32::NAN, |j| self.v[j])
+    }
+
+    /// Whether the projector lights the board point behind pixel i's centre.
+    pub fn lit(&self, i: usize) -> bool {
+        !self.u(i).is_nan()
+    }
 }
 
 /// A camera's stack renderer for one board pose.
@@ -101,8 +160,8 @@ impl GroupPhases {
                 let base = (y0 + by) * w + x0;
                 for (bx, o) in row.iter_mut().enumerate() {
                     let i = base + bx;
-                    if t.lit[i] {
-                        let pos = f64::from(if rows { t.v[i] } else { t.u[i] });
+                    if t.lit(i) {
+                        let pos = f64::from(if rows { t.v(i) } else { t.u(i) });
                         let (s, c) = (a * (pos + 0.5)).sin_cos();
                         *o = [
                             (c * PHASE_UNIT).round() as i16,
@@ -137,8 +196,7 @@ impl StackRenderer {
             .iter()
             .map(|p| {
                 let n = geo.point.len();
-                let (mut u, mut v, mut lit) =
-                    (vec![f32::NAN; n], vec![f32::NAN; n], vec![false; n]);
+                let (mut u, mut v) = (vec![f32::NAN; n], vec![f32::NAN; n]);
                 let board_from_proj = p.proj_from_board.inverse();
                 let centre = board_from_proj * Point3::origin();
                 for i in 0..n {
@@ -158,11 +216,11 @@ impl StackRenderer {
                         if q.x >= -0.5 && q.y >= -0.5 && q.x < w - 0.5 && q.y < h - 0.5 {
                             u[i] = q.x as f32;
                             v[i] = q.y as f32;
-                            lit[i] = true;
                         }
                     }
                 }
-                ProjectorTruth { u, v, lit }
+                // One projector's whole-image maps at a time (the rest of the image is dark).
+                ProjectorTruth::cropped(geo.size.width as usize, &u, &v)
             })
             .collect();
         let sensor = sensor(&scene.imaging);
@@ -170,15 +228,18 @@ impl StackRenderer {
         let ambient: Vec<f32> = geo.albedo.iter().map(|a| a * ambient_dn as f32).collect();
         let ambient_signal = sensor.optics(geo.size, &ambient);
         let reach = 2 * (4.0 * sensor.psf_sigma).ceil() as usize;
-        let mut lit_box: Option<[usize; 4]> = None;
-        for y in 0..h {
-            for x in 0..w {
-                if truth.iter().any(|t| t.lit[y * w + x]) {
-                    let b = lit_box.get_or_insert([x, y, x + 1, y + 1]);
-                    *b = [b[0].min(x), b[1].min(y), b[2].max(x + 1), b[3].max(y + 1)];
-                }
-            }
-        }
+        // The union of the projectors' lit rectangles.
+        let lit_box = truth
+            .iter()
+            .filter_map(ProjectorTruth::bounds)
+            .reduce(|a, b| {
+                [
+                    a[0].min(b[0]),
+                    a[1].min(b[1]),
+                    a[2].max(b[2]),
+                    a[3].max(b[3]),
+                ]
+            });
         let lit_box = lit_box.map(|[x0, y0, x1, y1]| {
             [
                 x0.saturating_sub(reach),
@@ -256,7 +317,7 @@ impl StackRenderer {
                 let i = base + bx;
                 let mut e = 0.0;
                 for (p, t) in self.truth.iter().enumerate() {
-                    if t.lit[i] {
+                    if t.lit(i) {
                         let [c0, s0] = cache.phases[p][by * bw + bx];
                         let (c0, s0) = (f32::from(c0), f32::from(s0));
                         let (cs, ss) = shifts[p];

@@ -162,14 +162,14 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> (Vec<CircleError
         let truth = renderer.truth(p);
         let (mut sq, mut n, mut worst) = (0.0, 0usize, 0.0f64);
         let (mut interior, mut interior_valid) = (0usize, 0usize);
-        for (i, (&lit, &a)) in truth.lit.iter().zip(albedo).enumerate() {
-            if !(lit && a > 0.9 && uniform(i)) {
+        for (i, &a) in albedo.iter().enumerate() {
+            if !(truth.lit(i) && a > 0.9 && uniform(i)) {
                 continue;
             }
             interior += 1;
             if maps.valid.as_slice()[i] {
                 interior_valid += 1;
-                let e = f64::from(maps.u.as_raw()[i] - truth.u[i]);
+                let e = f64::from(maps.u.as_raw()[i] - truth.u(i));
                 sq += e * e;
                 n += 1;
                 worst = worst.max(e.abs());
@@ -303,10 +303,10 @@ fn lit_pairs(
         }
         .white_pixels(e, false, size.width, size.height);
         for p in 0..projectors().len() {
-            let lit = &renderer.truth(p).lit;
+            let truth = renderer.truth(p);
             if whole
                 .iter()
-                .all(|&(x, y)| lit[(y * size.width + x) as usize])
+                .all(|&(x, y)| truth.lit((y * size.width + x) as usize))
             {
                 let count = if lp.ringed {
                     &mut pairs.ringed
@@ -458,4 +458,26 @@ fn decoded_stack_gives_projector_pixels_at_circle_centres() {
             }
         }
     }
+}
+
+#[test]
+fn truth_is_kept_over_the_lit_rectangle() {
+    let (w, h) = (8, 6);
+    let mut u = vec![f32::NAN; w * h];
+    let mut v = u.clone();
+    for (x, y) in [(2, 1), (5, 3), (3, 2)] {
+        u[y * w + x] = 10.0 * x as f32;
+        v[y * w + x] = y as f32;
+    }
+    let t = ProjectorTruth::cropped(w, &u, &v);
+    assert_eq!(t.bounds(), Some([2, 1, 6, 4]));
+    for i in 0..w * h {
+        assert_eq!(t.u(i).to_bits(), u[i].to_bits(), "pixel {i}");
+        assert_eq!(t.v(i).to_bits(), v[i].to_bits(), "pixel {i}");
+        assert_eq!(t.lit(i), !u[i].is_nan(), "pixel {i}");
+    }
+    let dark = vec![f32::NAN; w * h];
+    let t = ProjectorTruth::cropped(w, &dark, &dark);
+    assert_eq!(t.bounds(), None);
+    assert!((0..w * h).all(|i| !t.lit(i)));
 }
