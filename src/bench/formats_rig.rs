@@ -295,11 +295,11 @@ fn compare(
             maps.noise.sigma_v.powi(2) / mean_inv_b2,
         );
         for (i, &ok) in valid.iter().enumerate() {
-            if !ok || !t.lit[i] || !uniform(i) {
+            if !ok || !t.lit(i) || !uniform(i) {
                 continue;
             }
-            let eu = f64::from(maps.u.as_raw()[i] - t.u[i]);
-            let ev = f64::from(maps.v.as_raw()[i] - t.v[i]);
+            let eu = f64::from(maps.u.as_raw()[i] - t.u(i));
+            let ev = f64::from(maps.v.as_raw()[i] - t.v(i));
             sums.phase_pixels += 1;
             sums.sq_u += eu * eu;
             sums.sq_v += ev * ev;
