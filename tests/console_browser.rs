@@ -292,7 +292,7 @@ fn start_chromium(profile: &Path) -> Killed {
 }
 
 /// In the rectangle (x, y, width, height) of the screenshot: pixels of the sign's green, of
-/// the overlay's lime circles, and of grey (the camera's picture), with the standard
+/// the overlay's circles (lime, or yellow when not anchored), and of grey (the camera's picture), with the standard
 /// deviation of the grey levels (a picture, not a flat fill).
 fn count_colours(png: &[u8], [x0, y0, w, h]: [u32; 4]) -> (usize, usize, usize, f64) {
     let shot = image::load_from_memory(png).unwrap().to_rgb8();
@@ -303,7 +303,8 @@ fn count_colours(png: &[u8], [x0, y0, w, h]: [u32; 4]) -> (usize, usize, usize, 
             if (r - 30).abs() < 20 && (g - 142).abs() < 20 && (b - 62).abs() < 20 {
                 green += 1;
             }
-            if g > 200 && r < 140 && b < 120 {
+            // The overlay's circles: lime when anchored, yellow when not.
+            if (g > 200 && r < 140 && b < 120) || (r > 220 && g > 190 && b < 60) {
                 lime += 1;
             }
             if (r - g).abs() < 8 && (g - b).abs() < 8 {
@@ -381,8 +382,8 @@ fn check_live_preview(page: &mut Page, file: &Path) {
         "no circles drawn over the live picture: {lime} px"
     );
     assert!(
-        grey > (rect[2] * rect[3]) as usize / 10,
-        "no live picture: {grey} px"
+        grey > (rect[2] * rect[3]) as usize / 10 && sd > 3.0,
+        "no live picture: {grey} px of grey, levels ± {sd:.1}"
     );
 }
 
@@ -488,7 +489,7 @@ fn screenshot(page: &mut Page, file: &Path) -> Vec<u8> {
     png
 }
 
-/// Screenshot the page into `file` and check what it shows: a green sign, lime circles over
+/// Screenshot the page into `file` and check what it shows: a green sign, circles over
 /// the first thumbnail and a grey picture under them.
 fn check_screenshot(page: &mut Page, file: &Path) {
     let png = screenshot(page, file);
@@ -517,8 +518,8 @@ fn check_screenshot(page: &mut Page, file: &Path) {
     );
     assert!(lime > 300, "no circles drawn over the thumbnail: {lime} px");
     assert!(
-        grey > area(thumb) / 10,
-        "no camera picture in the thumbnail: {grey} px"
+        grey > area(thumb) / 10 && sd > 3.0,
+        "no camera picture in the thumbnail: {grey} px of grey, levels ± {sd:.1}"
     );
 }
 

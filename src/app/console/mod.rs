@@ -61,6 +61,8 @@ struct Shared {
     /// The interim calibrations asked for and finished, by the poses they cover.
     interim: Mutex<Interim>,
     interim_done: Condvar,
+    /// When the live preview's rounds ended (its rate).
+    clock: Mutex<PreviewClock>,
 }
 
 /// The poses (index of the last + 1) of the latest interim calibration asked for and of
@@ -112,7 +114,7 @@ impl Shared {
     }
 
     /// One round of live preview frames (or why the preview stopped) onto the page.
-    fn preview(&self, round: Result<Vec<Option<LiveView>>, &str>, clock: &mut PreviewClock) {
+    fn preview(&self, round: Result<Vec<Option<LiveView>>, &str>, started: std::time::Instant) {
         let mut s = lock(&self.state);
         let p = s.preview.get_or_insert_with(Preview::default);
         let views = match round {
@@ -125,7 +127,7 @@ impl Shared {
         };
         p.rounds += 1;
         p.error = None;
-        (p.rate_hz, p.detect_ms) = clock.tick();
+        (p.rate_hz, p.detect_ms) = lock(&self.clock).tick(started);
         let n = p.rounds;
         let mut pngs = lock(&self.live);
         for (c, view) in views.into_iter().enumerate() {
@@ -229,6 +231,7 @@ impl Console {
             closed: AtomicBool::new(false),
             interim: Mutex::new(Interim::default()),
             interim_done: Condvar::new(),
+            clock: Mutex::new(PreviewClock::default()),
         });
         shared.publish(&mut lock(&shared.state));
         let server = Arc::new(server);
@@ -318,10 +321,8 @@ impl Console {
     pub fn preview_tap(&self, board: Board) -> PreviewTap {
         use rayon::prelude::*;
         let shared = Arc::clone(&self.shared);
-        let clock = Mutex::new(PreviewClock::default());
         PreviewTap(Arc::new(move |round| {
-            let mut clock = lock(&clock);
-            clock.started = Some(std::time::Instant::now());
+            let started = std::time::Instant::now();
             let pose = lock(&shared.state).pose.map_or(0, |[k, _]| k);
             let views = round.map(|frames| {
                 frames
@@ -329,7 +330,7 @@ impl Console {
                     .map(|f| preview::look(f, &board, pose))
                     .collect()
             });
-            shared.preview(views, &mut clock);
+            shared.preview(views, started);
         }))
     }
 
@@ -345,6 +346,8 @@ impl Console {
     fn apply(&mut self, e: &Event, s: &mut State) {
         match e {
             Event::PoseStarted { pose, of } => {
+                // A new placement: the preview's rate starts afresh (a capture lay between).
+                lock(&self.shared.clock).ends.clear();
                 self.read_pending(s);
                 s.status = "waiting".into();
                 s.pose = Some([*pose, *of]);
@@ -476,26 +479,17 @@ impl Console {
 #[derive(Default)]
 struct PreviewClock {
     ends: std::collections::VecDeque<std::time::Instant>,
-    started: Option<std::time::Instant>,
 }
 
 impl PreviewClock {
     /// Rounds to average the rate over.
     const ROUNDS: usize = 8;
 
-    /// A round ended now: the rate over the last rounds (per second, 0 until two), and
-    /// this round's time from its frames to its pictures (ms).
-    fn tick(&mut self) -> (f64, f64) {
+    /// A round whose frames arrived at `started` ended now: the rate over the rounds since
+    /// the placement began (at most the last [`PreviewClock::ROUNDS`]; per second, 0 until
+    /// two), and this round's time from its frames to its pictures (ms).
+    fn tick(&mut self, started: std::time::Instant) -> (f64, f64) {
         let now = std::time::Instant::now();
-        let took = self.started.map_or(0.0, |t| 1e3 * (now - t).as_secs_f64());
-        // A gap of seconds is a capture between poses, not the preview's pace.
-        if self
-            .ends
-            .back()
-            .is_some_and(|&t| now - t > std::time::Duration::from_secs(3))
-        {
-            self.ends.clear();
-        }
         self.ends.push_back(now);
         if self.ends.len() > Self::ROUNDS {
             self.ends.pop_front();
@@ -506,7 +500,7 @@ impl PreviewClock {
             }
             _ => 0.0,
         };
-        (rate, took)
+        (rate, 1e3 * (now - started).as_secs_f64())
     }
 }
 
