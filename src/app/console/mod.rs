@@ -1,11 +1,14 @@
 //! The operator console (`hexcal run --console [ADDR]`): a local web page that shows, while
 //! a run goes on, one thumbnail per camera with its labelled circles and lattice drawn over
-//! it, per device the poses seen, a coverage map of its image and the range of board tilts,
-//! a big done / not-done sign, and a capture button.
+//! it, a live picture per camera while the board is placed, per device the poses seen, a
+//! coverage map of its image and the range of board tilts, a big done / not-done sign, and a
+//! capture button.
 //!
-//! Takes the run's progress events, its captured frames (through a [`FrameTap`]) and the
-//! processed poses the run writes to its dataset (`pose-KKK/views.json`); gives the page
-//! (served from the binary, no outside file or network) and the capture button's presses.
+//! Takes the run's progress events, its captured frames (through a [`FrameTap`]), its live
+//! preview frames (through a [`PreviewTap`]) and the processed poses the run writes to its
+//! dataset (`pose-KKK/views.json`); gives the page (served from the binary, no outside file
+//! or network), the capture button's presses and, to a guided simulated operator, the
+//! interim calibrations' guidance ([`GuidanceWatch`]).
 //! The page follows the run through server-sent events; pages come and go as they like.
 
 mod guidance;
