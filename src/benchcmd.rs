@@ -467,8 +467,8 @@ fn bench_guide(rig: &Path, sigma: f64, max_poses: usize, seed: u64) -> anyhow::R
         rig.display(),
         b.threshold,
         b.sigma,
-        hexcal::bench::guide::PLACEMENT_DEG,
-        hexcal::bench::guide::PLACEMENT_MM
+        hexcal::app::guide::operator::PLACEMENT_DEG,
+        hexcal::app::guide::operator::PLACEMENT_MM
     );
     for r in &b.runs {
         let trail: Vec<String> = r.worst.iter().map(|(k, w)| format!("{k}:{w:.3}")).collect();

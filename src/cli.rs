@@ -42,26 +42,80 @@ pub fn operator_lines() -> Receiver<bool> {
     rx
 }
 
-/// Puts the board at pose k: a simulated world's pose when the rig is simulated; then, unless
-/// `auto` (or a simulated world placed it and `sim_places` says that is enough), waits for
-/// the operator's Enter or a press of the console's capture `button` (end of input, or
-/// `stop` set, ends the capture).
+/// How `hexcal run` is driven.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct How<'a> {
+    /// Poses are placed without waiting for Enter.
+    pub auto: bool,
+    /// The simulated operator follows the console's guidance.
+    pub guided: bool,
+    /// The console's address.
+    pub console: Option<&'a str>,
+}
+
+/// A simulated operator following the console (`--guided`): the console's guidance, the
+/// operator once the world is known, and the seed of its placement noise.
+type Guided = (
+    hexcal::app::console::GuidanceWatch,
+    Option<SimOperator>,
+    u64,
+);
+
+use hexcal::app::guide::operator::SimOperator;
+
+/// Puts the simulated board at pose k: the `[poses]` pose, or, `guided`, where the
+/// console's latest guidance (waited for) aims; `Ok(false)` once the console says done.
+fn place_sim(
+    w: &SimWorld,
+    k: usize,
+    guided: Option<&mut Guided>,
+    stop: Option<&Arc<AtomicBool>>,
+) -> Result<bool, AppError> {
+    let Some((watch, operator, seed)) = guided else {
+        if k >= w.board_poses.len() {
+            return Err(AppError::Input(format!(
+                "the simulated rig has {} board poses ([poses] count)",
+                w.board_poses.len()
+            )));
+        }
+        w.place(k);
+        return Ok(true);
+    };
+    let (guidance, done) = watch.latest(&|| stop.is_some_and(|s| s.load(Ordering::SeqCst)));
+    if done {
+        eprintln!("guided: every device is done after {k} poses; no more poses");
+        return Ok(false);
+    }
+    let operator = operator.get_or_insert_with(|| SimOperator::new(w, *seed));
+    match operator.next(k, guidance.as_ref()) {
+        Some((board, what)) => {
+            eprintln!("guided: pose {k}: {what}");
+            w.place_at(k, board);
+            Ok(true)
+        }
+        None => Err(AppError::Input(format!(
+            "pose {k}: no guidance to follow and the simulated rig has {} board poses",
+            w.board_poses.len()
+        ))),
+    }
+}
+
+/// Puts the board at pose k: a simulated world's pose when the rig is simulated (`guided`:
+/// where the console's guidance aims); then, unless `auto` (or a simulated world placed it
+/// and `sim_places` says that is enough), waits for the operator's Enter or a press of the
+/// console's capture `button` (end of input, or `stop` set, ends the capture).
 fn placer(
-    auto: bool,
-    sim_places: bool,
+    (auto, sim_places): (bool, bool),
     stop: Option<Arc<AtomicBool>>,
     button: Option<Receiver<()>>,
+    mut guided: Option<Guided>,
 ) -> impl FnMut(usize, Option<&SimWorld>) -> Result<bool, AppError> {
     let mut lines = None;
     move |k, world| {
         if let Some(w) = world {
-            if k >= w.board_poses.len() {
-                return Err(AppError::Input(format!(
-                    "the simulated rig has {} board poses ([poses] count)",
-                    w.board_poses.len()
-                )));
+            if !place_sim(w, k, guided.as_mut(), stop.as_ref())? {
+                return Ok(false);
             }
-            w.place(k);
         }
         if auto || (sim_places && world.is_some()) {
             return Ok(true);
@@ -105,7 +159,7 @@ pub fn capture(rig: &Path, out: &Path, poses: Option<usize>, auto: bool) -> anyh
                 poses,
                 ..Default::default()
             };
-            let mut place = placer(auto, true, None, None);
+            let mut place = placer((auto, true), None, None, None);
             let mut log = |note| eprintln!("{note}");
             let summary =
                 hexcal::app::capture::capture_dataset(rig, out, &options, &mut place, &mut log)
@@ -201,10 +255,15 @@ pub fn run(
     rig: &Path,
     out: &Path,
     options: &hexcal::app::run::RunOptions,
-    (auto, console): (bool, Option<&str>),
+    how: How,
     progress: Progress,
 ) -> anyhow::Result<()> {
     use hexcal::app::console::Console;
+    let How {
+        auto,
+        guided,
+        console,
+    } = how;
     let mut console = console
         .map(|addr| Console::start(addr, out, auto))
         .transpose()?;
@@ -218,9 +277,26 @@ pub fn run(
     let prompts = console.as_ref().map(Console::prompts);
     let t = std::time::Instant::now();
     let file = hexcal::rig::file::RigFile::load(rig)?;
+    if guided && (!file.script.is_empty() || file.poses.is_none()) {
+        anyhow::bail!(
+            "{}: --guided needs a simulated rig with a [poses] table and no script",
+            rig.display()
+        );
+    }
+    let seed = file.poses.as_ref().map_or(1, |p| p.seed);
     if let Some(c) = console.as_mut() {
         c.set_threshold(file.guidance.uncertainty_px);
     }
+    // While the operator places the board (no script: it times its own steps), the page
+    // shows what each camera sees.
+    if let (Some(c), false, true) = (&console, auto, file.script.is_empty()) {
+        let board = hexcal::board::Board::resolve(&file.board)?;
+        options.preview = Some(c.preview_tap(board));
+    }
+    let guided = match (&console, guided) {
+        (Some(c), true) => Some((c.guidance_watch(), None, seed)),
+        _ => None,
+    };
     let mut show = |e: &hexcal::app::progress::Event| {
         if let Some(c) = console.as_mut() {
             c.event(e);
@@ -242,7 +318,8 @@ pub fn run(
             )?
         }
         None => {
-            let mut place = placer(auto, false, options.stop.clone(), button);
+            let stop = options.stop.clone();
+            let mut place = placer((auto, false), stop, button, guided);
             let mut print = printer(progress);
             let mut events = |e: &hexcal::app::progress::Event| {
                 show(e);

@@ -205,6 +205,11 @@ enum Command {
         /// done sign, on ADDR (default 127.0.0.1:8765; port 0 picks a free one).
         #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
         console: Option<String>,
+        /// On a simulated rig, the simulated operator follows the console: after each
+        /// interim calibration the board goes where the page suggests (with 3° / 15 mm of
+        /// placement error), and the capture ends once the sign reads DONE.
+        #[arg(long, requires = "console")]
+        guided: bool,
         /// Print the timeline (the script's steps, planned start times, expected duration)
         /// without touching a device.
         #[arg(long)]
@@ -309,7 +314,7 @@ fn run(
     rig: &Path,
     out: &Path,
     options: &hexcal::app::run::RunOptions,
-    (auto, console): (bool, Option<&str>),
+    how: cli::How,
     progress: cli::Progress,
 ) -> anyhow::Result<Finished> {
     let file = hexcal::rig::file::RigFile::load(rig)?;
@@ -327,7 +332,7 @@ fn run(
         check_poses(poses)?;
         hexcal::app::calibrate::check_held_out(poses, options.held_out)?;
     }
-    cli::run(rig, out, options, (auto, console), progress)?;
+    cli::run(rig, out, options, how, progress)?;
     let missing = hexcal::app::calibrate::uncalibrated(out)?;
     Ok(match missing.is_empty() {
         true => Finished::Done,
@@ -461,6 +466,7 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             quiet,
             json,
             console,
+            guided,
             dry_run,
             stereo,
         } => {
@@ -484,7 +490,12 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             } else {
                 cli::Progress::Human
             };
-            return run(&rig, &out, &options, (auto, console.as_deref()), progress);
+            let how = cli::How {
+                auto,
+                guided,
+                console: console.as_deref(),
+            };
+            return run(&rig, &out, &options, how, progress);
         }
         Command::Calibrate {
             input,

@@ -1,6 +1,8 @@
 //! The operator console as a person uses it (issue 19): `hexcal run --console` on a small
 //! simulated rig, its page open in real headless Chromium driven over the DevTools protocol.
-//! The test clicks the page's Capture button like a mouse would, and checks that every
+//! Before the first capture it checks the live preview: every camera's live picture
+//! arrives and updates with the circles found on it, and the page names the cameras that
+//! see the board. The test then clicks the page's Capture button like a mouse would, and checks that every
 //! camera's thumbnail appears with the detected circles drawn over it, that the poses-seen
 //! counts go up after each capture, that from the third pose on each interim calibration
 //! shows a next-pose sentence with the board's target outline drawn in a thumbnail (checked
@@ -181,6 +183,11 @@ impl Page {
                 poses: [...document.querySelectorAll('#devices tbody tr')].map(r => +r.dataset.poses),
                 outlines: [...document.querySelectorAll('#cameras figure')].filter(f => f.dataset.outline === '1').map(f => f.dataset.camera),
                 uncertainty: [...document.querySelectorAll('#devices tbody tr')].map(r => r.lastChild.textContent),
+                live: [...document.querySelectorAll('#cameras figure')].map(f => ({
+                    round: f.dataset.liveRound === '' ? -1 : +f.dataset.liveRound,
+                    points: +f.dataset.livePoints, sees: f.dataset.sees === '1',
+                    caption: f.querySelector('.livecap').textContent })),
+                preview: document.querySelector('#live')?.textContent,
                 next: document.querySelector('#next')?.textContent,
                 message: document.querySelector('#message')?.textContent })"#,
         )
@@ -285,7 +292,7 @@ fn start_chromium(profile: &Path) -> Killed {
 }
 
 /// In the rectangle (x, y, width, height) of the screenshot: pixels of the sign's green, of
-/// the overlay's lime circles, and of grey (the camera's picture), with the standard
+/// the overlay's circles (lime, or yellow when not anchored), and of grey (the camera's picture), with the standard
 /// deviation of the grey levels (a picture, not a flat fill).
 fn count_colours(png: &[u8], [x0, y0, w, h]: [u32; 4]) -> (usize, usize, usize, f64) {
     let shot = image::load_from_memory(png).unwrap().to_rgb8();
@@ -296,7 +303,8 @@ fn count_colours(png: &[u8], [x0, y0, w, h]: [u32; 4]) -> (usize, usize, usize, 
             if (r - 30).abs() < 20 && (g - 142).abs() < 20 && (b - 62).abs() < 20 {
                 green += 1;
             }
-            if g > 200 && r < 140 && b < 120 {
+            // The overlay's circles: lime when anchored, yellow when not.
+            if (g > 200 && r < 140 && b < 120) || (r > 220 && g > 190 && b < 60) {
                 lime += 1;
             }
             if (r - g).abs() < 8 && (g - b).abs() < 8 {
@@ -308,6 +316,75 @@ fn count_colours(png: &[u8], [x0, y0, w, h]: [u32; 4]) -> (usize, usize, usize, 
     let mean = greys.iter().sum::<f64>() / n;
     let sd = (greys.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
     (green, lime, greys.len(), sd)
+}
+
+/// Before the first capture, as the operator places the board: every camera's live picture
+/// arrives and keeps updating (its round counts up), the circles found on it are drawn
+/// over it (checked on a screenshot into `file`), each camera says whether it sees the
+/// board, and the page names the cameras that do.
+fn check_live_preview(page: &mut Page, file: &Path) {
+    let live = |v: &Value| v["live"].as_array().cloned().unwrap_or_default();
+    let first = page.wait("live pictures of every camera", &|v| {
+        let l = live(v);
+        l.len() == 2
+            && l.iter().all(|c| c["round"].as_i64().unwrap_or(-1) >= 1)
+            && l.iter()
+                .any(|c| c["sees"] == true && c["points"].as_u64().unwrap_or(0) > 50)
+    });
+    let rounds: Vec<i64> = live(&first)
+        .iter()
+        .map(|c| c["round"].as_i64().unwrap())
+        .collect();
+    let later = page.wait("the live pictures to update", &|v| {
+        live(v)
+            .iter()
+            .zip(&rounds)
+            .all(|(c, r)| c["round"].as_i64().unwrap_or(-1) >= r + 2)
+    });
+    eprintln!("live preview: {later}");
+    let seeing: Vec<String> = live(&later)
+        .iter()
+        .zip(later["cameras"].as_array().unwrap())
+        .filter(|(l, _)| l["sees"] == true)
+        .map(|(_, c)| c["name"].as_str().unwrap().to_string())
+        .collect();
+    let text = later["preview"].as_str().unwrap_or("");
+    assert!(text.starts_with("Live preview: "), "{later}");
+    assert!(
+        !seeing.is_empty() && text.contains(&format!("sees the board now: {}", seeing.join(", "))),
+        "{later}"
+    );
+    for l in live(&later) {
+        let caption = l["caption"].as_str().unwrap_or("");
+        assert!(caption.starts_with("live, "), "{later}");
+        let sees = caption.contains("sees the board: ");
+        assert_eq!(sees, l["sees"] == true, "{later}");
+    }
+    // No pose was captured meanwhile: nothing in the dataset but its description.
+    assert!(later["cameras"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|c| c["pose"] == ""));
+    let png = screenshot(page, file);
+    let r = page.eval(
+        "(() => { const f = document.querySelector('#cameras figure[data-sees=\"1\"] canvas'); \
+         const r = f.getBoundingClientRect(); return [r.x, r.y, r.width, r.height]; })()",
+    );
+    let rect: [u32; 4] = std::array::from_fn(|i| r[i].as_f64().unwrap().round() as u32);
+    let (_, lime, grey, sd) = count_colours(&png, rect);
+    eprintln!(
+        "screenshot {}: live picture {lime} px of circles, {grey} px of grey (± {sd:.1})",
+        file.display()
+    );
+    assert!(
+        lime > 300,
+        "no circles drawn over the live picture: {lime} px"
+    );
+    assert!(
+        grey > (rect[2] * rect[3]) as usize / 10 && sd > 3.0,
+        "no live picture: {grey} px of grey, levels ± {sd:.1}"
+    );
 }
 
 /// Click Capture until the sign reads DONE; after each click, wait for every camera's
@@ -412,7 +489,7 @@ fn screenshot(page: &mut Page, file: &Path) -> Vec<u8> {
     png
 }
 
-/// Screenshot the page into `file` and check what it shows: a green sign, lime circles over
+/// Screenshot the page into `file` and check what it shows: a green sign, circles over
 /// the first thumbnail and a grey picture under them.
 fn check_screenshot(page: &mut Page, file: &Path) {
     let png = screenshot(page, file);
@@ -441,8 +518,8 @@ fn check_screenshot(page: &mut Page, file: &Path) {
     );
     assert!(lime > 300, "no circles drawn over the thumbnail: {lime} px");
     assert!(
-        grey > area(thumb) / 10,
-        "no camera picture in the thumbnail: {grey} px"
+        grey > area(thumb) / 10 && sd > 3.0,
+        "no camera picture in the thumbnail: {grey} px of grey, levels ± {sd:.1}"
     );
 }
 
@@ -463,6 +540,7 @@ fn console_guides_a_run_in_a_real_browser() {
     let first = page.wait("the capture button", &|v| v["capture"] == true);
     assert_eq!(first["sign"], "NOT DONE", "{first}");
     assert_eq!(first["cameras"].as_array().unwrap().len(), 2, "{first}");
+    check_live_preview(&mut page, &dir.join("preview.png"));
     let (pose, guided) = capture_until_done(&mut page, &dir);
     assert!(
         guided.is_some(),
@@ -504,4 +582,49 @@ fn console_guides_a_run_in_a_real_browser() {
         lines.join("\n")
     );
     assert!(out.contains("proj0"), "{out}");
+}
+
+/// `--guided` on the same rig, without a browser: after the schedule's first three poses the
+/// simulated board goes where the console suggests, and the capture ends as soon as the
+/// sign reads DONE, before the schedule's six poses run out; the calibration is written and
+/// compared with the truth.
+#[test]
+fn a_guided_simulated_operator_follows_the_console_until_done() {
+    let dir = scratch("console-guided");
+    let rig = dir.join("rig.toml");
+    std::fs::write(&rig, RIG.replace("THRESHOLD", THRESHOLD)).unwrap();
+    let out = dir.join("data");
+    let run = Command::new(env!("CARGO_BIN_EXE_hexcal"))
+        .args(["run", "--auto", "--guided", "--held-out", "0"])
+        .args(["--console", "127.0.0.1:0", "--rig"])
+        .arg(&rig)
+        .arg("--out")
+        .arg(&out)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{}\n{err}", run.status);
+    let guided: Vec<&str> = err.lines().filter(|l| l.starts_with("guided: ")).collect();
+    eprintln!("{}", guided.join("\n"));
+    for k in 0..3 {
+        let line = format!("guided: pose {k}: the schedule's pose");
+        assert!(guided.contains(&line.as_str()), "{err}");
+    }
+    assert!(
+        guided.iter().any(
+            |l| l.starts_with("guided: pose 3: where the console suggests: for ")
+                || l.starts_with("guided: pose 3: turned to face ")
+        ),
+        "{err}"
+    );
+    let done = guided
+        .iter()
+        .find_map(|l| l.strip_prefix("guided: every device is done after "))
+        .and_then(|l| l.split(' ').next())
+        .and_then(|n| n.parse::<usize>().ok())
+        .unwrap_or_else(|| panic!("never done: {err}"));
+    assert!((4..6).contains(&done), "{err}");
+    assert!(out.join("calibration/truth.txt").exists(), "{err}");
+    assert!(!out.join(format!("pose-{done:03}")).exists(), "{err}");
 }

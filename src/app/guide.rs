@@ -8,6 +8,8 @@
 //! the candidate's own board pose eliminated (the Schur complement of docs/design.md (37)),
 //! and the device covariance is that matrix's inverse (38).
 
+pub mod operator;
+
 use crate::board::{Board, Hex, Side};
 use crate::calib::bundle::{Device, DeviceKind};
 use crate::calib::diagnostics::{lens_covariance, lens_uncertainty};

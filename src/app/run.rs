@@ -49,7 +49,30 @@ pub struct RunOptions {
     /// The poses captured with their own exposure or gain (a capture script's), set before
     /// each and undone after.
     pub exposures: crate::rig::script::PoseExposures,
+    /// Sees live preview frames while the board is placed (the operator console's live
+    /// thumbnails): the projectors show a flat field and every camera takes one frame after
+    /// another until the placement ends; none of them is written to the dataset.
+    pub preview: Option<PreviewTap>,
 }
+
+/// What a [`PreviewTap`] calls: one round of preview frames (camera order), or why the
+/// preview stopped.
+pub type PreviewFn = dyn Fn(Result<&[CameraFrame], &str>) + Send + Sync;
+
+/// Called with every round of preview frames, on the preview thread; the next round waits
+/// for it.
+#[derive(Clone)]
+pub struct PreviewTap(pub Arc<PreviewFn>);
+
+impl std::fmt::Debug for PreviewTap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("PreviewTap")
+    }
+}
+
+/// Preview rounds start at most this often (10 a second), leaving the processor to the
+/// interim calibration when the rig renders and detects faster.
+pub const PREVIEW_PERIOD: std::time::Duration = std::time::Duration::from_millis(100);
 
 /// What a [`FrameTap`] calls: pose index and frame.
 pub type TapFn = dyn Fn(usize, &crate::dataset::StackFrame) + Send + Sync;
@@ -238,7 +261,7 @@ fn capture_todo(
             }
         }
         (stream.events)(&Event::PoseStarted { pose: k, of: poses });
-        let placed = match place(k, world) {
+        let placed = match previewing(session, options.preview.as_ref(), || place(k, world)) {
             Ok(placed) => placed && options.pause(pause),
             Err(e) => {
                 c.failed = Some(e);
@@ -265,6 +288,53 @@ fn capture_todo(
         }
     }
     c
+}
+
+/// `place()`, with a live preview on its own thread meanwhile when `tap` is given: preview
+/// rounds one after another (at most one per [`PREVIEW_PERIOD`]) handed to the tap, stopped
+/// and joined before this returns, so no preview frame is taken once a capture may start.
+fn previewing<T>(session: &mut Session, tap: Option<&PreviewTap>, place: impl FnOnce() -> T) -> T {
+    let Some(tap) = tap else {
+        return place();
+    };
+    let quit = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        let preview = std::thread::Builder::new()
+            .name("preview".into())
+            .spawn_scoped(scope, || preview_rounds(session, &*tap.0, &quit));
+        let placed = place();
+        quit.store(true, Ordering::SeqCst);
+        match preview {
+            Ok(thread) => {
+                let _ = thread.join();
+            }
+            Err(e) => (tap.0)(Err(&format!("no preview thread: {e}"))),
+        }
+        placed
+    })
+}
+
+/// Preview rounds until `quit`; a failed round ends the preview (the capture that follows
+/// meets the device's failure itself).
+fn preview_rounds(session: &mut Session, tap: &PreviewFn, quit: &AtomicBool) {
+    use std::time::{Duration, Instant};
+    while !quit.load(Ordering::SeqCst) {
+        let started = Instant::now();
+        match session.preview() {
+            Ok(frames) => tap(Ok(&frames)),
+            Err(e) => {
+                tap(Err(&e.to_string()));
+                return;
+            }
+        }
+        while !quit.load(Ordering::SeqCst) {
+            let left = PREVIEW_PERIOD.saturating_sub(started.elapsed());
+            if left.is_zero() {
+                break;
+            }
+            std::thread::sleep(left.min(Duration::from_millis(10)));
+        }
+    }
 }
 
 /// One pose's decoding threads: the frame senders (camera order) and the threads.

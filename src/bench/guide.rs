@@ -12,11 +12,12 @@
 //! decoding and detection are left out (they are what `hexcal run` times), so both
 //! operators get the same observation model.
 
+use crate::app::guide::operator::{aim, placed, truth_devices, START_POSES};
 use crate::app::guide::{guide, sightings, Guidance};
 use crate::app::truth::{check_truth, TruthCheck};
 use crate::app::AppError;
 use crate::board::{Board, Side};
-use crate::calib::bundle::{Device, DeviceKind};
+use crate::calib::bundle::Device;
 use crate::calib::circle::ellipse_center;
 use crate::calib::diagnostics::coverage;
 use crate::calib::geometric::{calibrate_registering, GeometricParams};
@@ -24,7 +25,7 @@ use crate::calib::solve::{CalibrateOptions, Calibration, DeviceInfo};
 use crate::correspond::{CameraView, Frame, ProjectorPixel, ViewPoint};
 use crate::rig::file::RigFile;
 use crate::rig::sim::SimWorld;
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2, Vector3};
+use nalgebra::{Isometry3, Vector2};
 use rand::{rngs::StdRng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use std::path::Path;
@@ -32,15 +33,6 @@ use std::path::Path;
 /// A device is covered when at most this fraction of its image cells is empty (the
 /// console's 30 % covered rule on the report's cell grid).
 const MAX_EMPTY: f64 = 0.7;
-
-/// Placement noise of the guided operator: rotation (deg) and shift (mm), 1σ.
-pub const PLACEMENT_DEG: f64 = 3.0;
-/// Placement shift noise (mm, 1σ per axis).
-pub const PLACEMENT_MM: f64 = 15.0;
-
-/// The calibration poses the first interim calibration needs: the guided operator places
-/// these from the fixed schedule (no guidance exists before them).
-pub const START_POSES: usize = 3;
 
 /// One operator's run.
 #[derive(Clone, Debug)]
@@ -67,26 +59,6 @@ pub struct GuideBench {
     pub sigma: f64,
     /// Both operators.
     pub runs: Vec<OperatorRun>,
-}
-
-/// The simulated rig's truth as calibration devices, poses relative to the first camera;
-/// and T_ref_rig.
-fn truth_devices(world: &SimWorld) -> (Vec<Device>, Isometry3<f64>) {
-    let ref_rig = world.cameras[0].pose;
-    let kinds = world
-        .cameras
-        .iter()
-        .map(|d| (d, DeviceKind::Camera))
-        .chain(world.projectors.iter().map(|d| (d, DeviceKind::Projector)));
-    let devices = kinds
-        .map(|(d, kind)| Device {
-            name: d.name.clone(),
-            kind,
-            model: d.model,
-            pose: d.pose * ref_rig.inverse(),
-        })
-        .collect();
-    (devices, ref_rig)
 }
 
 /// The noisy views `truth` gives of the board at T_ref_board `pose` (pose index `k`).
@@ -177,33 +149,6 @@ fn worst(g: &Guidance) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// `pose` as placed by a person aiming at it: turned about a random axis and shifted.
-fn placed(pose: &Isometry3<f64>, rng: &mut StdRng) -> Isometry3<f64> {
-    let n = Normal::new(0.0, 1.0).expect("unit normal");
-    let axis = Vector3::new(n.sample(rng), n.sample(rng), n.sample(rng));
-    let turn = axis * (PLACEMENT_DEG.to_radians() / 3f64.sqrt());
-    let shift = Vector3::new(n.sample(rng), n.sample(rng), n.sample(rng)) * PLACEMENT_MM;
-    Isometry3::from_parts(
-        Translation3::from(pose.translation.vector + shift),
-        UnitQuaternion::from_scaled_axis(turn) * pose.rotation,
-    )
-}
-
-/// The board at the schedule's mean position, its front turned to face `device`.
-fn facing(device: &Device, schedule: &[Isometry3<f64>]) -> Isometry3<f64> {
-    let centre = schedule
-        .iter()
-        .map(|b| b.translation.vector)
-        .sum::<Vector3<f64>>()
-        / schedule.len().max(1) as f64;
-    let eye = device.pose.inverse() * nalgebra::Point3::origin();
-    let z = (eye.coords - centre).normalize();
-    let r = UnitQuaternion::rotation_between(&Vector3::z(), &z).unwrap_or_else(|| {
-        UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI)
-    });
-    Isometry3::from_parts(Translation3::from(centre), r)
-}
-
 /// Everything one operator's loop needs.
 struct Setup<'a> {
     board: &'a Board,
@@ -265,14 +210,10 @@ fn operate(
             run.done_at = Some(k + 1);
             break;
         }
-        // Told to show the board to a device not calibrated yet, the operator turns it
-        // to face that device (where it stands is known to a person at the rig).
-        let uncalibrated = g.devices.iter().position(|d| d.worst.is_none());
-        match (uncalibrated, g.suggestion) {
-            (Some(d), _) => next = facing(&s.truth[d], s.schedule),
-            (None, Some(sug)) => next = sug.pose,
-            (None, None) if guided => break,
-            (None, None) => {}
+        match aim(&g, s.truth, s.schedule) {
+            Some(pose) => next = pose,
+            None if guided => break,
+            None => {}
         }
     }
     run.seconds_per_pose = seconds / run.worst.len().max(1) as f64;

@@ -66,6 +66,9 @@ pub enum CaptureError {
     /// The rig cannot run this capture.
     #[error("{0}")]
     Setup(String),
+    /// A preview frame could not be taken (between poses; no pose is harmed).
+    #[error("preview: {0}")]
+    Preview(DeviceError),
 }
 
 enum Command {
@@ -106,6 +109,9 @@ pub struct Session {
     trigger: Option<Box<dyn Trigger>>,
     sequence: Sequence,
     timing: CaptureTiming,
+    /// What every projector shows, when the session set one slide on all (none during a
+    /// pose).
+    shown: Option<Slide>,
 }
 
 impl Session {
@@ -177,7 +183,53 @@ impl Session {
             trigger,
             sequence: sequence.clone(),
             timing,
+            shown: None,
         })
+    }
+
+    /// One preview frame from every camera (camera order) with every projector showing a
+    /// flat white field (docs/design.md §15 "Live preview"): a frame outside any pose, one
+    /// exposure per camera (no repeats), started by the software trigger or, on a rig with
+    /// a trigger controller, by one armed pulse. The next [`Session::capture_pose`] shows
+    /// its patterns and discards late frames first, so it runs as it would without it.
+    pub fn preview(&mut self) -> Result<Vec<CameraFrame>, CaptureError> {
+        if self.shown != Some(Slide::White) {
+            self.shown = None;
+            for p in &mut self.projectors {
+                p.show(Slide::White).map_err(CaptureError::Preview)?;
+            }
+            self.shown = Some(Slide::White);
+            std::thread::sleep(self.settle_time());
+        }
+        self.drain()?;
+        if let Some(t) = self.trigger.as_mut() {
+            t.arm(1 + self.timing.retries)
+                .map_err(CaptureError::Preview)?;
+        }
+        let taken = self.take_all(0, 0);
+        if let Some(t) = self.trigger.as_mut() {
+            let disarmed = t.disarm().map_err(CaptureError::Preview);
+            if taken.is_ok() {
+                disarmed?;
+            }
+        }
+        match taken {
+            Ok((frames, _, _)) => Ok(frames),
+            Err(CaptureError::Frame { source, .. }) => Err(CaptureError::Preview(source)),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// How long a slide takes to be seen: the slowest projector's latency and the settle
+    /// time.
+    fn settle_time(&self) -> Duration {
+        self.timing
+            .latency
+            .iter()
+            .max()
+            .copied()
+            .unwrap_or_default()
+            + self.timing.settle
     }
 
     /// Camera names, in order.
@@ -242,6 +294,7 @@ impl Session {
                 })?;
         }
         let mut timeline = Timeline::default();
+        self.shown = None;
         for k in 0..frames {
             let err = |source| CaptureError::Frame {
                 pose,
@@ -252,15 +305,7 @@ impl Session {
                 p.show(Slide::Pattern(k)).map_err(err)?;
             }
             let shown = start.elapsed();
-            let wait = self
-                .timing
-                .latency
-                .iter()
-                .max()
-                .copied()
-                .unwrap_or_default()
-                + self.timing.settle;
-            std::thread::sleep(wait);
+            std::thread::sleep(self.settle_time());
             self.drain()?;
             let triggered = start.elapsed();
             let mut sums: Vec<Option<Accumulator>> = vec![None; self.workers.len()];
@@ -312,6 +357,7 @@ impl Session {
                 source,
             })?;
         }
+        self.shown = Some(Slide::Black);
         if let Some(t) = self.trigger.as_mut() {
             t.disarm().map_err(|source| CaptureError::Frame {
                 pose,

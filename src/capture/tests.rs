@@ -133,6 +133,55 @@ fn frames_arrive_in_order_and_match_the_simulator() {
     assert_ne!(pixels8(&got[0].2), pixels8(&got[2].2));
 }
 
+#[test]
+fn previews_between_poses_leave_the_capture_as_it_was() {
+    let (mut s, world, seq) = session(Faults::default());
+    world.place(1);
+    let flat = |c: usize, n: u64| -> Vec<u8> {
+        let r = world_renderer(&world, c, 1, &seq);
+        r.flat_frame(true, n)
+            .data
+            .iter()
+            .map(|&v| v as u8)
+            .collect()
+    };
+    for round in 0..3u64 {
+        let frames = s.preview().unwrap();
+        assert_eq!(frames.len(), 2);
+        for (c, f) in frames.iter().enumerate() {
+            assert_eq!(f.counter, round);
+            assert_eq!(
+                pixels8(f),
+                &flat(c, round)[..],
+                "camera {c}, preview {round}"
+            );
+        }
+    }
+    let mut got: Vec<(usize, usize, CameraFrame)> = Vec::new();
+    let timeline = s
+        .capture_pose(1, &mut |f| {
+            got.push((f.camera, f.index, f.frame));
+            Ok(())
+        })
+        .unwrap();
+    assert_eq!(timeline.dropped, 0);
+    assert_eq!(got.len(), 2 * seq.frame_count());
+    // The pose's frames are those of a capture without previews: pattern k, in order.
+    for c in 0..2 {
+        let r = world_renderer(&world, c, 1, &seq);
+        for (_, k, f) in got.iter().filter(|(cam, ..)| *cam == c) {
+            let expect: Vec<u8> = r.frame(*k).data.iter().map(|&v| v as u8).collect();
+            assert_eq!(pixels8(f), &expect[..], "camera {c} frame {k}");
+            assert_eq!(f.counter, 3 + *k as u64);
+        }
+    }
+    // The projectors went dark after the pose; the next preview lights them again.
+    let after = s.preview().unwrap();
+    let n = 3 + seq.frame_count() as u64;
+    assert_eq!(pixels8(&after[0]), &flat(0, n)[..]);
+    s.finish().unwrap();
+}
+
 fn world_renderer(
     world: &SimWorld,
     c: usize,
@@ -411,6 +460,12 @@ fn the_simulated_controller_on_a_pty_triggers_the_same_frames() {
     let world = opened.world.clone().unwrap();
     let mut hw = Session::start(opened.devices, &opened.sequence).unwrap();
     world.place(2);
+    // A preview frame between poses goes through the controller too (one armed pulse).
+    let preview = hw.preview().unwrap();
+    assert_eq!(
+        preview.iter().map(|f| f.counter).collect::<Vec<_>>(),
+        [0, 0]
+    );
     let mut frames = Vec::new();
     let timeline = hw
         .capture_pose(2, &mut |f| {

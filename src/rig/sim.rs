@@ -92,6 +92,8 @@ pub struct SimWorld {
     pulses: std::sync::atomic::AtomicU64,
     /// Where a simulated positioner holds the board, when one does.
     mount: MountSlot,
+    /// Poses placed elsewhere than `board_poses` says (a guided operator's), T_rig_board.
+    moved: Mutex<std::collections::BTreeMap<usize, Isometry3<f64>>>,
 }
 
 /// The slot of a [`BoardMount`] (Debug shows whether something holds the board).
@@ -212,6 +214,7 @@ impl SimWorld {
             imaging: Imaging::default(),
             pulses: std::sync::atomic::AtomicU64::new(0),
             mount: MountSlot::default(),
+            moved: Mutex::new(Default::default()),
         })
     }
 
@@ -221,17 +224,31 @@ impl SimWorld {
         *self.mount.0.lock().unwrap_or_else(|e| e.into_inner()) = Some(mount);
     }
 
-    /// T_rig_board at pose `pose`: where the mount holds it, else the `[poses]` pose.
+    /// T_rig_board at pose `pose`: where the mount holds it, else where it was placed
+    /// ([`SimWorld::place_at`]), else the `[poses]` pose.
     pub fn board_at(&self, pose: usize) -> Option<Isometry3<f64>> {
         match &*self.mount.0.lock().unwrap_or_else(|e| e.into_inner()) {
             Some(m) => Some(m()),
-            None => self.board_poses.get(pose).copied(),
+            None => {
+                let moved = self.moved.lock().unwrap_or_else(|e| e.into_inner());
+                moved.get(&pose).or(self.board_poses.get(pose)).copied()
+            }
         }
     }
 
     /// Place the board at pose `pose` (what the operator does between poses).
     pub fn place(&self, pose: usize) {
         self.lock().pose = pose;
+    }
+
+    /// Place the board for pose `pose` at `board` (T_rig_board) instead of the `[poses]`
+    /// pose: where a guided operator puts it.
+    pub fn place_at(&self, pose: usize, board: Isometry3<f64>) {
+        self.moved
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(pose, board);
+        self.place(pose);
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, State> {
@@ -333,6 +350,15 @@ impl SimWorld {
             .collect();
         StackRenderer::new(&scene, &projectors, ambient, sequence)
     }
+}
+
+/// What a simulated camera renders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Showing {
+    /// Frame k of the sequence (or of a camera-only rig's plain frames).
+    Pattern(usize),
+    /// Every projector white (`true`) or black.
+    Flat(bool),
 }
 
 /// Faults a simulated camera can be told to show.
@@ -507,18 +533,25 @@ impl SimCamera {
         }
     }
 
-    /// The frame index to render and the sequence shown: pattern k of every projector, or,
-    /// in a rig without projectors, the plain frame (indexed by the camera's counter, so
-    /// the frames of a burst have noise of their own).
-    fn showing(&self, state: &State) -> Result<(usize, Sequence), DeviceError> {
+    /// What to render and the sequence the projectors were prepared with: pattern k of
+    /// every projector, or a flat field (every projector white, or every one black: a
+    /// preview between poses); in a rig without projectors, the plain frame (indexed by the
+    /// camera's counter, so the frames of a burst have noise of their own).
+    fn showing(&self, state: &State) -> Result<(Showing, Sequence), DeviceError> {
         if self.world.projectors.is_empty() {
-            return Ok((self.counter as usize, Sequence::camera_only()));
+            return Ok((
+                Showing::Pattern(self.counter as usize),
+                Sequence::camera_only(),
+            ));
         }
-        let k = match state.slides.first() {
-            Some(&Slide::Pattern(k)) if state.slides.iter().all(|s| *s == Slide::Pattern(k)) => k,
+        let all = |slide: Slide| state.slides.iter().all(|s| *s == slide);
+        let what = match state.slides.first() {
+            Some(&Slide::Pattern(k)) if all(Slide::Pattern(k)) => Showing::Pattern(k),
+            Some(&Slide::White) if all(Slide::White) => Showing::Flat(true),
+            Some(&Slide::Black) if all(Slide::Black) => Showing::Flat(false),
             _ => {
                 return Err(self.failed(format!(
-                    "the simulator renders lockstep pattern frames only; projectors show {:?}",
+                    "the simulator renders lockstep frames only; projectors show {:?}",
                     state.slides
                 )))
             }
@@ -527,7 +560,7 @@ impl SimCamera {
             .sequence
             .clone()
             .ok_or_else(|| self.failed("projectors not prepared"))?;
-        Ok((k, sequence))
+        Ok((what, sequence))
     }
 
     /// Expose one frame of what the projectors show now.
@@ -539,7 +572,7 @@ impl SimCamera {
             return Ok(());
         }
         let state = self.world.lock().clone();
-        let (k, sequence) = self.showing(&state)?;
+        let (what, sequence) = self.showing(&state)?;
         let board = self.world.board_at(state.pose).ok_or_else(|| {
             self.failed(format!(
                 "pose {}: no board pose (the rig has {})",
@@ -565,7 +598,10 @@ impl SimCamera {
         let Some((_, _, renderer)) = &self.renderer else {
             unreachable!("set above")
         };
-        let mut frame = renderer.frame(k);
+        let mut frame = match what {
+            Showing::Pattern(k) => renderer.frame(k),
+            Showing::Flat(white) => renderer.flat_frame(white, self.counter),
+        };
         self.brighten(&mut frame.data, frame.bits);
         let counter = self.counter;
         self.counter += 1;

@@ -339,13 +339,49 @@ impl StackRenderer {
 
     /// Frame k of the stack.
     pub fn frame(&self, k: usize) -> Frame {
+        self.expose(
+            |b| self.projector_irradiance(k, b),
+            self.seed.wrapping_add(1 + k as u64),
+        )
+    }
+
+    /// A frame outside the sequence with every projector showing one flat level: full white
+    /// (`white`, a preview's flat field) or black (ambient light only); `n` numbers it for
+    /// its noise (frames of the sequence and flat frames have seeds of their own).
+    pub fn flat_frame(&self, white: bool, n: u64) -> Frame {
+        let flat = |[x0, y0, x1, y1]: [usize; 4]| {
+            let w = self.size.width as usize;
+            let mut irr = vec![0.0f32; (x1 - x0) * (y1 - y0)];
+            if white {
+                for (by, row) in irr.chunks_mut(x1 - x0).enumerate() {
+                    let base = (y0 + by) * w + x0;
+                    for (bx, out) in row.iter_mut().enumerate() {
+                        let i = base + bx;
+                        let e: f32 = (self.truth.iter().zip(&self.gains))
+                            .zip(&self.light)
+                            .filter(|((t, _), _)| t.lit(i))
+                            .map(|((_, g), l)| g * l[255])
+                            .sum();
+                        *out = self.albedo[i] * e;
+                    }
+                }
+            }
+            irr
+        };
+        let seed = self.seed ^ 0x5eed_f1a7 ^ n.wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        self.expose(flat, seed)
+    }
+
+    /// The sensor's frame of the ambient light plus the projectors' irradiance `lit` gives
+    /// inside the lit box, with noise seed `seed`.
+    fn expose(&self, lit: impl FnOnce([usize; 4]) -> Vec<f32>, seed: u64) -> Frame {
         // The optics are linear: the ambient signal (once) plus the projectors' light through
         // the optics inside the lit box, exact there because the box reaches twice as far as
         // the PSF beyond the last lit pixel.
         let mut signal = self.ambient_signal.clone();
         if let Some(b @ [x0, y0, x1, y1]) = self.lit_box {
             let (bw, bh) = (x1 - x0, y1 - y0);
-            let mut irr = self.projector_irradiance(k, b);
+            let mut irr = lit(b);
             let (w, h) = (self.size.width as usize, self.size.height as usize);
             if self.sensor.vignetting != 0.0 {
                 let (cx, cy) = (0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0));
@@ -368,8 +404,7 @@ impl StackRenderer {
                 }
             }
         }
-        self.sensor
-            .expose(self.size, &signal, self.seed.wrapping_add(1 + k as u64))
+        self.sensor.expose(self.size, &signal, seed)
     }
 }
 

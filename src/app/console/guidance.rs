@@ -36,8 +36,9 @@ pub struct Worker {
 }
 
 impl Worker {
-    /// Start the worker; `done` receives each outcome (on the worker's thread).
-    pub fn start(done: impl Fn(Outcome) + Send + 'static) -> Worker {
+    /// Start the worker; `done` receives each outcome with its request's `poses` (on the
+    /// worker's thread).
+    pub fn start(done: impl Fn(usize, Outcome) + Send + 'static) -> Worker {
         let (tx, rx) = unbounded::<Request>();
         let thread = std::thread::Builder::new()
             .name("console-guide".into())
@@ -46,7 +47,7 @@ impl Worker {
                     while let Ok(later) = rx.try_recv() {
                         r = later;
                     }
-                    done(run(&r));
+                    done(r.poses, run(&r));
                 }
             })
             .ok();

@@ -1,32 +1,38 @@
 //! The operator console (`hexcal run --console [ADDR]`): a local web page that shows, while
 //! a run goes on, one thumbnail per camera with its labelled circles and lattice drawn over
-//! it, per device the poses seen, a coverage map of its image and the range of board tilts,
-//! a big done / not-done sign, and a capture button.
+//! it, a live picture per camera while the board is placed, per device the poses seen, a
+//! coverage map of its image and the range of board tilts, a big done / not-done sign, and a
+//! capture button.
 //!
-//! Takes the run's progress events, its captured frames (through a [`FrameTap`]) and the
-//! processed poses the run writes to its dataset (`pose-KKK/views.json`); gives the page
-//! (served from the binary, no outside file or network) and the capture button's presses.
+//! Takes the run's progress events, its captured frames (through a [`FrameTap`]), its live
+//! preview frames (through a [`PreviewTap`]) and the processed poses the run writes to its
+//! dataset (`pose-KKK/views.json`); gives the page (served from the binary, no outside file
+//! or network), the capture button's presses and, to a guided simulated operator, the
+//! interim calibrations' guidance ([`GuidanceWatch`]).
 //! The page follows the run through server-sent events; pages come and go as they like.
 
 mod guidance;
+pub mod preview;
 mod server;
 pub mod state;
 pub mod stats;
 pub mod thumbs;
 
+use super::guide::Guidance;
 use super::process::PoseViews;
 use super::progress::Event;
-use super::run::FrameTap;
+use super::run::{FrameTap, PreviewTap};
 use crate::board::Board;
 use crate::calib::solve::DeviceInfo;
 use crate::correspond::CameraView;
 use crate::dataset::Dataset;
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
-use state::{CameraPanel, State};
+use preview::LiveView;
+use state::{CameraPanel, Live, Preview, State};
 use stats::{observations, DeviceStats, Overlay};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use thumbs::Thumbs;
 
@@ -51,9 +57,50 @@ struct Shared {
     state: Mutex<State>,
     snapshot: Mutex<Arc<String>>,
     pngs: Mutex<Vec<Option<Arc<Vec<u8>>>>>,
+    live: Mutex<Vec<Option<Arc<Vec<u8>>>>>,
     hub: Mutex<Vec<Sender<()>>>,
     capture: Sender<()>,
     closed: AtomicBool,
+    /// The interim calibrations asked for and finished, by the poses they cover.
+    interim: Mutex<Interim>,
+    interim_done: Condvar,
+    /// When the live preview's rounds ended (its rate).
+    clock: Mutex<PreviewClock>,
+}
+
+/// The poses (index of the last + 1) of the latest interim calibration asked for and of
+/// the latest finished.
+#[derive(Default)]
+struct Interim {
+    requested: usize,
+    finished: usize,
+}
+
+/// Waits for the console's interim calibrations (a guided simulated operator follows them).
+#[derive(Clone)]
+pub struct GuidanceWatch {
+    shared: Arc<Shared>,
+}
+
+impl GuidanceWatch {
+    /// Once every interim calibration asked for so far has finished (or `stopped` says to
+    /// give up): the latest guidance, and whether the page's sign reads DONE.
+    pub fn latest(&self, stopped: &dyn Fn() -> bool) -> (Option<Guidance>, bool) {
+        let mut i = lock(&self.shared.interim);
+        while i.finished < i.requested && !stopped() {
+            i = match self
+                .shared
+                .interim_done
+                .wait_timeout(i, std::time::Duration::from_millis(100))
+            {
+                Ok((i, _)) => i,
+                Err(e) => e.into_inner().0,
+            };
+        }
+        drop(i);
+        let s = lock(&self.shared.state);
+        (s.guidance.clone(), s.done)
+    }
 }
 
 impl Shared {
@@ -63,6 +110,47 @@ impl Shared {
 
     fn thumbnail(&self, camera: usize) -> Option<Arc<Vec<u8>>> {
         lock(&self.pngs).get(camera).cloned().flatten()
+    }
+
+    fn live_picture(&self, camera: usize) -> Option<Arc<Vec<u8>>> {
+        lock(&self.live).get(camera).cloned().flatten()
+    }
+
+    /// One round of live preview frames (or why the preview stopped) onto the page.
+    fn preview(&self, round: Result<Vec<Option<LiveView>>, &str>, started: std::time::Instant) {
+        let mut s = lock(&self.state);
+        let p = s.preview.get_or_insert_with(Preview::default);
+        let views = match round {
+            Ok(views) => views,
+            Err(e) => {
+                p.error = Some(e.to_string());
+                self.publish(&mut s);
+                return;
+            }
+        };
+        p.rounds += 1;
+        p.error = None;
+        (p.rate_hz, p.detect_ms) = lock(&self.clock).tick(started);
+        let n = p.rounds;
+        let mut pngs = lock(&self.live);
+        for (c, view) in views.into_iter().enumerate() {
+            let (Some(v), Some(panel)) = (view, s.cameras.get_mut(c)) else {
+                continue;
+            };
+            if pngs.len() <= c {
+                pngs.resize(c + 1, None);
+            }
+            pngs[c] = Some(Arc::new(v.png));
+            panel.live = Some(Live {
+                thumb: format!("/live/{c}.png?round={n}"),
+                round: n,
+                circles: v.circles,
+                overlay: v.overlay,
+                sees_board: v.sees_board,
+            });
+        }
+        drop(pngs);
+        self.publish(&mut s);
     }
 
     fn lock_hub(&self) -> MutexGuard<'_, Vec<Sender<()>>> {
@@ -140,14 +228,18 @@ impl Console {
             state: Mutex::new(state),
             snapshot: Mutex::new(Arc::new(String::new())),
             pngs: Mutex::new(Vec::new()),
+            live: Mutex::new(Vec::new()),
             hub: Mutex::new(Vec::new()),
             capture,
             closed: AtomicBool::new(false),
+            interim: Mutex::new(Interim::default()),
+            interim_done: Condvar::new(),
+            clock: Mutex::new(PreviewClock::default()),
         });
         shared.publish(&mut lock(&shared.state));
         let server = Arc::new(server);
         let sh = Arc::clone(&shared);
-        let worker = guidance::Worker::start(move |outcome| {
+        let worker = guidance::Worker::start(move |poses, outcome| {
             let mut s = lock(&sh.state);
             s.guiding = false;
             match outcome {
@@ -158,6 +250,10 @@ impl Console {
                 Err(e) => s.guidance_error = Some(e),
             }
             sh.publish(&mut s);
+            drop(s);
+            let mut i = lock(&sh.interim);
+            i.finished = i.finished.max(poses);
+            sh.interim_done.notify_all();
         });
         let (srv, sh) = (Arc::clone(&server), Arc::clone(&shared));
         let thread = std::thread::Builder::new()
@@ -193,6 +289,13 @@ impl Console {
         &self.url
     }
 
+    /// A watcher of the interim calibrations.
+    pub fn guidance_watch(&self) -> GuidanceWatch {
+        GuidanceWatch {
+            shared: Arc::clone(&self.shared),
+        }
+    }
+
     /// The capture button's presses (one message per press taken).
     pub fn captures(&self) -> Receiver<()> {
         self.captures.clone()
@@ -215,6 +318,25 @@ impl Console {
         FrameTap(Arc::new(move |pose, f| lock(&thumbs).add(pose, f)))
     }
 
+    /// The tap that turns live preview frames into the cameras' live pictures with the
+    /// circles and lattice of `board` found on them (each camera's frame on a thread of its
+    /// own; the preview's next round waits for this one).
+    pub fn preview_tap(&self, board: Board) -> PreviewTap {
+        use rayon::prelude::*;
+        let shared = Arc::clone(&self.shared);
+        PreviewTap(Arc::new(move |round| {
+            let started = std::time::Instant::now();
+            let pose = lock(&shared.state).pose.map_or(0, |[k, _]| k);
+            let views = round.map(|frames| {
+                frames
+                    .par_iter()
+                    .map(|f| preview::look(f, &board, pose))
+                    .collect()
+            });
+            shared.preview(views, started);
+        }))
+    }
+
     /// Take in one of the run's events and update every open page.
     pub fn event(&mut self, e: &Event) {
         let shared = Arc::clone(&self.shared);
@@ -227,6 +349,8 @@ impl Console {
     fn apply(&mut self, e: &Event, s: &mut State) {
         match e {
             Event::PoseStarted { pose, of } => {
+                // A new placement: the preview's rate starts afresh (a capture lay between).
+                lock(&self.shared.clock).ends.clear();
                 self.read_pending(s);
                 s.status = "waiting".into();
                 s.pose = Some([*pose, *of]);
@@ -341,14 +465,45 @@ impl Console {
         self.pending = later;
         if new && self.poses.len() >= super::calibrate::MIN_CALIBRATION_POSES {
             s.guiding = true;
+            let poses = self.poses.last().map_or(0, |p| p + 1);
+            lock(&self.shared.interim).requested = poses;
             self.worker.request(guidance::Request {
                 board: board.clone(),
                 devices: super::calibrate::devices_of(&data.info),
                 views: self.views.clone(),
-                poses: self.poses.last().map_or(0, |p| p + 1),
+                poses,
                 threshold: s.threshold,
             });
         }
+    }
+}
+
+/// When the live preview's last rounds ended, to tell its rate.
+#[derive(Default)]
+struct PreviewClock {
+    ends: std::collections::VecDeque<std::time::Instant>,
+}
+
+impl PreviewClock {
+    /// Rounds to average the rate over.
+    const ROUNDS: usize = 8;
+
+    /// A round whose frames arrived at `started` ended now: the rate over the rounds since
+    /// the placement began (at most the last [`PreviewClock::ROUNDS`]; per second, 0 until
+    /// two), and this round's time from its frames to its pictures (ms).
+    fn tick(&mut self, started: std::time::Instant) -> (f64, f64) {
+        let now = std::time::Instant::now();
+        self.ends.push_back(now);
+        if self.ends.len() > Self::ROUNDS {
+            self.ends.pop_front();
+        }
+        let rate = match (self.ends.front(), self.ends.len()) {
+            (Some(&first), n) if n >= 2 && now > first => {
+                (n - 1) as f64 / (now - first).as_secs_f64()
+            }
+            _ => 0.0,
+        };
+        (rate, 1e3 * (now - started).as_secs_f64())
     }
 }
 

@@ -3,7 +3,8 @@
 //!
 //! Routes: `GET /` the page (everything it needs is in it: no CDN, no other file);
 //! `GET /state` the state as JSON; `GET /events` server-sent events, one whole state per
-//! change (coalesced when they come faster than a page reads); `GET /thumb/C.png` camera C's latest thumbnail; `POST /capture` the capture
+//! change (coalesced when they come faster than a page reads); `GET /thumb/C.png` camera C's latest thumbnail; `GET /live/C.png` its latest live
+//! preview picture; `POST /capture` the capture
 //! button (refused with 409 unless the run waits for the board). A page that goes away
 //! only ends its own thread: nothing the server does can block or fail the run.
 
@@ -71,6 +72,21 @@ fn respond(request: Request, shared: &Arc<Shared>) -> std::io::Result<()> {
                         .with_header(no_store),
                 ),
                 None => request.respond(text(404, "no thumbnail yet")),
+            }
+        }
+        (Method::Get, p) if p.starts_with("/live/") => {
+            let png = p
+                .strip_prefix("/live/")
+                .and_then(|c| c.strip_suffix(".png"))
+                .and_then(|c| c.parse::<usize>().ok())
+                .and_then(|c| shared.live_picture(c));
+            match png {
+                Some(png) => request.respond(
+                    Response::from_data(png.as_slice())
+                        .with_header(header("Content-Type", "image/png"))
+                        .with_header(no_store),
+                ),
+                None => request.respond(text(404, "no live picture yet")),
             }
         }
         (Method::Post, "/capture") => match shared.press_capture() {

@@ -26,6 +26,36 @@ pub struct CameraPanel {
     pub thumb_step: u32,
     /// Labelled points of the latest processed pose.
     pub overlay: Option<Overlay>,
+    /// The latest live preview frame, while the board is placed.
+    pub live: Option<Live>,
+}
+
+/// One camera's latest live preview frame (taken while the board is placed).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Live {
+    /// URL of its picture (changes with every round).
+    pub thumb: String,
+    /// The preview round it comes from (counts up over the run).
+    pub round: u64,
+    /// Circles detected on it.
+    pub circles: usize,
+    /// Labelled points and lattice edges (frame px).
+    pub overlay: Overlay,
+    /// The camera sees the board now.
+    pub sees_board: bool,
+}
+
+/// The live preview's progress.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Preview {
+    /// Rounds (one frame from every camera) so far.
+    pub rounds: u64,
+    /// Rounds per second over the last few.
+    pub rate_hz: f64,
+    /// Time to detect and draw the last round (ms).
+    pub detect_ms: f64,
+    /// Why the preview stopped, if it failed.
+    pub error: Option<String>,
 }
 
 /// The page's whole state.
@@ -64,6 +94,8 @@ pub struct State {
     pub guidance: Option<Guidance>,
     /// Why the latest interim calibration gave no guidance.
     pub guidance_error: Option<String>,
+    /// The live preview, once it has run.
+    pub preview: Option<Preview>,
 }
 
 impl State {

@@ -131,20 +131,28 @@ impl Overlay {
     /// The overlay of `view` (none: the board was not found) of pose `pose`.
     pub fn of(pose: usize, circles: usize, view: Option<&CameraView>) -> Overlay {
         let Some(view) = view else {
-            return Overlay {
-                pose,
-                circles,
-                anchored: false,
-                points: Vec::new(),
-                edges: Vec::new(),
-            };
+            return Overlay::labelled(pose, circles, false, &[]);
         };
-        let index: HashMap<Hex, u32> = (0..).zip(&view.points).map(|(i, p)| (p.hex, i)).collect();
+        let points: Vec<(Hex, Point2<f64>)> =
+            view.points.iter().map(|p| (p.hex, p.image)).collect();
+        let anchored = matches!(view.frame, crate::correspond::Frame::Anchored(_));
+        Overlay::labelled(pose, circles, anchored, &points)
+    }
+
+    /// The overlay of labelled points (lattice position, image px) of pose `pose`, with the
+    /// lattice edges between neighbours.
+    pub fn labelled(
+        pose: usize,
+        circles: usize,
+        anchored: bool,
+        points: &[(Hex, Point2<f64>)],
+    ) -> Overlay {
+        let index: HashMap<Hex, u32> = (0..).zip(points).map(|(i, p)| (p.0, i)).collect();
         let mut edges = Vec::new();
-        for (i, p) in (0..).zip(&view.points) {
+        for (i, p) in (0..).zip(points) {
             // Three of the six directions, so each edge is listed once.
             for k in 0..3 {
-                if let Some(&j) = index.get(&p.hex.neighbour(k)) {
+                if let Some(&j) = index.get(&p.0.neighbour(k)) {
                     edges.push([i, j]);
                 }
             }
@@ -153,11 +161,10 @@ impl Overlay {
         Overlay {
             pose,
             circles,
-            anchored: matches!(view.frame, crate::correspond::Frame::Anchored(_)),
-            points: view
-                .points
+            anchored,
+            points: points
                 .iter()
-                .map(|p| [round(p.image.x), round(p.image.y)])
+                .map(|p| [round(p.1.x), round(p.1.y)])
                 .collect(),
             edges,
         }

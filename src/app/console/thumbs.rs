@@ -83,25 +83,8 @@ impl Thumbs {
             .sums
             .get(camera)
             .filter(|s| s.frames > 0 && !s.sum.is_empty())?;
-        let mut sorted = s.sum.clone();
-        sorted.sort_unstable();
-        let lo = f64::from(sorted[sorted.len() / 100]);
-        let hi = f64::from(sorted[sorted.len() * 99 / 100]).max(lo + 1.0);
-        let grey: Vec<u8> = s
-            .sum
-            .iter()
-            .map(|&v| ((f64::from(v) - lo) / (hi - lo) * 255.0).clamp(0.0, 255.0) as u8)
-            .collect();
-        let mut png = Vec::new();
-        let encoder = image::codecs::png::PngEncoder::new(&mut png);
-        image::ImageEncoder::write_image(
-            encoder,
-            &grey,
-            s.width,
-            s.height,
-            image::ExtendedColorType::L8,
-        )
-        .ok()?;
+        let sum: Vec<f32> = s.sum.iter().map(|&v| v as f32).collect();
+        let png = grey_png(&sum, s.width, s.height)?;
         Some(Thumbnail {
             pose: s.pose,
             size: [s.width, s.height],
@@ -109,6 +92,27 @@ impl Thumbs {
             png,
         })
     }
+}
+
+/// A PNG of `values` (`width` × `height`, row-major), contrast stretched between their 1st
+/// and 99th percentile; `None` for no values or an encoder failure.
+pub fn grey_png(values: &[f32], width: u32, height: u32) -> Option<Vec<u8>> {
+    if values.is_empty() || values.len() != (width as usize) * (height as usize) {
+        return None;
+    }
+    let mut sorted = values.to_vec();
+    sorted.sort_unstable_by(f32::total_cmp);
+    let lo = f64::from(sorted[sorted.len() / 100]);
+    let hi = f64::from(sorted[sorted.len() * 99 / 100]).max(lo + 1.0);
+    let grey: Vec<u8> = values
+        .iter()
+        .map(|&v| ((f64::from(v) - lo) / (hi - lo) * 255.0).clamp(0.0, 255.0) as u8)
+        .collect();
+    let mut png = Vec::new();
+    let encoder = image::codecs::png::PngEncoder::new(&mut png);
+    image::ImageEncoder::write_image(encoder, &grey, width, height, image::ExtendedColorType::L8)
+        .ok()?;
+    Some(png)
 }
 
 #[cfg(test)]

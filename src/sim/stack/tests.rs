@@ -481,3 +481,55 @@ fn truth_is_kept_over_the_lit_rectangle() {
     assert_eq!(t.bounds(), None);
     assert!((0..w * h).all(|i| !t.lit(i)));
 }
+
+#[test]
+fn flat_frames_light_the_board_evenly_and_leave_the_stack_as_it_was() {
+    let scene = Scene {
+        name: "flat".into(),
+        seed: 3,
+        camera: camera(),
+        pose: PoseSpec {
+            eye: Some([20.0, -15.0, 420.0]),
+            target: Some([0.0, 0.0, 0.0]),
+            ..PoseSpec::default()
+        },
+        imaging: Imaging::default(),
+        board: Board::hex600(),
+    };
+    let setup = ProjectorSetup {
+        width: 1920,
+        height: 1080,
+        response: ProjectorResponse::Gamma { gamma: 2.2 },
+    };
+    let seq = Sequence::default_for(&[setup; 3]).unwrap();
+    let renderer = StackRenderer::new(&scene, &projectors(), AMBIENT, &seq).unwrap();
+    let before = renderer.frame(7);
+    let (white, black) = (renderer.flat_frame(true, 0), renderer.flat_frame(false, 0));
+    // Where every projector lights a white part of the board (albedo near 1 at the pixel),
+    // white reaches ambient + every projector's full light (235 DN), black the ambient.
+    let n = renderer.albedo().len();
+    let lit_white: Vec<usize> = (0..n)
+        .filter(|&i| renderer.albedo()[i] > 0.95 && (0..3).all(|p| renderer.truth(p).lit(i)))
+        .collect();
+    assert!(lit_white.len() > 1000, "{} pixels", lit_white.len());
+    let mean = |f: &Frame| {
+        lit_white.iter().map(|&i| f64::from(f.data[i])).sum::<f64>() / lit_white.len() as f64
+    };
+    // Gamma 2.2 of the camera and shot noise aside, the levels are the irradiances: a few
+    // DN of blur from the dark gaps nearby (PSF σ 0.8 px) at most.
+    let (w, b) = (mean(&white), mean(&black));
+    eprintln!("flat white {w:.1} DN, black {b:.1} DN on lit white board");
+    assert!((w - 235.0).abs() < 12.0, "white {w}");
+    assert!((b - AMBIENT).abs() < 8.0, "black {b}");
+    // Each flat frame has noise of its own; the same number renders the same frame.
+    assert_ne!(white.data, renderer.flat_frame(true, 1).data);
+    assert_eq!(white.data, renderer.flat_frame(true, 0).data);
+    // Flat frames leave the stack's frames as they were.
+    assert_eq!(renderer.frame(7).data, before.data);
+    // The board's circles are found on the flat field, as a preview needs.
+    let image = crate::images::GrayImage::from_fn(camera().width, camera().height, |x, y| {
+        image::Luma([f32::from(white.data[(y * camera().width + x) as usize])])
+    });
+    let circles = detect(&image, &DetectParams::default());
+    assert!(circles.len() > 100, "{} circles", circles.len());
+}

@@ -1,0 +1,133 @@
+//! A simulated operator who follows the guidance (issue 19: "the simulated board goes where
+//! the console suggests, with some placement noise"), shared by `hexcal run --guided` on a
+//! simulated rig and `hexcal bench guide`.
+//!
+//! Takes the simulated world (its devices' truth and its `[poses]` schedule) and each
+//! interim calibration's [`Guidance`]; gives the next board pose: the schedule's first
+//! [`START_POSES`] (no guidance exists before them), then the board turned to face a device
+//! that is not calibrated yet when there is one, else the suggested pose, each placed with
+//! [`PLACEMENT_DEG`] / [`PLACEMENT_MM`] of error as a person aiming at it would.
+
+use super::Guidance;
+use crate::calib::bundle::{Device, DeviceKind};
+use crate::rig::sim::SimWorld;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use rand::{rngs::StdRng, SeedableRng};
+use rand_distr::{Distribution, Normal};
+
+/// Placement noise of the guided operator: rotation (deg, 1σ about a random axis).
+pub const PLACEMENT_DEG: f64 = 3.0;
+/// Placement shift noise (mm, 1σ per axis).
+pub const PLACEMENT_MM: f64 = 15.0;
+
+/// The calibration poses the first interim calibration needs: the guided operator places
+/// these from the fixed schedule (no guidance exists before them).
+pub const START_POSES: usize = 3;
+
+/// The simulated rig's truth as calibration devices, poses relative to the first camera
+/// (the calibration's reference); and T_ref_rig.
+pub fn truth_devices(world: &SimWorld) -> (Vec<Device>, Isometry3<f64>) {
+    let ref_rig = world
+        .cameras
+        .first()
+        .map_or_else(Isometry3::identity, |c| c.pose);
+    let kinds = world
+        .cameras
+        .iter()
+        .map(|d| (d, DeviceKind::Camera))
+        .chain(world.projectors.iter().map(|d| (d, DeviceKind::Projector)));
+    let devices = kinds
+        .map(|(d, kind)| Device {
+            name: d.name.clone(),
+            kind,
+            model: d.model,
+            pose: d.pose * ref_rig.inverse(),
+        })
+        .collect();
+    (devices, ref_rig)
+}
+
+/// `pose` as placed by a person aiming at it: turned about a random axis and shifted.
+pub fn placed(pose: &Isometry3<f64>, rng: &mut StdRng) -> Isometry3<f64> {
+    let n = Normal::new(0.0, 1.0).expect("unit normal");
+    let axis = Vector3::new(n.sample(rng), n.sample(rng), n.sample(rng));
+    let turn = axis * (PLACEMENT_DEG.to_radians() / 3f64.sqrt());
+    let shift = Vector3::new(n.sample(rng), n.sample(rng), n.sample(rng)) * PLACEMENT_MM;
+    Isometry3::from_parts(
+        Translation3::from(pose.translation.vector + shift),
+        UnitQuaternion::from_scaled_axis(turn) * pose.rotation,
+    )
+}
+
+/// The board at the schedule's mean position, its front turned to face `device`.
+pub fn facing(device: &Device, schedule: &[Isometry3<f64>]) -> Isometry3<f64> {
+    let centre = schedule
+        .iter()
+        .map(|b| b.translation.vector)
+        .sum::<Vector3<f64>>()
+        / schedule.len().max(1) as f64;
+    let eye = device.pose.inverse() * nalgebra::Point3::origin();
+    let z = (eye.coords - centre).normalize();
+    let r = UnitQuaternion::rotation_between(&Vector3::z(), &z).unwrap_or_else(|| {
+        UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI)
+    });
+    Isometry3::from_parts(Translation3::from(centre), r)
+}
+
+/// Where the operator aims next (T_ref_board): told to show the board to a device not
+/// calibrated yet, the board turned to face that device (where it stands is known to a
+/// person at the rig); else the suggested pose; `None` when the guidance suggests nothing.
+pub fn aim(g: &Guidance, truth: &[Device], schedule: &[Isometry3<f64>]) -> Option<Isometry3<f64>> {
+    match g.devices.iter().position(|d| d.worst.is_none()) {
+        Some(d) => truth.get(d).map(|dev| facing(dev, schedule)),
+        None => g.suggestion.as_ref().map(|s| s.pose),
+    }
+}
+
+/// The guided operator of a simulated run (`hexcal run --guided`).
+pub struct SimOperator {
+    truth: Vec<Device>,
+    ref_rig: Isometry3<f64>,
+    /// The fixed schedule, T_ref_board.
+    schedule: Vec<Isometry3<f64>>,
+    rng: StdRng,
+}
+
+impl SimOperator {
+    /// The operator of `world`, its placement noise from `seed`.
+    pub fn new(world: &SimWorld, seed: u64) -> SimOperator {
+        let (truth, ref_rig) = truth_devices(world);
+        let schedule = world.board_poses.iter().map(|b| ref_rig * b).collect();
+        SimOperator {
+            truth,
+            ref_rig,
+            schedule,
+            rng: StdRng::seed_from_u64(seed),
+        }
+    }
+
+    /// T_rig_board of pose `k` and what the operator did: the schedule's pose for the first
+    /// [`START_POSES`] and whenever there is no guidance to follow, else where `guidance`
+    /// aims, with placement noise. `None` past the schedule without guidance.
+    pub fn next(
+        &mut self,
+        k: usize,
+        guidance: Option<&Guidance>,
+    ) -> Option<(Isometry3<f64>, String)> {
+        let g = guidance.filter(|_| k >= START_POSES);
+        let (ref_board, what) = match g.and_then(|g| aim(g, &self.truth, &self.schedule)) {
+            Some(pose) => {
+                let g = g.expect("aimed by guidance");
+                let what = match g.devices.iter().find(|d| d.worst.is_none()) {
+                    Some(d) => format!("turned to face {} (not calibrated yet)", d.name),
+                    None => g.suggestion.as_ref().map_or_else(String::new, |s| {
+                        format!("where the console suggests: {}", s.sentence)
+                    }),
+                };
+                (placed(&pose, &mut self.rng), what)
+            }
+            None => (*self.schedule.get(k)?, "the schedule's pose".to_string()),
+        };
+        Some((self.ref_rig.inverse() * ref_board, what))
+    }
+}
