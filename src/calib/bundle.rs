@@ -418,6 +418,7 @@ impl Linearised {
     /// Start over at `predicted`, without columns.
     fn reset(&mut self, predicted: Point2<f64>) -> &mut Linearised {
         self.predicted = predicted;
+        self.blocks = [(0, 0); MAX_BLOCKS];
         self.nblocks = 0;
         self.ncolumns = 0;
         self
