@@ -11,7 +11,7 @@
 //! T ← (exp(ω), τ)·T, a Huber loss first, then rejection of outliers beyond a multiple of a
 //! robust σ, then plain least squares; covariance σ²(JᵀJ)⁻¹ at the end.
 
-use super::circle::ellipse_center;
+use super::circle::ellipse_bias_px;
 use super::schur::{BlockSystem, Covariance, PoseBlock, Scaled, Step};
 use super::CalibError;
 use crate::board::{Board, Hex, Side};
@@ -21,7 +21,6 @@ use nalgebra::{
     MatrixView, Point2, Point3, Translation3, UnitQuaternion, Vector2, Vector3, Vector6,
 };
 use rayon::prelude::*;
-use std::collections::HashMap;
 
 /// Whether a device records images or casts them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -359,36 +358,31 @@ impl State {
     }
 }
 
-/// Per-observation quantity held fixed within one LM step: the perspective bias of a camera
-/// observation's circle (it changes far less than the noise between steps, §8).
-#[derive(Clone, Copy)]
-enum Anchor {
-    /// Pixel offset from the projected circle centre to the image-ellipse centre.
-    Camera { bias: Vector2<f64> },
-    /// Projector observations are linearised through the ray–plane intersection instead.
-    Projector,
-}
+/// Per observation, the quantity held fixed within one LM step: the perspective bias of a
+/// camera observation's circle (pixel offset from the projected circle centre to the
+/// image-ellipse centre; it changes far less than the noise between steps, §8), zero for a
+/// projector observation (linearised through the ray–plane intersection instead), NaN where
+/// the circle does not project. Kept in single precision (8 bytes per observation): its
+/// rounding, < 1e-7 px, is far below the rim fit's own 1e-5 px.
+type Bias = [f32; 2];
 
-fn anchors(p: &Problem, s: &State, o: &Options) -> Vec<Option<Anchor>> {
+/// The bias of every observation at `s` (each independent: the same for any thread count).
+fn anchors(p: &Problem, s: &State, o: &Options) -> Vec<Bias> {
     p.observations
         .par_iter()
         .map(|ob| match ob.via {
-            Some(_) => Some(Anchor::Projector),
-            None if !o.bias_free => Some(Anchor::Camera {
-                bias: Vector2::zeros(),
-            }),
-            None => {
-                let dev = &s.devices[ob.device];
-                let pose = dev.pose * s.boards[ob.pose] * s.side(ob.side);
-                let c = p.board.position(ob.hex);
-                let centre = dev.model.project(&(pose * Point3::new(c.x, c.y, 0.0)))?;
-                let ellipse = ellipse_center(&dev.model, &pose, c, p.board.radius)?;
-                Some(Anchor::Camera {
-                    bias: ellipse - centre,
-                })
-            }
+            Some(_) => [0.0; 2],
+            None if !o.bias_free => [0.0; 2],
+            None => camera_bias(p, s, ob).map_or([f32::NAN; 2], |b| [b.x as f32, b.y as f32]),
         })
         .collect()
+}
+
+/// The perspective bias (px) of camera observation `ob` at `s` (27).
+fn camera_bias(p: &Problem, s: &State, ob: &Observation) -> Option<Vector2<f64>> {
+    let dev = &s.devices[ob.device];
+    let pose = dev.pose * s.boards[ob.pose] * s.side(ob.side);
+    ellipse_bias_px(&dev.model, &pose, p.board.position(ob.hex), p.board.radius)
 }
 
 /// Most Jacobian blocks of one observation (projector: its lens and pose, the camera's pose
@@ -410,15 +404,24 @@ struct Linearised {
 }
 
 impl Linearised {
-    /// Without a Jacobian.
-    fn value(predicted: Point2<f64>) -> Linearised {
+    /// Empty, to be filled by [`linearise`] (one per thread, reused for every observation).
+    fn new() -> Linearised {
         Linearised {
-            predicted,
+            predicted: Point2::origin(),
             blocks: [(0, 0); MAX_BLOCKS],
             nblocks: 0,
             jac: [Vector2::zeros(); MAX_COLUMNS],
             ncolumns: 0,
         }
+    }
+
+    /// Start over at `predicted`, without columns.
+    fn reset(&mut self, predicted: Point2<f64>) -> &mut Linearised {
+        self.predicted = predicted;
+        self.blocks = [(0, 0); MAX_BLOCKS];
+        self.nblocks = 0;
+        self.ncolumns = 0;
+        self
     }
 
     /// Append a block of columns starting at parameter `at`.
@@ -504,20 +507,27 @@ fn plane_increment(
     (r * dl_domega, r * dl_dtau)
 }
 
+/// The predicted pixel of observation `ob` at `s` with its held bias (27)–(28); with `jac`,
+/// also its Jacobian there (written into `jac`, which holds nothing else afterwards).
+/// `None` when the observation cannot be predicted.
 fn linearise(
     p: &Problem,
     s: &State,
     l: &Layout,
     ob: &Observation,
-    anchor: &Anchor,
-    jacobian: bool,
+    bias: Bias,
+    jac: Option<&mut Linearised>,
     rays: &mut RayCache,
-) -> Option<Linearised> {
+) -> Option<Point2<f64>> {
     let dev = &s.devices[ob.device];
     let rc = *dev.pose.rotation.to_rotation_matrix().matrix();
     let side = s.side(ob.side);
-    match (*anchor, ob.via) {
-        (Anchor::Camera { bias }, _) => {
+    match ob.via {
+        None => {
+            let bias = Vector2::new(f64::from(bias[0]), f64::from(bias[1]));
+            if bias.x.is_nan() {
+                return None;
+            }
             let plane = p.board.position(ob.hex);
             let mut z = side * Point3::new(plane.x, plane.y, 0.0); // board frame
             let basis = s.bend.basis(z.x, z.y);
@@ -525,14 +535,14 @@ fn linearise(
             let y = s.boards[ob.pose] * z; // reference frame
             let pc = dev.pose * y; // device frame
                                    // The observed ellipse centre sits `bias` pixels from the projected centre (§4).
-            if !jacobian {
-                return Some(Linearised::value(dev.model.project(&pc)? + bias));
-            }
+            let Some(lin) = jac else {
+                return Some(dev.model.project(&pc)? + bias);
+            };
             let pj = dev
                 .model
                 .project_with_jacobians(&Isometry3::identity(), &pc)?;
             let jp = pj.d_point;
-            let mut lin = Linearised::value(pj.pixel + bias);
+            let lin = lin.reset(pj.pixel + bias);
             lin.push_lens(l.lens[ob.device], &pj.d_lens);
             if let Some(at) = l.pose[ob.device] {
                 lin.push_pose(at, -jp * skew(&pc.coords), jp);
@@ -545,9 +555,9 @@ fn linearise(
             if let Some(at) = l.bend {
                 lin.push_bend(at, jp * rc * rk * Vector3::z(), basis);
             }
-            Some(lin)
+            Some(lin.predicted)
         }
-        (Anchor::Projector, Some(via)) => {
+        Some(via) => {
             // The board point camera c sees at its observed ellipse centre (§7): the ray
             // r = (n, 1), n = undistort(e_c), meets the side's plane (normal N through Q,
             // in camera c's frame) at P_c = λ·r.
@@ -572,15 +582,15 @@ fn linearise(
             let p_c = Point3::from(r * lambda);
             let proj_from_cam = dev.pose * cam.pose.inverse();
             let p_p = proj_from_cam * p_c;
-            if !jacobian {
-                return Some(Linearised::value(dev.model.project(&p_p)?));
-            }
+            let Some(lin) = jac else {
+                return dev.model.project(&p_p);
+            };
             let pj = dev
                 .model
                 .project_with_jacobians(&Isometry3::identity(), &p_p)?;
             let jp = pj.d_point;
             let jpc = jp * *proj_from_cam.rotation.to_rotation_matrix().matrix();
-            let mut lin = Linearised::value(pj.pixel);
+            let lin = lin.reset(pj.pixel);
             lin.push_lens(l.lens[ob.device], &pj.d_lens);
             if let Some(at) = l.pose[ob.device] {
                 lin.push_pose(at, -jp * skew(&p_p.coords), jp);
@@ -610,9 +620,8 @@ fn linearise(
             let slide = (Matrix3::identity() - r * normal.transpose() / normal.dot(&r)) * lambda;
             let dpc_dn = slide.fixed_columns::<2>(0).into_owned();
             lin.push_lens(l.lens[via.camera], &(jpc * dpc_dn * un.d_lens));
-            Some(lin)
+            Some(lin.predicted)
         }
-        (Anchor::Projector, None) => None,
     }
 }
 
@@ -649,13 +658,16 @@ struct PoseAcc {
     /// Device parameters (state columns below `m` are device columns).
     m: usize,
     groups: Vec<Group>,
-    /// The group of each (device, camera it was found through, side): within one board
-    /// pose these fix the Jacobian's structure.
-    group_of: HashMap<(usize, Option<usize>, Side), usize>,
+    /// The group of each (device, camera it was found through, side), at
+    /// [`PoseAcc::key`] (`u32::MAX`: none yet): within one board pose these fix the
+    /// Jacobian's structure.
+    group_of: Vec<u32>,
+    /// Devices of the problem.
+    devices: usize,
 }
 
 impl PoseAcc {
-    fn new(cols: &[usize], m: usize, observations: usize) -> PoseAcc {
+    fn new(cols: &[usize], m: usize, devices: usize, observations: usize) -> PoseAcc {
         let nh = cols.len() + 6;
         let mut local = vec![usize::MAX; m];
         for (i, &c) in cols.iter().enumerate() {
@@ -669,14 +681,22 @@ impl PoseAcc {
             local,
             m,
             groups: Vec::new(),
-            group_of: HashMap::new(),
+            group_of: vec![u32::MAX; 2 * devices * (devices + 1)],
+            devices,
         }
+    }
+
+    /// The index of `ob`'s (device, camera it was found through, side) in `group_of`.
+    fn key(&self, ob: &Observation) -> usize {
+        let via = ob.via.map_or(self.devices, |v| v.camera);
+        (ob.device * (self.devices + 1) + via) * 2 + usize::from(ob.side == Side::Back)
     }
 
     /// Add one observation's rows with weight `w` and residual `e`.
     fn add(&mut self, ob: &Observation, lin: &Linearised, w: f64, e: &Vector2<f64>) {
-        let key = (ob.device, ob.via.map(|v| v.camera), ob.side);
-        let gi = *self.group_of.entry(key).or_insert_with(|| {
+        let key = self.key(ob);
+        if self.group_of[key] == u32::MAX {
+            self.group_of[key] = self.groups.len() as u32;
             self.groups.push(Group {
                 blocks: lin.blocks,
                 nblocks: lin.nblocks,
@@ -684,8 +704,8 @@ impl PoseAcc {
                 rows: Vec::with_capacity(GROUP_ROWS * lin.ncolumns),
                 e: Vec::with_capacity(GROUP_ROWS),
             });
-            self.groups.len() - 1
-        });
+        }
+        let gi = self.group_of[key] as usize;
         let sw = w.sqrt();
         let group = &mut self.groups[gi];
         debug_assert!(group.blocks == lin.blocks, "one structure per group");
@@ -770,42 +790,85 @@ fn loss(e: &Vector2<f64>, huber: Option<f64>) -> f64 {
     }
 }
 
-/// Residuals of every observation at `s` with the anchors `an` (each independent, so the
-/// parallel evaluation gives the same values for any thread count).
-fn residuals(
+/// One residual (observed minus predicted, px) per observation; NaN for an observation the
+/// state cannot predict (16 bytes each, not an `Option`'s 24).
+type Residuals = Vec<Vector2<f64>>;
+
+/// Whether residual `e` is known (the observation was predicted).
+fn known(e: &Vector2<f64>) -> bool {
+    !e.x.is_nan()
+}
+
+/// The residual of observation `ob` at `s` with its held bias, NaN when not predicted.
+fn residual(
     p: &Problem,
     s: &State,
     l: &Layout,
-    an: &[Option<Anchor>],
-) -> Vec<Option<Vector2<f64>>> {
+    ob: &Observation,
+    bias: Bias,
+    rays: &mut RayCache,
+) -> Vector2<f64> {
+    linearise(p, s, l, ob, bias, None, rays)
+        .map_or(Vector2::new(f64::NAN, f64::NAN), |x| ob.pixel - x)
+}
+
+/// Residuals of every observation at `s` with the anchors `an` (each independent, so the
+/// parallel evaluation gives the same values for any thread count).
+fn residuals(p: &Problem, s: &State, l: &Layout, an: &[Bias]) -> Residuals {
     p.observations
         .par_iter()
         .zip(an)
         .map_init(RayCache::default, |rays, (ob, a)| {
-            let lin = linearise(p, s, l, ob, a.as_ref()?, false, rays)?;
-            Some(ob.pixel - lin.predicted)
+            residual(p, s, l, ob, *a, rays)
         })
         .collect()
 }
 
-/// The cost (30) of the active observations that `reference` (the linearisation point)
-/// predicts, summed in input order; infinite when one of them cannot be predicted (a trial
-/// must neither gain by losing observations nor lose by regaining them).
-fn cost(
-    res: &[Option<Vector2<f64>>],
-    reference: &[Option<Vector2<f64>>],
+/// Observations per chunk of [`trial_cost`]'s sums: partial sums over fixed chunks, added
+/// in chunk order, give the same total for any thread count.
+const COST_CHUNK: usize = 4096;
+
+/// A trial state's cost (30) over the active observations that `reference` (the residuals
+/// at the linearisation point) predicts, infinite when one of them cannot be predicted (a
+/// trial must neither gain by losing observations nor lose by regaining them); with
+/// `norms`, also every residual's norm (NaN where not predicted) for the robust phase's
+/// next set (30a). No residual is stored.
+#[allow(clippy::too_many_arguments)]
+fn trial_cost(
+    p: &Problem,
+    s: &State,
+    l: &Layout,
+    an: &[Bias],
+    reference: &[Vector2<f64>],
     active: &[bool],
     huber: Option<f64>,
-) -> f64 {
-    let mut total = 0.0;
-    for ((r, r0), a) in res.iter().zip(reference).zip(active) {
-        match (r, r0, a) {
-            (Some(e), Some(_), true) => total += loss(e, huber),
-            (None, Some(_), true) => return f64::INFINITY,
-            _ => {}
-        }
-    }
-    total
+    norms: bool,
+) -> (f64, Option<Vec<f32>>) {
+    let n = p.observations.len();
+    let chunks: Vec<(f64, Vec<f32>)> = (0..n.div_ceil(COST_CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let range = c * COST_CHUNK..n.min((c + 1) * COST_CHUNK);
+            let mut rays = RayCache::default();
+            let mut total = 0.0;
+            let mut out = Vec::with_capacity(if norms { range.len() } else { 0 });
+            for i in range {
+                let e = residual(p, s, l, &p.observations[i], an[i], &mut rays);
+                if norms {
+                    out.push(e.norm() as f32);
+                }
+                match (known(&e), known(&reference[i]), active[i]) {
+                    (true, true, true) => total += loss(&e, huber),
+                    (false, true, true) => total = f64::INFINITY,
+                    _ => {}
+                }
+            }
+            (total, out)
+        })
+        .collect();
+    let total = chunks.iter().map(|c| c.0).sum();
+    let norms = norms.then(|| chunks.into_iter().flat_map(|c| c.1).collect());
+    (total, norms)
 }
 
 /// One board pose's share of JᵀWJ, JᵀW·e, the cost and the residuals, summed in input order.
@@ -814,23 +877,21 @@ fn pose_share(
     p: &Problem,
     s: &State,
     l: &Layout,
-    an: &[Option<Anchor>],
+    an: &[Bias],
     active: &[bool],
     huber: Option<f64>,
     obs: &[usize],
     cols: &[usize],
 ) -> PoseAcc {
-    let mut acc = PoseAcc::new(cols, l.m, obs.len());
+    let mut acc = PoseAcc::new(cols, l.m, p.devices.len(), obs.len());
     let mut rays = RayCache::default();
+    let mut lin = Linearised::new();
     for &i in obs {
         let ob = &p.observations[i];
-        let Some(lin) = an[i]
-            .as_ref()
-            .and_then(|a| linearise(p, s, l, ob, a, true, &mut rays))
-        else {
+        let Some(predicted) = linearise(p, s, l, ob, an[i], Some(&mut lin), &mut rays) else {
             continue;
         };
-        let e = ob.pixel - lin.predicted;
+        let e = ob.pixel - predicted;
         acc.residuals.push((i, e));
         if active[i] {
             acc.cost += loss(&e, huber);
@@ -849,17 +910,17 @@ fn linear_system(
     p: &Problem,
     s: &State,
     l: &Layout,
-    an: &[Option<Anchor>],
+    an: &[Bias],
     active: &[bool],
     huber: Option<f64>,
     by_pose: &[Vec<usize>],
-) -> (BlockSystem, f64, Vec<Option<Vector2<f64>>>) {
+) -> (BlockSystem, f64, Residuals) {
     let m = l.m;
     let mut u = DMatrix::<f64>::zeros(m, m);
     let mut g = DVector::zeros(m);
     let mut poses = Vec::with_capacity(by_pose.len());
     let mut total = 0.0;
-    let mut res = vec![None; p.observations.len()];
+    let mut res = vec![Vector2::new(f64::NAN, f64::NAN); p.observations.len()];
     // A few poses per thread at a time bound the memory of the local blocks; the batch
     // size does not change any sum.
     let batch = 8 * rayon::current_num_threads().max(1);
@@ -884,7 +945,7 @@ fn linear_system(
             }
             total += acc.cost;
             for (i, e) in acc.residuals {
-                res[i] = Some(e);
+                res[i] = e;
             }
             let board = |a: usize, b: usize| h[(nl + a.max(b)) * nh + nl + a.min(b)];
             poses.push(PoseBlock {
@@ -931,18 +992,25 @@ fn held(sys: &Scaled) -> Vec<bool> {
 /// from its pose) cannot stall the start.
 fn robust_set(
     p: &Problem,
-    res: &[Option<Vector2<f64>>],
+    norms: &[f32],
     active: &[bool],
     floor: f64,
     o: &Options,
 ) -> (f64, Vec<bool>) {
-    let mut norms: Vec<f64> = res
+    let mut known: Vec<f64> = norms
         .iter()
         .zip(active)
-        .filter_map(|(r, a)| r.filter(|_| *a).map(|e| e.norm()))
+        .filter(|(r, a)| **a && !r.is_nan())
+        .map(|(r, _)| f64::from(*r))
         .collect();
-    let k = floor.max(3.0 * robust_sigma(&mut norms));
-    (k, inliers(p, res, o))
+    let k = floor.max(3.0 * robust_sigma(&mut known));
+    (k, inliers(p, norms, o))
+}
+
+/// The norm of every residual, in single precision (NaN where not predicted): what the
+/// robust phase's sets (30a) need, at 4 bytes per observation.
+fn norms(res: &[Vector2<f64>]) -> Vec<f32> {
+    res.iter().map(|e| e.norm() as f32).collect()
 }
 
 /// The robust phase's first damping λ. Columns are scaled to a unit diagonal, so λ is
@@ -968,7 +1036,7 @@ struct Phase {
 }
 
 /// A scaled linear system with its cost and residuals, as [`linear_system`] gives them.
-type LinearSystem = (Scaled, f64, Vec<Option<Vector2<f64>>>);
+type LinearSystem = (Scaled, f64, Residuals);
 
 /// Levenberg–Marquardt iterations (32) with Nielsen's damping update: after a step with gain
 /// ratio ρ (actual over predicted decrease), λ ← λ·max(1/3, 1 − (2ρ − 1)³); after a
@@ -989,15 +1057,18 @@ fn levenberg_marquardt(
     let (mut lambda, mut nu) = (lambda, 2.0);
     let n = 2 * active.iter().filter(|a| **a).count().max(1);
     let mut small_drop = false;
-    let mut last: Option<Vec<Option<Vector2<f64>>>> = None;
+    // Residual norms at the accepted trial: the next robust set (30a) without another pass.
+    let mut last: Option<Vec<f32>> = None;
     let mut frozen: Option<(f64, Vec<bool>)> = None;
     for iteration in 1..=o.max_iterations {
         let an = anchors(p, &s, o);
         let (huber, trimmed) = match (huber, &frozen) {
             (Some(_), Some((k, set))) => (Some(*k), Some(set.clone())),
             (Some(floor), None) => {
-                let res = last.take().unwrap_or_else(|| residuals(p, &s, l, &an));
-                let (k, set) = robust_set(p, &res, active, floor, o);
+                let norms = last
+                    .take()
+                    .unwrap_or_else(|| norms(&residuals(p, &s, l, &an)));
+                let (k, set) = robust_set(p, &norms, active, floor, o);
                 // At the floor the threshold and the set stay: one objective to converge on.
                 if k <= floor {
                     frozen = Some((k, set.clone()));
@@ -1028,14 +1099,14 @@ fn levenberg_marquardt(
             };
             let trial = s.update(l, &full_step(l, &step), &fixed);
             // The anchors stay those of the linearisation point within a step.
-            let trial_res = residuals(p, &trial, l, &an);
-            let c = cost(&trial_res, &res, active, huber);
+            let robust_next = huber.is_some() && frozen.is_none();
+            let (c, trial_norms) = trial_cost(p, &trial, l, &an, &res, active, huber, robust_next);
             if c < c0 {
                 let rho = (c0 - c) / step.predicted.max(1e-300);
                 lambda *= (1.0 / 3.0f64).max(1.0 - (2.0 * rho - 1.0).powi(3));
                 nu = 2.0;
                 accepted = Some((trial, c0 - c));
-                last = Some(trial_res);
+                last = trial_norms;
                 break;
             }
             (lambda, nu) = (lambda * nu, 2.0 * nu);
@@ -1053,6 +1124,17 @@ fn levenberg_marquardt(
         };
         s = trial;
         small_drop = drop < tol;
+        if small_drop && huber.is_some() && frozen.is_some() {
+            // The robust phase ends here, without the undamped test (its linear system
+            // would be built at the very state where the plain phase builds its first).
+            return Phase {
+                state: s,
+                iterations: iteration,
+                converged: true,
+                system: None,
+                lambda,
+            };
+        }
     }
     Phase {
         state: s,
@@ -1068,18 +1150,21 @@ fn robust_sigma(norms: &mut [f64]) -> f64 {
     if norms.is_empty() {
         return 0.0;
     }
-    norms.sort_by(f64::total_cmp);
+    // The element a full sort would put in the middle, in linear time.
+    let mid = norms.len() / 2;
+    let (_, median, _) = norms.select_nth_unstable_by(mid, f64::total_cmp);
     // For 2D Gaussian errors the residual norm is Rayleigh(σ): median = σ·√(2 ln 2).
-    norms[norms.len() / 2] / (2.0 * std::f64::consts::LN_2).sqrt()
+    *median / (2.0 * std::f64::consts::LN_2).sqrt()
 }
 
-/// Per device, the observations within `o.outlier_sigmas` robust σ of the residuals `res`
-/// (31).
-fn inliers(p: &Problem, res: &[Option<Vector2<f64>>], o: &Options) -> Vec<bool> {
+/// Per device, the observations within `o.outlier_sigmas` robust σ of their residuals (31),
+/// from the residual norms `res` (NaN where not predicted).
+fn inliers<T: Copy + Into<f64>>(p: &Problem, res: &[T], o: &Options) -> Vec<bool> {
     let mut norms = vec![Vec::new(); p.devices.len()];
     for (ob, r) in p.observations.iter().zip(res) {
-        if let Some(e) = r {
-            norms[ob.device].push(e.norm());
+        let r: f64 = (*r).into();
+        if !r.is_nan() {
+            norms[ob.device].push(r);
         }
     }
     let limits: Vec<f64> = norms
@@ -1089,7 +1174,7 @@ fn inliers(p: &Problem, res: &[Option<Vector2<f64>>], o: &Options) -> Vec<bool> 
     p.observations
         .iter()
         .zip(res)
-        .map(|(ob, r)| r.is_some_and(|e| e.norm() <= limits[ob.device]))
+        .map(|(ob, r)| (*r).into() <= limits[ob.device])
         .collect()
 }
 
@@ -1123,8 +1208,15 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     };
     let all = vec![true; p.observations.len()];
     let robust = levenberg_marquardt(p, start, &l, o, &all, Some(o.huber), &by_pose, LAMBDA0);
-    let res = residuals(p, &robust.state, &l, &anchors(p, &robust.state, o));
+    // The residuals where the robust phase stopped (those of its last linear system, when it
+    // ended with one).
+    let res = match robust.system {
+        Some((_, _, res)) => res,
+        None => residuals(p, &robust.state, &l, &anchors(p, &robust.state, o)),
+    };
+    let res: Vec<f64> = res.iter().map(|e| e.norm()).collect();
     let active = inliers(p, &res, o);
+    drop(res);
     // The plain phase goes on from where the robust one stopped, with its damping: the
     // minimum moves little when the outliers leave, and restarting at the first λ takes
     // many damped steps along the weakest directions (paper rig: 11 iterations, not 3).
@@ -1148,7 +1240,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     let n = 2 * active
         .iter()
         .zip(&res)
-        .filter(|(a, r)| **a && r.is_some())
+        .filter(|(a, r)| **a && known(r))
         .count();
     let sigma = (cost / (n.saturating_sub(free)).max(1) as f64).sqrt();
     // Cov(θ) ≈ σ²(JᵀJ)⁻¹ (§8, (38)); held parameters get zero rows and columns.
@@ -1176,7 +1268,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         .iter()
         .zip(&active)
         .map(|(r, a)| Residual {
-            error: r.unwrap_or_else(|| Vector2::new(f64::NAN, f64::NAN)),
+            error: *r,
             outlier: !a,
         })
         .collect();
@@ -1242,6 +1334,117 @@ mod tests {
         assert!(bits(&a) == bits(&b), "1 and 2 threads differ");
     }
 
+    /// The normal equations' dense JᵀJ and Jᵀe (state order) from their block form.
+    fn dense(sys: &BlockSystem, l: &Layout) -> (DMatrix<f64>, DVector<f64>) {
+        let mut h = DMatrix::zeros(l.len, l.len);
+        let mut g = DVector::zeros(l.len);
+        h.view_mut((0, 0), (l.m, l.m)).copy_from(&sys.u);
+        g.rows_mut(0, l.m).copy_from(&sys.g);
+        for (k, b) in sys.poses.iter().enumerate() {
+            let at = l.board[k];
+            h.view_mut((at, at), (6, 6)).copy_from(&b.v);
+            g.fixed_rows_mut::<6>(at).copy_from(&b.g);
+            for (r, &c) in b.cols.iter().enumerate() {
+                for t in 0..6 {
+                    h[(c, at + t)] = b.w[(r, t)];
+                    h[(at + t, c)] = b.w[(r, t)];
+                }
+            }
+        }
+        (h, g)
+    }
+
+    /// What holding the bias b within each step (leaving d b/d θ out of J) costs at the
+    /// converged state of the paper rig with `poses` poses: the largest change of any
+    /// parameter, in its standard deviations, and of any standard deviation (relative), when
+    /// the bias is differentiated (central differences) instead — one Gauss–Newton step of
+    /// the exact model from the solution, against the frozen model's own step there.
+    fn bias_freezing(poses: usize, seed: u64) -> (f64, f64) {
+        let rig = SyntheticRig::paper(poses, 0.1, seed);
+        let problem = rig.perturbed_start(seed + 1);
+        let o = Options::default();
+        let sol = adjust(&problem, &o).unwrap();
+        let l = Layout::new(&problem, &o);
+        let state = State {
+            devices: sol.devices.clone(),
+            boards: sol.boards.clone(),
+            front_back: sol.front_back,
+            bend: sol.bend,
+        };
+        let an = anchors(&problem, &state, &o);
+        let active: Vec<bool> = sol.residuals.iter().map(|r| !r.outlier).collect();
+        let by_pose = group_by_pose(&problem);
+        let (sys, _, res) = linear_system(&problem, &state, &l, &an, &active, None, &by_pose);
+        let (h, g) = dense(&sys, &l);
+        // Steps: 1e-3 px for focal lengths and principal points, 1e-6 otherwise.
+        let step = |c: usize| {
+            let lens = l.lens.iter().any(|&(at, _)| c >= at && c < at + 4);
+            if lens {
+                1e-3
+            } else {
+                1e-6
+            }
+        };
+        let none = vec![false; l.len];
+        let moved = |c: usize, h: f64| {
+            let mut d = DVector::zeros(l.len);
+            d[c] = h;
+            state.update(&l, &d, &none)
+        };
+        let plus: Vec<State> = (0..l.len).map(|c| moved(c, step(c))).collect();
+        let minus: Vec<State> = (0..l.len).map(|c| moved(c, -step(c))).collect();
+        // (J + B)ᵀ(J + B) and (J + B)ᵀe over the camera observations, B = d b/d θ.
+        let (mut hx, mut gx) = (h.clone(), g.clone());
+        let mut lin = Linearised::new();
+        let mut rays = RayCache::default();
+        for (i, ob) in problem.observations.iter().enumerate() {
+            if ob.via.is_some() || !active[i] || !known(&res[i]) {
+                continue;
+            }
+            linearise(&problem, &state, &l, ob, an[i], Some(&mut lin), &mut rays).unwrap();
+            let cols: Vec<usize> = lin.columns().map(|(c, _)| c).collect();
+            let db: Vec<Vector2<f64>> = cols
+                .iter()
+                .map(|&c| {
+                    let bp = camera_bias(&problem, &plus[c], ob).unwrap();
+                    let bm = camera_bias(&problem, &minus[c], ob).unwrap();
+                    (bp - bm) / (2.0 * step(c))
+                })
+                .collect();
+            for (a, (&ca, ja)) in cols.iter().zip(lin.jac.iter()).enumerate() {
+                gx[ca] += db[a].dot(&res[i]);
+                for (b, (&cb, jb)) in cols.iter().zip(lin.jac.iter()).enumerate() {
+                    hx[(ca, cb)] += ja.dot(&db[b]) + db[a].dot(jb) + db[a].dot(&db[b]);
+                }
+            }
+        }
+        let hi = h.cholesky().unwrap().inverse();
+        let hxi = hx.cholesky().unwrap().inverse();
+        let (frozen, exact) = (&hi * &g, &hxi * &gx);
+        let s2 = sol.sigma * sol.sigma;
+        let (mut shift, mut ratio) = (0.0f64, 0.0f64);
+        for c in 0..l.len {
+            let sd = (s2 * hi[(c, c)]).sqrt();
+            shift = shift.max((exact[c] - frozen[c]).abs() / sd);
+            ratio = ratio.max(((s2 * hxi[(c, c)]).sqrt() / sd - 1.0).abs());
+        }
+        (shift, ratio)
+    }
+
+    #[test]
+    fn freezing_the_bias_costs_nothing_at_convergence() {
+        // Issue 17: b is held within each step and absent from J, so also from the
+        // covariance. Differentiated instead, no parameter may move by a tenth of its
+        // standard deviation nor any standard deviation change by 1 %.
+        let (shift, ratio) = bias_freezing(4, 3);
+        eprintln!(
+            "bias differentiated: largest shift {shift:.2e} σ, largest σ change {:.2e} %",
+            100.0 * ratio
+        );
+        assert!(shift < 0.1, "{shift} σ");
+        assert!(ratio < 0.01, "{ratio}");
+    }
+
     #[test]
     fn assembled_gradient_matches_the_cost_on_a_ring_rig() {
         // The normal equations as assembled pose by pose (35) against central differences
@@ -1263,12 +1466,8 @@ mod tests {
             let (sys, c0, res) = linear_system(&problem, &state, &l, &an, &active, huber, &by_pose);
             let none = vec![false; l.len];
             let c = |d: &DVector<f64>| {
-                cost(
-                    &residuals(&problem, &state.update(&l, d, &none), &l, &an),
-                    &res,
-                    &active,
-                    huber,
-                )
+                let trial = state.update(&l, d, &none);
+                trial_cost(&problem, &trial, &l, &an, &res, &active, huber, false).0
             };
             let mut worst = 0.0f64;
             for i in (0..l.len).step_by(13) {
@@ -1349,13 +1548,14 @@ mod tests {
             pick(false, Side::Back),
         ] {
             let ob = &problem.observations[i];
-            let lin = linearise(
+            let mut lin = Linearised::new();
+            linearise(
                 &problem,
                 &state,
                 &l,
                 ob,
-                an[i].as_ref().unwrap(),
-                true,
+                an[i],
+                Some(&mut lin),
                 &mut RayCache::default(),
             )
             .unwrap();
@@ -1377,24 +1577,22 @@ mod tests {
                     &state.update(&l, &d, &vec![false; l.len]),
                     &l,
                     ob,
-                    an[i].as_ref().unwrap(),
-                    false,
+                    an[i],
+                    None,
                     &mut RayCache::default(),
                 )
-                .unwrap()
-                .predicted;
+                .unwrap();
                 d[c] = -h;
                 let minus = linearise(
                     &problem,
                     &state.update(&l, &d, &vec![false; l.len]),
                     &l,
                     ob,
-                    an[i].as_ref().unwrap(),
-                    false,
+                    an[i],
+                    None,
                     &mut RayCache::default(),
                 )
-                .unwrap()
-                .predicted;
+                .unwrap();
                 let fd = (plus - minus) / (2.0 * h);
                 let an = Vector2::new(analytic[(0, c)], analytic[(1, c)]);
                 let tol = 1e-5 * (1.0 + fd.norm());

@@ -31,9 +31,34 @@ pub fn ellipse_center(
     center: Point2<f64>,
     radius: f64,
 ) -> Option<Point2<f64>> {
-    let c0 = model.project(&(device_from_side * Point3::new(center.x, center.y, 0.0)))?;
-    // Rim point k in the device frame: P_c + R·(cos t·r1 + sin t·r2).
     let pc = device_from_side * Point3::new(center.x, center.y, 0.0);
+    let c0 = model.project(&pc)?;
+    Some(c0 + rim_offset(model, device_from_side, &pc, c0, radius)?)
+}
+
+/// The perspective bias (px) of that circle: its image-ellipse centre ([`ellipse_center`])
+/// minus the projection of its centre.
+pub fn ellipse_bias_px(
+    model: &CameraModel,
+    device_from_side: &Isometry3<f64>,
+    center: Point2<f64>,
+    radius: f64,
+) -> Option<Vector2<f64>> {
+    let pc = device_from_side * Point3::new(center.x, center.y, 0.0);
+    let c0 = model.project(&pc)?;
+    rim_offset(model, device_from_side, &pc, c0, radius)
+}
+
+/// The centre of the conic through the projected rim points relative to `c0`, the
+/// projection of the circle's centre `pc` (device frame).
+fn rim_offset(
+    model: &CameraModel,
+    device_from_side: &Isometry3<f64>,
+    pc: &Point3<f64>,
+    c0: Point2<f64>,
+    radius: f64,
+) -> Option<Vector2<f64>> {
+    // Rim point k in the device frame: P_c + R·(cos t·r1 + sin t·r2).
     let r = device_from_side.rotation.to_rotation_matrix();
     let (r1, r2) = (r.matrix().column(0) * radius, r.matrix().column(1) * radius);
     let mut ata = Matrix5::<f64>::zeros();
@@ -49,7 +74,7 @@ pub fn ellipse_center(
     let (b, c, d, e) = (s[0], s[1], s[2], s[3]);
     // Centre: ∇ = 0 → [1 B/2; B/2 C]·x = −(D/2, E/2).
     let m = Matrix2::new(1.0, b / 2.0, b / 2.0, c);
-    Some(c0 - m.try_inverse()? * Vector2::new(d / 2.0, e / 2.0))
+    Some(-(m.try_inverse()? * Vector2::new(d / 2.0, e / 2.0)))
 }
 
 /// Perspective bias of a circle's image-ellipse centre in undistorted normalised

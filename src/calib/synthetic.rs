@@ -684,9 +684,13 @@ pub fn run_case(case: &Case) -> Result<CaseResult, super::CalibError> {
     let t = std::time::Instant::now();
     let (sol, device_index, pose_index, excluded) = match case.start {
         Start::Perturbed => {
-            let start = rig.perturbed_start(case.seed + 1);
-            // The start holds its own copy; millions of observations on the largest rigs.
-            rig.observations = Vec::new();
+            // The start takes the observations over (millions on the largest rigs: never
+            // two copies at once).
+            let observations = std::mem::take(&mut rig.observations);
+            let start = Problem {
+                observations,
+                ..rig.perturbed_start(case.seed + 1)
+            };
             let sol = super::bundle::adjust(&start, &super::bundle::Options::default())?;
             let n = (rig.devices.len(), rig.boards.len());
             (sol, (0..n.0).collect(), (0..n.1).collect(), 0)
