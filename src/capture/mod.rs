@@ -112,6 +112,9 @@ pub struct Session {
     /// What every projector shows, when the session set one slide on all (none during a
     /// pose).
     shown: Option<Slide>,
+    /// A camera balances its Bayer mosaic by the scene and has not yet seen a white-lit
+    /// frame ([`crate::rig::Camera::balances_colour`]).
+    unbalanced: bool,
 }
 
 impl Session {
@@ -145,6 +148,7 @@ impl Session {
             p.prepare(sequence, code)?;
         }
         let hardware = trigger.is_some();
+        let mut unbalanced = false;
         let mut workers = Vec::with_capacity(cameras.len());
         for (mut cam, config) in cameras.into_iter().zip(configs) {
             let config = CameraConfig {
@@ -159,6 +163,7 @@ impl Session {
             cam.start()?;
             let name = cam.name().to_string();
             let pixel_format = cam.pixel_format();
+            unbalanced |= cam.balances_colour();
             let (cmd_tx, cmd_rx) = bounded::<Command>(4);
             let (frame_tx, frame_rx) = bounded(4);
             let timeout = timing.frame_timeout;
@@ -184,6 +189,7 @@ impl Session {
             sequence: sequence.clone(),
             timing,
             shown: None,
+            unbalanced,
         })
     }
 
@@ -214,7 +220,10 @@ impl Session {
             }
         }
         match taken {
-            Ok((frames, _, _)) => Ok(frames),
+            Ok((frames, _, _)) => {
+                self.unbalanced = false;
+                Ok(frames)
+            }
             Err(CaptureError::Frame { source, .. }) => Err(CaptureError::Preview(source)),
             Err(e) => Err(e),
         }
@@ -281,6 +290,12 @@ impl Session {
         pose: usize,
         sink: &mut dyn FnMut(StackFrame) -> Result<(), SinkError>,
     ) -> Result<Timeline, CaptureError> {
+        if self.unbalanced {
+            // A Bayer camera measures its white balance on the first frame it sees and holds
+            // it: let that be a white-lit frame, not the first of a stack (which may be too
+            // dark to measure, leaving the frames before the measurement unbalanced).
+            self.preview()?;
+        }
         let start = Instant::now();
         let frames = self.sequence.frame_count();
         let repeats = self.timing.repeats;

@@ -661,6 +661,12 @@ impl Camera for AravisCamera {
         self.chosen.clone()
     }
 
+    fn balances_colour(&self) -> bool {
+        self.applied
+            .as_ref()
+            .is_some_and(|a| matches!(a.format.colour, Colour::Bayer(_)))
+    }
+
     fn start(&mut self) -> Result<(), DeviceError> {
         if self.applied.is_none() {
             return Err(self.failed("start before configure".into()));

@@ -57,6 +57,12 @@ pub trait Camera: Send {
     fn pixel_format(&self) -> Option<String> {
         None
     }
+    /// Whether the configured format is a Bayer mosaic the driver balances by the scene
+    /// ([`crate::images::to_grey::BayerBalance`]): such a camera wants one frame of a white-lit
+    /// board before its first stack, so that every frame of the stack is balanced alike.
+    fn balances_colour(&self) -> bool {
+        false
+    }
 }
 
 /// What a projector shows.

@@ -461,6 +461,10 @@ impl Camera for SimCamera {
         })
     }
 
+    fn balances_colour(&self) -> bool {
+        matches!(self.world.formats[self.index], SimFormat::Bayer(_))
+    }
+
     fn start(&mut self) -> Result<(), DeviceError> {
         self.started = true;
         self.balance = BayerBalance::default();

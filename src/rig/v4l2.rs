@@ -788,6 +788,11 @@ impl<D: V4l2Device> Camera for V4l2Camera<D> {
         self.applied.map(|a| a.format.fourcc.to_string())
     }
 
+    fn balances_colour(&self) -> bool {
+        self.applied
+            .is_some_and(|a| matches!(a.samples.colour, Colour::Bayer(_)))
+    }
+
     fn start(&mut self) -> Result<(), DeviceError> {
         if self.applied.is_none() {
             return Err(self.failed("start before configure".into()));
