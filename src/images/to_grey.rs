@@ -9,8 +9,8 @@
 //! - **Bayer** mosaics stay at full resolution with no interpolation: each sample is
 //!   multiplied by its colour's gain ([`balance_mosaic`]), so a neutral board (black print on
 //!   white) under white light gives the same value through every filter. The gains come
-//!   from the scene itself ([`grey_world_gains`]: the ratio of the green mean to each
-//!   channel's mean) and [`BayerBalance`] holds them for a whole acquisition, so every frame
+//!   from the scene itself ([`grey_world_gains`]: over the bright 2×2 cells, the ratio of
+//!   green's sum to each channel's) and [`BayerBalance`] holds them for a whole acquisition, so every frame
 //!   of a phase-shift stack sees the same per-pixel scale (a phase does not depend on it).
 //! - **RGB / BGR** (demosaiced by the camera) give their BT.601 luma.
 //! - **JPEG** (MJPEG) gives its luma plane as coded (Y of YCbCr, or the one plane of a grey
@@ -297,29 +297,50 @@ pub fn luma(samples: &[u16], bgr: bool) -> Vec<u16> {
 }
 
 /// Gains (red, green, blue) that bring each channel of a Bayer mosaic to green's level on a
-/// neutral scene: green's mean over each channel's mean. `None` when the frame is too dark
-/// to tell (green mean below `min_level`) or a channel is black.
+/// neutral scene, measured over the bright 2×2 cells only: those whose first green sample
+/// reaches `min_level`. Over them, the gain of red (blue) is the sum of the cells' second
+/// green sample over the sum of their red (blue) samples: the second green, not the one
+/// that chose the cell, so the choice does not bias the ratio by its noise, and no dark
+/// region enters (the black background's clipped noise and any black level are offsets
+/// that would pull a whole-frame ratio towards 1). `None` when fewer than one cell in a
+/// thousand is bright (a frame too dark to tell) or a channel is black there.
 pub fn grey_world_gains(
     mosaic: &[u16],
     width: usize,
     cfa: Cfa,
     min_level: f64,
 ) -> Option<[f64; 3]> {
-    let mut sum = [0f64; 3];
-    let mut count = [0usize; 3];
-    for (y, row) in mosaic.chunks(width.max(1)).enumerate() {
-        for (x, &v) in row.iter().enumerate() {
-            let c = cfa.channel(x, y);
-            sum[c] += f64::from(v);
-            count[c] += 1;
+    let (w, h) = (width & !1, (mosaic.len() / width.max(1)) & !1);
+    let (mut sum, mut cells, mut bright) = ([0f64; 3], 0usize, 0usize);
+    for y in (0..h).step_by(2) {
+        for x in (0..w).step_by(2) {
+            cells += 1;
+            // The cell's four samples by channel; its two greens in reading order.
+            let mut greens = [0f64; 2];
+            let (mut red, mut blue, mut g) = (0f64, 0f64, 0);
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let v = f64::from(mosaic[(y + dy) * width + x + dx]);
+                match cfa.channel(x + dx, y + dy) {
+                    0 => red = v,
+                    2 => blue = v,
+                    _ => {
+                        greens[g] = v;
+                        g += 1;
+                    }
+                }
+            }
+            if greens[0] >= min_level {
+                bright += 1;
+                sum[0] += red;
+                sum[1] += greens[1];
+                sum[2] += blue;
+            }
         }
     }
-    let mean = |c: usize| sum[c] / count[c].max(1) as f64;
-    let green = mean(1);
-    if green < min_level || mean(0) <= 0.0 || mean(2) <= 0.0 {
+    if bright == 0 || bright * 1000 < cells || sum[0] <= 0.0 || sum[2] <= 0.0 {
         return None;
     }
-    Some([green / mean(0), 1.0, green / mean(2)])
+    Some([sum[1] / sum[0], 1.0, sum[1] / sum[2]])
 }
 
 /// Multiply each sample of a Bayer mosaic by its channel's gain, rounded and clamped to
@@ -333,9 +354,11 @@ pub fn balance_mosaic(mosaic: &mut [u16], width: usize, cfa: Cfa, gains: [f64; 3
     }
 }
 
-/// The white balance of a Bayer camera over one acquisition: measured by grey world on the
-/// first frame bright enough (green mean ≥ 1/16 of full scale) and held, so a whole
-/// phase-shift stack is balanced alike; frames before it are balanced with unit gains.
+/// The white balance of a Bayer camera over one acquisition: measured by grey world over
+/// the bright cells (green ≥ 1/16 of full scale) of the first frame that has enough of them
+/// ([`grey_world_gains`]) and held, so a whole phase-shift stack is balanced alike; frames
+/// before it are balanced with unit gains (the capture engine shows such a camera a
+/// white-lit frame before its first stack).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BayerBalance {
     gains: Option<[f64; 3]>,

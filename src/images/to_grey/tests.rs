@@ -264,3 +264,40 @@ fn preference_puts_mono_first_and_mjpeg_last() {
     assert_eq!(mono.rank(12), None);
     assert_eq!(jpeg.rank(12), None);
 }
+
+#[test]
+fn gains_come_from_the_bright_cells_and_ignore_a_dark_backgrounds_offset() {
+    // A 64×64 neutral scene: a bright square (160 DN at green) over a tenth of the frame,
+    // the rest black with a 2 DN offset on every channel (a black level, or read noise
+    // clipped at zero). Filters respond 0.6, 1, 0.8.
+    let response = [0.6, 1.0, 0.8];
+    let (w, h) = (64usize, 64usize);
+    for cfa in Cfa::ALL {
+        let raw: Vec<u16> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let bright = x < 20 && y < 20;
+                let s: f64 = if bright { 160.0 } else { 0.0 };
+                (s * response[cfa.channel(x, y)] + 2.0).round() as u16
+            })
+            .collect();
+        let g = grey_world_gains(&raw, w, cfa, 255.0 / 16.0).unwrap();
+        // Over the bright cells: (160 + 2) / (96 + 2) and (160 + 2) / (128 + 2).
+        assert!((g[0] - 162.0 / 98.0).abs() < 1e-12, "{cfa:?} {g:?}");
+        assert!((g[2] - 162.0 / 130.0).abs() < 1e-12, "{cfa:?} {g:?}");
+        // The whole frame's means would give 1.55 for red (1/0.6 = 1.67 is the truth).
+        let mean = |c: usize| {
+            let v: Vec<f64> = (0..w * h)
+                .filter(|&i| cfa.channel(i % w, i / w) == c)
+                .map(|i| f64::from(raw[i]))
+                .collect();
+            v.iter().sum::<f64>() / v.len() as f64
+        };
+        assert!((mean(1) / mean(0) - 1.0 / 0.6).abs() > 0.1);
+    }
+    // Too few bright cells (one in 1024 when a thousandth is needed): not measured.
+    let mut dark = vec![2u16; 64 * 64];
+    dark[0..2].copy_from_slice(&[200, 200]);
+    dark[64..66].copy_from_slice(&[200, 200]);
+    assert_eq!(grey_world_gains(&dark, 64, Cfa::Rggb, 255.0 / 16.0), None);
+}
