@@ -328,49 +328,7 @@ fn compare(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Two 320×240 cameras facing the board's two sides, a projector lighting each.
-    const RIG: &str = r#"
-name = "tiny"
-[timing]
-frame_period_ms = 20.0
-[poses]
-count = 1
-yaw_deg = 10.0
-tilt_deg = 10.0
-shift_mm = 10.0
-seed = 3
-[[camera]]
-name = "front"
-driver = "sim"
-width = 320
-height = 240
-exposure_ms = 10.0
-sim.intrinsics = { fx = 1500.0, fy = 1500.0, cx = 159.5, cy = 119.5 }
-sim.pose = { eye = [0.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
-[[camera]]
-name = "back"
-driver = "sim"
-width = 320
-height = 240
-exposure_ms = 10.0
-sim.intrinsics = { fx = 1500.0, fy = 1500.0, cx = 159.5, cy = 119.5 }
-sim.pose = { eye = [100.0, 0.0, -1500.0], target = [0.0, 0.0, 0.0] }
-[[projector]]
-name = "p0"
-driver = "sim"
-width = 320
-height = 200
-sim.intrinsics = { fx = 400.0, fy = 400.0, cx = 160.0, cy = 180.0 }
-sim.pose = { eye = [300.0, 50.0, 1300.0], target = [0.0, 0.0, 0.0] }
-[[projector]]
-name = "p1"
-driver = "sim"
-width = 320
-height = 200
-sim.intrinsics = { fx = 400.0, fy = 400.0, cx = 160.0, cy = 180.0 }
-sim.pose = { eye = [-300.0, 50.0, -1300.0], target = [0.0, 0.0, 0.0] }
-"#;
+    use crate::capture::tests::RIG;
 
     #[test]
     fn every_format_decodes_at_its_predicted_noise_and_detects_the_circles() {

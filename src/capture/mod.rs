@@ -635,4 +635,4 @@ fn samples(p: &Pixels) -> Vec<u32> {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -13,7 +13,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 /// Two small cameras facing each other across the board, two projectors, three poses.
-const RIG: &str = r#"
+pub(crate) const RIG: &str = r#"
 name = "tiny"
 [timing]
 frame_period_ms = 20.0
