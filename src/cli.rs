@@ -277,9 +277,14 @@ pub fn run(
     let prompts = console.as_ref().map(Console::prompts);
     let t = std::time::Instant::now();
     let file = hexcal::rig::file::RigFile::load(rig)?;
-    if guided && (!file.script.is_empty() || file.poses.is_none()) {
+    let simulated = file
+        .cameras
+        .iter()
+        .all(|c| c.driver == hexcal::rig::file::CameraDriver::Sim);
+    if guided && (!simulated || !file.script.is_empty() || file.poses.is_none()) {
         anyhow::bail!(
-            "{}: --guided needs a simulated rig with a [poses] table and no script",
+            "{}: --guided needs a simulated rig (every camera `sim`) with a [poses] table and \
+             no script",
             rig.display()
         );
     }
