@@ -443,21 +443,11 @@ fn assert_decodes_to_truth(data: &Dataset, pose: usize, truth: &StackRenderer) {
         norm(hexcal::pattern::Direction::Rows),
     );
     let t = truth.truth(0);
-    let albedo = truth.albedo();
-    let (w, h) = (W as usize, H as usize);
-    let uniform = |i: usize| {
-        let (x, y) = (i % w, i / w);
-        x >= 3
-            && y >= 3
-            && x + 3 < w
-            && y + 3 < h
-            && (y - 3..=y + 3)
-                .all(|yy| (x - 3..=x + 3).all(|xx| (albedo[yy * w + xx] - albedo[i]).abs() < 1e-4))
-    };
+    let w = W as usize;
     let (mut su, mut sv, mut n) = (0.0, 0.0, 0usize);
     let (mut noisy, mut gross_noisy) = (0usize, 0usize);
     for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
-        if !(ok && t.lit(i) && uniform(i)) {
+        if !(ok && t.lit(i) && truth.uniform_albedo(i, 3)) {
             continue;
         }
         let b = f64::from(maps.modulation.as_raw()[i]);

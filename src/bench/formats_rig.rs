@@ -262,20 +262,6 @@ fn compare(
     sums: &mut FormatSums,
 ) -> Result<(), RigFormatsError> {
     let truth = world.stack_renderer(c, pose, sequence)?;
-    let w = truth.size().width as usize;
-    let h = truth.size().height as usize;
-    let albedo = truth.albedo();
-    // Interior pixels: uniform albedo within ±3 px (nearer an edge the PSF mixes the
-    // phases of differently bright neighbours, which is optics, not decoding).
-    let uniform = |i: usize| {
-        let (x, y) = (i % w, i / w);
-        x >= 3
-            && y >= 3
-            && x + 3 < w
-            && y + 3 < h
-            && (y - 3..=y + 3)
-                .all(|yy| (x - 3..=x + 3).all(|xx| (albedo[yy * w + xx] - albedo[i]).abs() < 1e-4))
-    };
     for (p, maps) in decoded.projectors.iter().enumerate() {
         let t = truth.truth(p);
         // The decoder's σ_u = c_u / B per pixel (σ_φ = √(2/N)·σ_I/B, (18)); its summary is
@@ -295,7 +281,7 @@ fn compare(
             maps.noise.sigma_v.powi(2) / mean_inv_b2,
         );
         for (i, &ok) in valid.iter().enumerate() {
-            if !ok || !t.lit(i) || !uniform(i) {
+            if !ok || !t.lit(i) || !truth.uniform_albedo(i, 3) {
                 continue;
             }
             let eu = f64::from(maps.u.as_raw()[i] - t.u(i));

@@ -403,22 +403,10 @@ fn decoded_stack_folders_match_the_projector_truth() {
     let valid = image::open(out.join("projector0-valid.png"))
         .unwrap()
         .to_luma8();
-    // Interior pixels: uniform albedo within ±3 px (≈ 4 PSF σ; nearer an edge the PSF
-    // mixes the phases of differently bright neighbours, which is optics, not decoding).
-    let albedo = truth.albedo();
-    let w = 320usize;
-    let uniform = |i: usize| {
-        let (x, y) = (i % w, i / w);
-        x >= 3
-            && y >= 3
-            && x + 3 < w
-            && y + 3 < 240
-            && (y - 3..=y + 3)
-                .all(|yy| (x - 3..=x + 3).all(|xx| (albedo[yy * w + xx] - albedo[i]).abs() < 1e-4))
-    };
+    // Interior pixels: uniform albedo within ±3 px (≈ 4 PSF σ).
     let (mut sq, mut n) = (0.0, 0usize);
     for (i, (&u, &ok)) in u.iter().zip(valid.as_raw()).enumerate() {
-        if ok == 255 && truth.truth(0).lit(i) && uniform(i) {
+        if ok == 255 && truth.truth(0).lit(i) && truth.uniform_albedo(i, 3) {
             let e = f64::from(u - truth.truth(0).u(i));
             assert!(e.abs() < (6.0 * p.noise.sigma_u).max(1.0), "pixel {i}: {e}");
             sq += e * e;

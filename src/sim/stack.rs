@@ -275,6 +275,22 @@ impl StackRenderer {
         &self.albedo
     }
 
+    /// Whether the albedo is uniform (within 10⁻⁴) over the (2r+1)² pixels around pixel `i`,
+    /// all inside the image: a pixel whose decoded phase is the decoder's alone (nearer an
+    /// albedo edge the PSF mixes the phases of differently bright neighbours, which is
+    /// optics, not decoding).
+    pub fn uniform_albedo(&self, i: usize, r: usize) -> bool {
+        let (w, h) = (self.size.width as usize, self.size.height as usize);
+        let (x, y) = (i % w, i / w);
+        let a = &self.albedo;
+        x >= r
+            && y >= r
+            && x + r < w
+            && y + r < h
+            && (y - r..=y + r)
+                .all(|yy| (x - r..=x + r).all(|xx| (a[yy * w + xx] - a[i]).abs() < 1e-4))
+    }
+
     /// Ground truth of projector `p`.
     pub fn truth(&self, p: usize) -> &ProjectorTruth {
         &self.truth[p]
