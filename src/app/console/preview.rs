@@ -111,9 +111,9 @@ fn lap(t: &mut std::time::Instant) -> f64 {
 }
 
 /// Edge rays per circle of the preview's detection (the calibration's detector takes 90):
-/// its centres are drawn on a picture of 6 frame pixels per pixel, and 32 rays keep their
+/// its centres are drawn on a picture of 6 frame pixels per pixel, and 20 rays keep their
 /// error far below that.
-pub const RAYS: usize = 32;
+pub const RAYS: usize = 20;
 
 /// A full search of the frame at least every this many rounds, wherever the board was.
 pub const FULL_EVERY: u32 = 5;
@@ -362,8 +362,9 @@ mod tests {
         }
         assert_eq!(far, 0, "points moved");
         // Centres from the preview's fewer rays: each within 0.15 px of the true outline
-        // centre (the noise moves a 90-ray centre by ≈ 0.03 px here; 32 rays average
-        // √(90/32) ≈ 1.7 times fewer edge points, and points are rounded to 0.05 px).
+        // centre (the noise moves a 90-ray centre by ≈ 0.03 px here; 20 rays average
+        // 4.5 times fewer edge points, √4.5 ≈ 2.1 times the scatter, and points are rounded
+        // to 0.05 px).
         let truth: Vec<[f64; 2]> = view
             .truth
             .circles
