@@ -508,15 +508,20 @@ fn bench_guide(rig: &Path, sigma: f64, max_poses: usize, seed: u64) -> anyhow::R
         println!("{:<7} worst px after poses  {}", r.label, trail.join("  "));
     }
     println!(
-        "{:<7} {:>14} {:>12} {:>12} {:>12} {:>12} {:>10}",
+        "{:<7} {:>14} {:>12} {:>12} {:>12} {:>12} {:>10}  worst position",
         "", "poses to done", "focal err %", "pp err px", "rot err deg", "pos err mm", "s/pose"
     );
     for r in &b.runs {
         let max = |f: &dyn Fn(&hexcal::app::truth::TruthCheck) -> f64| {
             r.truth.iter().map(f).fold(0.0, f64::max)
         };
+        let far = r
+            .truth
+            .iter()
+            .max_by(|a, b| a.position_error_mm.total_cmp(&b.position_error_mm))
+            .map_or("", |c| c.name.as_str());
         println!(
-            "{:<7} {:>14} {:>12.4} {:>12.3} {:>12.4} {:>12.3} {:>10.2}",
+            "{:<7} {:>14} {:>12.4} {:>12.3} {:>12.4} {:>12.3} {:>10.2}  {far}",
             r.label,
             r.done_at.map_or_else(
                 || format!("> {}", r.worst.last().map_or(0, |w| w.0)),

@@ -47,7 +47,8 @@ pub struct OperatorRun {
     pub done_at: Option<usize>,
     /// Accuracy against the truth at `done_at` (or after the last pose).
     pub truth: Vec<TruthCheck>,
-    /// Seconds of interim calibration and guidance, per pose (mean).
+    /// Seconds of interim calibration and guidance (the oracle: interim calibration only),
+    /// per pose (mean).
     pub seconds_per_pose: f64,
 }
 
@@ -296,6 +297,7 @@ fn oracle(
     };
     let (mut chosen, mut seen, mut views) = (Vec::new(), vec![0usize; truth.len()], Vec::new());
     let mut rng = StdRng::seed_from_u64(seed);
+    let mut seconds = 0.0;
     for k in 0..max_poses {
         let best = pool
             .par_iter()
@@ -332,7 +334,10 @@ fn oracle(
         if k + 1 < MIN_VIEWS {
             continue;
         }
-        let (cal, g, done) = match interim(s.board, s.devices, k + 1, &views, s.threshold) {
+        let t = std::time::Instant::now();
+        let solved = interim(s.board, s.devices, k + 1, &views, s.threshold);
+        seconds += t.elapsed().as_secs_f64();
+        let (cal, g, done) = match solved {
             Ok(i) => i,
             Err(e) => {
                 log(&format!("oracle: {} poses: {e}", k + 1));
@@ -352,6 +357,7 @@ fn oracle(
             break;
         }
     }
+    run.seconds_per_pose = seconds / run.worst.len().max(1) as f64;
     Ok(run)
 }
 
