@@ -58,6 +58,19 @@ pub enum Bench {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+    /// The console's live preview on a simulated rig: rounds per second and where a
+    /// round's time goes (frame grab incl. rendering, reduce, detect, grid, picture).
+    Preview {
+        /// The rig file.
+        #[arg(long, default_value = "rigs/sim-paper.toml")]
+        rig: PathBuf,
+        /// The board pose (of the rig's `[poses]`) placed.
+        #[arg(long, default_value_t = 0)]
+        pose: usize,
+        /// Rounds timed (after one untimed).
+        #[arg(long, default_value_t = 10)]
+        rounds: usize,
+    },
     /// Step-timing jitter of a rig file's capture script on its simulated devices (the
     /// stage on a pty, waits, timed captures), captures taking no time.
     Script {
@@ -281,6 +294,7 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
     match what {
         Bench::Capture { rig } => bench_capture(&rig)?,
         Bench::Script { rig } => bench_script(&rig)?,
+        Bench::Preview { rig, pose, rounds } => bench_preview(&rig, pose, rounds)?,
         Bench::Guide {
             rig,
             sigma,
@@ -458,6 +472,25 @@ fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
 }
 
 /// `hexcal bench capture`: one simulated pose through the engine, frames discarded.
+/// `hexcal bench preview`: live preview rounds per second and their stages.
+fn bench_preview(rig: &Path, pose: usize, rounds: usize) -> anyhow::Result<()> {
+    let b = hexcal::bench::preview::bench_preview(rig, pose, rounds, &mut |l| eprintln!("{l}"))?;
+    let s = &b.stages;
+    println!(
+        "rig {}: {} cameras, pose {pose}, {} threads, {} rounds: {:.2} rounds/s",
+        rig.display(),
+        b.cameras,
+        rayon::current_num_threads(),
+        b.rounds,
+        b.rate_hz
+    );
+    println!(
+        "per round: grab {:.0} ms (wall), tap {:.0} ms (wall); tap CPU over the cameras: reduce {:.0}, detect {:.0}, grid {:.0}, picture {:.0} ms; {} of {} cameras see the board",
+        b.grab_ms, b.tap_ms, s.reduce, s.detect, s.grid, s.picture, b.seeing, b.cameras
+    );
+    Ok(())
+}
+
 /// `hexcal bench guide`: guided against fixed, poses to done and accuracy.
 fn bench_guide(rig: &Path, sigma: f64, max_poses: usize, seed: u64) -> anyhow::Result<()> {
     let b =
@@ -475,15 +508,20 @@ fn bench_guide(rig: &Path, sigma: f64, max_poses: usize, seed: u64) -> anyhow::R
         println!("{:<7} worst px after poses  {}", r.label, trail.join("  "));
     }
     println!(
-        "{:<7} {:>14} {:>12} {:>12} {:>12} {:>12} {:>10}",
+        "{:<7} {:>14} {:>12} {:>12} {:>12} {:>12} {:>10}  worst position",
         "", "poses to done", "focal err %", "pp err px", "rot err deg", "pos err mm", "s/pose"
     );
     for r in &b.runs {
         let max = |f: &dyn Fn(&hexcal::app::truth::TruthCheck) -> f64| {
             r.truth.iter().map(f).fold(0.0, f64::max)
         };
+        let far = r
+            .truth
+            .iter()
+            .max_by(|a, b| a.position_error_mm.total_cmp(&b.position_error_mm))
+            .map_or("", |c| c.name.as_str());
         println!(
-            "{:<7} {:>14} {:>12.4} {:>12.3} {:>12.4} {:>12.3} {:>10.2}",
+            "{:<7} {:>14} {:>12.4} {:>12.3} {:>12.4} {:>12.3} {:>10.2}  {far}",
             r.label,
             r.done_at.map_or_else(
                 || format!("> {}", r.worst.last().map_or(0, |w| w.0)),

@@ -31,7 +31,7 @@ const GRID: (usize, usize) = (9, 6);
 pub const MAX_VIEW_ANGLE_DEG: f64 = 60.0;
 
 /// Fewest points a device must see of a candidate pose for it to be drawn in its thumbnail.
-const MIN_SEEN: usize = 12;
+pub const MIN_SEEN: usize = 12;
 
 /// One device's projection uncertainty over its image.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -343,6 +343,62 @@ pub fn guide(cal: &Calibration, devices: &[DeviceInfo], threshold: f64) -> Guida
         done,
         suggestion,
     }
+}
+
+/// Every device's worst projection uncertainty (px) predicted for the board at `poses`
+/// (T_ref_board) seen by `devices` (T_device_ref, in `layout`'s device order: the truth in
+/// a benchmark) with observation noise `sigma` (px), laid out as `layout`'s parameters
+/// (its free lens parameters and reference): each pose's information with its board pose
+/// eliminated (docs/design.md (37)), summed and inverted (38) over the devices seen in at
+/// least `min_poses` poses (of at least [`MIN_SEEN`] points), the others held. `ridge` > 0
+/// adds that fraction of each diagonal element to it (a weak prior that keeps directions
+/// few poses leave free finite, and large). `None` for a device seen in fewer poses (or
+/// an information matrix that does not invert).
+pub fn predicted_worst(
+    layout: &Calibration,
+    devices: &[Device],
+    poses: &[Isometry3<f64>],
+    sigma: f64,
+    min_poses: usize,
+    ridge: f64,
+) -> Vec<Option<f64>> {
+    let block = Block::of(layout);
+    let fb = &layout.solution.front_back;
+    let n = block.state.len();
+    let mut info = DMatrix::<f64>::zeros(n, n);
+    let mut seen_in = vec![0usize; devices.len().min(block.lens.len())];
+    for pose in poses {
+        let seen = sightings(&layout.board, devices, fb, pose);
+        for (d, count) in seen_in.iter_mut().enumerate() {
+            *count += usize::from(seen.iter().filter(|s| s.device == d).count() >= MIN_SEEN);
+        }
+        info += information(&block, devices, fb, &layout.board, pose, &seen, sigma);
+    }
+    let ready: Vec<usize> = (0..seen_in.len())
+        .filter(|&d| seen_in[d] >= min_poses)
+        .collect();
+    let mut idx = Vec::new();
+    let mut lens_at = Vec::new();
+    for &d in &ready {
+        let (at, free) = &block.lens[d];
+        lens_at.push((idx.len(), free.len()));
+        idx.extend(*at..at + free.len());
+        if let Some(p) = block.pose[d] {
+            idx.extend(p..p + 6);
+        }
+    }
+    let sub = DMatrix::from_fn(idx.len(), idx.len(), |r, c| {
+        info[(idx[r], idx[c])] * if r == c { 1.0 + ridge } else { 1.0 }
+    });
+    let Some(cov) = sub.cholesky().map(|c| c.inverse()) else {
+        return vec![None; devices.len()];
+    };
+    let mut out = vec![None; devices.len()];
+    for (&d, &(at, len)) in ready.iter().zip(&lens_at) {
+        let lens = cov.view((at, at), (len, len)).into_owned();
+        out[d] = worst(&devices[d].model, &block.lens[d].1, &lens).map(|w| w.0);
+    }
+    out
 }
 
 /// The candidate pose that lowers the worst device's predicted uncertainty most, with its

@@ -13,7 +13,7 @@
 //! operators get the same observation model.
 
 use crate::app::guide::operator::{aim, placed, truth_devices, START_POSES};
-use crate::app::guide::{guide, sightings, Guidance};
+use crate::app::guide::{candidates, guide, predicted_worst, sightings, Guidance, MIN_SEEN};
 use crate::app::truth::{check_truth, TruthCheck};
 use crate::app::AppError;
 use crate::board::{Board, Side};
@@ -22,6 +22,7 @@ use crate::calib::circle::ellipse_center;
 use crate::calib::diagnostics::coverage;
 use crate::calib::geometric::{calibrate_registering, GeometricParams};
 use crate::calib::solve::{CalibrateOptions, Calibration, DeviceInfo};
+use crate::calib::zhang::MIN_VIEWS;
 use crate::correspond::{CameraView, Frame, ProjectorPixel, ViewPoint};
 use crate::rig::file::RigFile;
 use crate::rig::sim::SimWorld;
@@ -37,7 +38,7 @@ const MAX_EMPTY: f64 = 0.7;
 /// One operator's run.
 #[derive(Clone, Debug)]
 pub struct OperatorRun {
-    /// "fixed" or "guided".
+    /// "fixed", "guided" or "oracle".
     pub label: &'static str,
     /// After each pose from [`START_POSES`] on: (poses, worst uncertainty over every
     /// device, px; infinite while a device is not calibrated).
@@ -46,7 +47,8 @@ pub struct OperatorRun {
     pub done_at: Option<usize>,
     /// Accuracy against the truth at `done_at` (or after the last pose).
     pub truth: Vec<TruthCheck>,
-    /// Seconds of interim calibration and guidance, per pose (mean).
+    /// Seconds of interim calibration and guidance (the oracle: interim calibration only),
+    /// per pose (mean).
     pub seconds_per_pose: f64,
 }
 
@@ -220,6 +222,145 @@ fn operate(
     Ok(run)
 }
 
+/// The oracle's weak prior while devices are seen in fewer than [`MIN_VIEWS`] poses (a
+/// fraction of each parameter's information): a direction those poses leave free then
+/// counts as a large uncertainty rather than none, so a pose that repeats one already
+/// chosen ranks low.
+const EARLY_RIDGE: f64 = 1e-6;
+
+/// How the oracle ranks a set of poses by their predicted worst uncertainties: first by
+/// the poses still missing for devices to be calibrated at all, then (while some are
+/// missing: predicted with [`EARLY_RIDGE`], every device seen once counting) by the sum of
+/// the logs of the worst uncertainties, else by the worst over every device.
+fn rank(predicted: &[Option<f64>], poses_seen: &[usize]) -> (usize, f64) {
+    let missing: usize = poses_seen
+        .iter()
+        .map(|&n| MIN_VIEWS.saturating_sub(n))
+        .sum();
+    let score = match missing {
+        0 => predicted
+            .iter()
+            .map(|w| w.unwrap_or(f64::INFINITY))
+            .fold(0.0, f64::max),
+        _ => predicted.iter().flatten().map(|w| w.max(1e-9).ln()).sum(),
+    };
+    (missing, score)
+}
+
+/// Poses (of at least [`MIN_SEEN`] points) in which each of `truth` sees the board at
+/// T_ref_board `pose`.
+fn seen_by(board: &Board, truth: &[Device], pose: &Isometry3<f64>) -> Vec<usize> {
+    let back = board.side_transform(Side::Back);
+    let seen = sightings(board, truth, &back, pose);
+    (0..truth.len())
+        .map(|d| usize::from(seen.iter().filter(|s| s.device == d).count() >= MIN_SEEN))
+        .collect()
+}
+
+/// The oracle: knowing the rig's truth from the first pose on, each next pose is the
+/// candidate (the guidance's candidates around the schedule, and the schedule's own
+/// poses) whose predicted uncertainties at the truth rank best ([`rank`]), placed without
+/// error; observed and calibrated as the other operators' poses are.
+fn oracle(
+    s: &Setup,
+    max_poses: usize,
+    seed: u64,
+    log: &mut dyn FnMut(&str),
+) -> Result<OperatorRun, AppError> {
+    use rayon::prelude::*;
+    let mut rng = StdRng::seed_from_u64(seed);
+    // The parameter layout: the calibration of the whole fixed schedule.
+    let mut all = Vec::new();
+    for (k, pose) in s.schedule.iter().enumerate() {
+        all.extend(observe(s.board, s.truth, k, pose, &s.noise, &mut rng));
+    }
+    let (layout, _, _) = interim(s.board, s.devices, s.schedule.len(), &all, s.threshold)?;
+    if layout.devices.len() != s.truth.len() {
+        return Err(AppError::Input(
+            "the oracle needs every device calibrated by the fixed schedule".into(),
+        ));
+    }
+    let truth: Vec<Device> = layout
+        .device_index
+        .iter()
+        .map(|&i| s.truth[i].clone())
+        .collect();
+    let mut pool = candidates(s.schedule);
+    pool.extend_from_slice(s.schedule);
+    let sigma = s.noise.std_dev();
+    let mut run = OperatorRun {
+        label: "oracle",
+        worst: Vec::new(),
+        done_at: None,
+        truth: Vec::new(),
+        seconds_per_pose: 0.0,
+    };
+    let (mut chosen, mut seen, mut views) = (Vec::new(), vec![0usize; truth.len()], Vec::new());
+    let mut rng = StdRng::seed_from_u64(seed);
+    let mut seconds = 0.0;
+    for k in 0..max_poses {
+        let best = pool
+            .par_iter()
+            .map(|c| {
+                let mut poses = chosen.clone();
+                poses.push(*c);
+                let n: Vec<usize> = seen_by(s.board, &truth, c)
+                    .iter()
+                    .zip(&seen)
+                    .map(|(a, b)| a + b)
+                    .collect();
+                let missing = n.iter().any(|&n| n < MIN_VIEWS);
+                let (min, ridge) = if missing {
+                    (1, EARLY_RIDGE)
+                } else {
+                    (MIN_VIEWS, 0.0)
+                };
+                let w = predicted_worst(&layout, &truth, &poses, sigma, min, ridge);
+                let r = rank(&w, &n);
+                (*c, n, r)
+            })
+            .min_by(|a, b| a.2 .0.cmp(&b.2 .0).then(a.2 .1.total_cmp(&b.2 .1)));
+        let Some((pose, n, (missing, score))) = best else {
+            break;
+        };
+        log(&format!(
+            "oracle: pose {}: predicted {} poses missing, score {score:.3}; seen in {n:?}",
+            k + 1,
+            missing
+        ));
+        chosen.push(pose);
+        seen = n;
+        views.extend(observe(s.board, s.truth, k, &pose, &s.noise, &mut rng));
+        if k + 1 < MIN_VIEWS {
+            continue;
+        }
+        let t = std::time::Instant::now();
+        let solved = interim(s.board, s.devices, k + 1, &views, s.threshold);
+        seconds += t.elapsed().as_secs_f64();
+        let (cal, g, done) = match solved {
+            Ok(i) => i,
+            Err(e) => {
+                log(&format!("oracle: {} poses: {e}", k + 1));
+                run.worst.push((k + 1, f64::INFINITY));
+                continue;
+            }
+        };
+        run.worst.push((k + 1, worst(&g)));
+        log(&format!(
+            "oracle: {} poses, worst {:.3} px",
+            k + 1,
+            worst(&g)
+        ));
+        run.truth = check_truth(&cal, s.world);
+        if done {
+            run.done_at = Some(k + 1);
+            break;
+        }
+    }
+    run.seconds_per_pose = seconds / run.worst.len().max(1) as f64;
+    Ok(run)
+}
+
 /// Both operators on the rig file at `rig_path`: observation noise `sigma` (px), the guided
 /// one stopping at `max_poses`, noise from `seed`; `log` hears each interim calibration.
 pub fn bench_guide(
@@ -250,10 +391,10 @@ pub fn bench_guide(
         threshold: rig.guidance.uncertainty_px,
         noise: Normal::new(0.0, sigma).map_err(|e| AppError::Input(e.to_string()))?,
     };
-    let runs = vec![
-        operate(&setup, false, max_poses, seed, log)?,
-        operate(&setup, true, max_poses, seed, log)?,
-    ];
+    let fixed = operate(&setup, false, max_poses, seed, log)?;
+    let guided = operate(&setup, true, max_poses, seed, log)?;
+    let oracle = oracle(&setup, max_poses, seed, log)?;
+    let runs = vec![fixed, guided, oracle];
     Ok(GuideBench {
         threshold: setup.threshold,
         sigma,

@@ -6,5 +6,6 @@ pub mod detect_grid;
 pub mod formats;
 pub mod formats_rig;
 pub mod guide;
+pub mod preview;
 pub mod render;
 pub mod script;

@@ -115,6 +115,9 @@ pub struct StackRenderer {
     lit_box: Option<[usize; 4]>,
     /// The spatial phases of the group being rendered.
     phases: Mutex<GroupPhases>,
+    /// The noise-free signal of the flat frames (black, white), once each: a preview
+    /// takes one after another of a board that stays put, and only their noise differs.
+    flat_signal: [std::sync::OnceLock<Vec<f32>>; 2],
 }
 
 /// The fixed-point unit of cached cosines and sines.
@@ -250,6 +253,7 @@ impl StackRenderer {
         });
         Ok(StackRenderer {
             phases: Mutex::new(GroupPhases::default()),
+            flat_signal: Default::default(),
             ambient_signal,
             lit_box,
             size: geo.size,
@@ -385,12 +389,19 @@ impl StackRenderer {
             irr
         };
         let seed = self.seed ^ 0x5eed_f1a7 ^ n.wrapping_mul(0x9e37_79b9_7f4a_7c15);
-        self.expose(flat, seed)
+        let signal = self.flat_signal[usize::from(white)].get_or_init(|| self.signal(flat));
+        self.sensor.expose(self.size, signal, seed)
     }
 
     /// The sensor's frame of the ambient light plus the projectors' irradiance `lit` gives
     /// inside the lit box, with noise seed `seed`.
     fn expose(&self, lit: impl FnOnce([usize; 4]) -> Vec<f32>, seed: u64) -> Frame {
+        self.sensor.expose(self.size, &self.signal(lit), seed)
+    }
+
+    /// The noise-free signal of the ambient light plus the projectors' irradiance `lit`
+    /// gives inside the lit box.
+    fn signal(&self, lit: impl FnOnce([usize; 4]) -> Vec<f32>) -> Vec<f32> {
         // The optics are linear: the ambient signal (once) plus the projectors' light through
         // the optics inside the lit box, exact there because the box reaches twice as far as
         // the PSF beyond the last lit pixel.
@@ -420,7 +431,7 @@ impl StackRenderer {
                 }
             }
         }
-        self.sensor.expose(self.size, &signal, seed)
+        signal
     }
 }
 

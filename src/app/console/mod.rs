@@ -132,6 +132,12 @@ impl Shared {
         p.error = None;
         (p.rate_hz, p.detect_ms) = lock(&self.clock).tick(started);
         let n = p.rounds;
+        p.stages = Default::default();
+        p.seeing = 0;
+        for v in views.iter().flatten() {
+            p.stages += v.stages;
+            p.seeing += usize::from(v.sees_board);
+        }
         let mut pngs = lock(&self.live);
         for (c, view) in views.into_iter().enumerate() {
             let (Some(v), Some(panel)) = (view, s.cameras.get_mut(c)) else {
@@ -324,17 +330,28 @@ impl Console {
     pub fn preview_tap(&self, board: Board) -> PreviewTap {
         use rayon::prelude::*;
         let shared = Arc::clone(&self.shared);
+        let hints: Mutex<Vec<preview::Hint>> = Mutex::new(Vec::new());
         PreviewTap(Arc::new(move |round| {
             let started = std::time::Instant::now();
             let pose = lock(&shared.state).pose.map_or(0, |[k, _]| k);
+            let mut hints = lock(&hints);
             let views = round.map(|frames| {
+                hints.resize(frames.len(), preview::Hint::default());
                 frames
                     .par_iter()
-                    .map(|f| preview::look(f, &board, pose))
+                    .zip(hints.par_iter_mut())
+                    .map(|(f, hint)| preview::look(f, &board, pose, hint))
                     .collect()
             });
+            drop(hints);
             shared.preview(views, started);
         }))
+    }
+
+    /// The live preview's figures so far (rounds, rate, the last round's stages), if a
+    /// preview round arrived.
+    pub fn preview_figures(&self) -> Option<Preview> {
+        lock(&self.shared.state).preview.clone()
     }
 
     /// Take in one of the run's events and update every open page.

@@ -8,8 +8,10 @@
 
 use super::stats::{Overlay, MIN_POINTS};
 use super::thumbs::{grey_png, WIDTH};
-use crate::app::detect::{analyse, Settings};
+use crate::app::detect::Settings;
 use crate::board::{Board, Hex};
+use crate::detect::detect;
+use crate::grid::build;
 use crate::images::{CameraFrame, GrayImage, Pixels};
 use nalgebra::Point2;
 
@@ -29,6 +31,8 @@ pub struct LiveView {
     pub overlay: Overlay,
     /// The camera sees the board: at least [`MIN_POINTS`] labelled points.
     pub sees_board: bool,
+    /// What each stage took.
+    pub stages: Stages,
 }
 
 /// `frame` averaged over `factor` × `factor` blocks (samples as delivered); `None` when its
@@ -64,19 +68,205 @@ pub fn reduced(frame: &CameraFrame, factor: u32) -> Option<GrayImage> {
     Some(out)
 }
 
+/// Time (ms) each stage of [`look`] took on one frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Stages {
+    /// Reducing the frame to the detection size.
+    pub reduce: f64,
+    /// Circle detection.
+    pub detect: f64,
+    /// Grid building (labelling).
+    pub grid: f64,
+    /// The picture: sampling and PNG encoding.
+    pub picture: f64,
+}
+
+impl std::ops::AddAssign for Stages {
+    fn add_assign(&mut self, o: Stages) {
+        self.reduce += o.reduce;
+        self.detect += o.detect;
+        self.grid += o.grid;
+        self.picture += o.picture;
+    }
+}
+
+impl Stages {
+    /// Every stage's time times `k`.
+    pub fn scaled(self, k: f64) -> Stages {
+        Stages {
+            reduce: self.reduce * k,
+            detect: self.detect * k,
+            grid: self.grid * k,
+            picture: self.picture * k,
+        }
+    }
+}
+
+/// Milliseconds since `t`, and restart `t`.
+fn lap(t: &mut std::time::Instant) -> f64 {
+    let now = std::time::Instant::now();
+    let ms = 1e3 * (now - *t).as_secs_f64();
+    *t = now;
+    ms
+}
+
+/// Edge rays per circle of the preview's detection (the calibration's detector takes 90):
+/// its centres are drawn on a picture of 6 frame pixels per pixel, and 20 rays keep their
+/// error far below that.
+pub const RAYS: usize = 20;
+
+/// A full search of the frame at least every this many rounds, wherever the board was.
+pub const FULL_EVERY: u32 = 5;
+
+/// Where one camera saw the board in its last rounds: the next round looks there first.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Hint {
+    /// The box (x0, y0, x1, y1; reduced frame px) of the labelled points last seen, with
+    /// the largest circle radius among them, if the camera saw the board.
+    area: Option<([f64; 4], f64)>,
+    /// Rounds until the whole frame is searched again (0: this round).
+    due: u32,
+}
+
+impl Hint {
+    /// The region (x, y, width, height) of a `w` × `h` reduced frame to search this round,
+    /// with the largest circle radius to look for; `None`: search the whole frame.
+    ///
+    /// The last box grows by a quarter of its larger side plus 8 circle radii each way: a
+    /// board moved by hand between two rounds (a few tenths of a second, ~0.1 m) stays
+    /// inside it, and the grid still gets the ring of circles around the labelled ones.
+    fn region(&self, w: u32, h: u32) -> Option<([u32; 4], f64)> {
+        let ([x0, y0, x1, y1], r) = self.area.filter(|_| self.due > 0)?;
+        let m = 0.25 * (x1 - x0).max(y1 - y0) + 8.0 * r;
+        let clamp = |v: f64, hi: u32| v.clamp(0.0, f64::from(hi)) as u32;
+        let (a, b) = (clamp(x0 - m, w), clamp(y0 - m, h));
+        let (c, d) = (clamp(x1 + m + 1.0, w), clamp(y1 + m + 1.0, h));
+        // Circles up to twice the largest seen (the board may come closer or turn).
+        (c > a + 16 && d > b + 16).then_some(([a, b, c - a, d - b], (2.0 * r).max(8.0)))
+    }
+}
+
+/// The circles and grid of `image` (or of its `region`, with circles up to `max_radius`),
+/// in the image's pixels.
+fn find(
+    image: &GrayImage,
+    board: &Board,
+    region: Option<([u32; 4], f64)>,
+    stages: &mut Stages,
+    t: &mut std::time::Instant,
+) -> (Vec<crate::detect::Circle>, crate::grid::Grid) {
+    let mut settings = Settings::default();
+    settings.detect.rays = RAYS;
+    let (cut, [x, y]) = match region {
+        Some(([x, y, w, h], max_radius)) => {
+            settings.detect.max_radius = max_radius.min(settings.detect.max_radius);
+            let cut = ((w, h) != image.dimensions())
+                .then(|| image::imageops::crop_imm(image, x, y, w, h).to_image());
+            (cut, [f64::from(x), f64::from(y)])
+        }
+        None => (None, [0.0, 0.0]),
+    };
+    let src = cut.as_ref().unwrap_or(image);
+    let mut circles = detect(src, &settings.detect);
+    stages.detect += lap(t);
+    let mut grid = build(src, &circles, board, &settings.grid);
+    stages.grid += lap(t);
+    let shift = nalgebra::Vector2::new(x, y);
+    for c in &mut circles {
+        c.ellipse.center += shift;
+    }
+    for p in &mut grid.points {
+        p.image += shift;
+    }
+    (circles, grid)
+}
+
 /// The live view of one preview frame of the pose being placed (`pose`): detection and
 /// grid building on the frame reduced to at most [`DETECT_WIDTH`] across, the overlay
 /// scaled back to the frame's pixels (pixel centres: x = (x' + ½)·factor − ½).
-pub fn look(frame: &CameraFrame, board: &Board, pose: usize) -> Option<LiveView> {
+///
+/// `hint` is this camera's from the rounds before: where it saw the board, the search
+/// keeps near there (and to circles of the size seen), the whole frame being searched
+/// every [`FULL_EVERY`] rounds and whenever the board is not found near where it was. A
+/// camera that does not see the board searches its whole frame every [`FULL_EVERY`]
+/// rounds only (its picture still every round).
+pub fn look(frame: &CameraFrame, board: &Board, pose: usize, hint: &mut Hint) -> Option<LiveView> {
+    let mut t = std::time::Instant::now();
+    let mut stages = Stages::default();
     let factor = frame.width.div_ceil(DETECT_WIDTH).max(1);
     let image = reduced(frame, factor)?;
-    let analysis = analyse(&image, board, &Settings::default());
+    stages.reduce = lap(&mut t);
+    let (w, h) = image.dimensions();
+    let region = hint.region(w, h);
+    let whole = |hint: &mut Hint, stages: &mut Stages, t: &mut std::time::Instant| {
+        hint.due = FULL_EVERY;
+        find(&image, board, None, stages, t)
+    };
+    let searched = match region {
+        Some(r) => {
+            let near = find(&image, board, Some(r), &mut stages, &mut t);
+            match near.1.points.len() >= MIN_POINTS {
+                true => Some(near),
+                false => Some(whole(hint, &mut stages, &mut t)),
+            }
+        }
+        None if hint.due == 0 || hint.area.is_some() => Some(whole(hint, &mut stages, &mut t)),
+        None => None,
+    };
+    hint.due = hint.due.saturating_sub(1);
+    let (circles, grid) = match searched {
+        Some((circles, grid)) => {
+            hint.area = seen_area(&circles, &grid);
+            (circles, grid)
+        }
+        None => Default::default(),
+    };
     let f = f64::from(factor);
     let full = |p: Point2<f64>| Point2::new((p.x + 0.5) * f - 0.5, (p.y + 0.5) * f - 0.5);
-    let grid = &analysis.grid;
     let points: Vec<(Hex, Point2<f64>)> =
         grid.points.iter().map(|p| (p.hex, full(p.image))).collect();
-    let overlay = Overlay::labelled(pose, analysis.circles.len(), grid.anchored, &points);
+    let overlay = Overlay::labelled(pose, circles.len(), grid.anchored, &points);
+    let png = picture(&image)?;
+    stages.picture = lap(&mut t);
+    Some(LiveView {
+        png,
+        circles: circles.len(),
+        sees_board: points.len() >= MIN_POINTS,
+        overlay,
+        stages,
+    })
+}
+
+/// The box of `grid`'s labelled points and their largest circle radius, when they are
+/// enough to call the board seen.
+fn seen_area(
+    circles: &[crate::detect::Circle],
+    grid: &crate::grid::Grid,
+) -> Option<([f64; 4], f64)> {
+    if grid.points.len() < MIN_POINTS {
+        return None;
+    }
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    let mut r = 0.0f64;
+    for p in &grid.points {
+        b = [
+            b[0].min(p.image.x),
+            b[1].min(p.image.y),
+            b[2].max(p.image.x),
+            b[3].max(p.image.y),
+        ];
+        r = r.max(circles.get(p.circle).map_or(0.0, |c| c.ellipse.a));
+    }
+    Some((b, r))
+}
+
+/// The picture of a reduced frame: sampled to at most [`WIDTH`] across, as a PNG.
+fn picture(image: &GrayImage) -> Option<Vec<u8>> {
     let (rw, rh) = image.dimensions();
     let step = rw.div_ceil(WIDTH).max(1);
     let (tw, th) = ((rw / step).max(1), (rh / step).max(1));
@@ -86,12 +276,7 @@ pub fn look(frame: &CameraFrame, board: &Board, pose: usize) -> Option<LiveView>
             small.push(image.get_pixel(x * step + step / 2, y * step + step / 2).0[0]);
         }
     }
-    Some(LiveView {
-        png: grey_png(&small, tw, th)?,
-        circles: analysis.circles.len(),
-        sees_board: points.len() >= MIN_POINTS,
-        overlay,
-    })
+    grey_png(&small, tw, th)
 }
 
 #[cfg(test)]
@@ -153,8 +338,8 @@ mod tests {
         let board = Board::hex600();
         let (small, view) = frame(1);
         let (big, _) = frame(2);
-        let a = look(&small, &board, 3).unwrap();
-        let b = look(&big, &board, 3).unwrap();
+        let a = look(&small, &board, 3, &mut Hint::default()).unwrap();
+        let b = look(&big, &board, 3, &mut Hint::default()).unwrap();
         assert_eq!(a.overlay.points.len(), b.overlay.points.len());
         assert!(a.sees_board && b.sees_board);
         assert_eq!(a.overlay.pose, 3);
@@ -176,6 +361,24 @@ mod tests {
             far += usize::from(!near);
         }
         assert_eq!(far, 0, "points moved");
+        // Centres from the preview's fewer rays: each within 0.15 px of the true outline
+        // centre (the noise moves a 90-ray centre by ≈ 0.03 px here; 20 rays average
+        // 4.5 times fewer edge points, √4.5 ≈ 2.1 times the scatter, and points are rounded
+        // to 0.05 px).
+        let truth: Vec<[f64; 2]> = view
+            .truth
+            .circles
+            .iter()
+            .filter_map(|c| c.ellipse)
+            .collect();
+        let error = |p: &[f32; 2]| {
+            truth
+                .iter()
+                .map(|t| (f64::from(p[0]) - t[0]).hypot(f64::from(p[1]) - t[1]))
+                .fold(f64::INFINITY, f64::min)
+        };
+        let worst = a.overlay.points.iter().map(error).fold(0.0, f64::max);
+        assert!(worst < 0.15, "worst centre error {worst} px");
         assert!(!a.overlay.edges.is_empty());
         let png = image::load_from_memory(&b.png).unwrap();
         assert_eq!((png.width(), png.height()), (320, 240));
@@ -184,12 +387,40 @@ mod tests {
             pixels: Pixels::Gray16(vec![100; (big.width * big.height) as usize]),
             ..big.clone()
         };
-        let none = look(&grey, &board, 3).unwrap();
+        let none = look(&grey, &board, 3, &mut Hint::default()).unwrap();
         assert!(!none.sees_board && none.overlay.points.is_empty());
         let cut = CameraFrame {
             pixels: Pixels::Gray16(vec![100; 10]),
             ..big
         };
-        assert!(look(&cut, &board, 3).is_none());
+        assert!(look(&cut, &board, 3, &mut Hint::default()).is_none());
+    }
+
+    #[test]
+    fn hinted_rounds_find_the_board_where_it_was_and_search_everywhere_now_and_then() {
+        let board = Board::hex600();
+        let (big, _) = frame(2);
+        let mut hint = Hint::default();
+        let first = look(&big, &board, 0, &mut hint).unwrap();
+        assert!(hint.area.is_some() && hint.due == FULL_EVERY - 1);
+        // Near where it was: the same points as the whole frame's search.
+        let near = look(&big, &board, 0, &mut hint).unwrap();
+        assert_eq!(near.overlay.points, first.overlay.points);
+        assert_eq!(hint.due, FULL_EVERY - 2);
+        // The board gone: the near search fails, the whole frame is searched at once.
+        let grey = CameraFrame {
+            pixels: Pixels::Gray16(vec![100; (big.width * big.height) as usize]),
+            ..big.clone()
+        };
+        assert!(!look(&grey, &board, 0, &mut hint).unwrap().sees_board);
+        assert!(hint.area.is_none() && hint.due == FULL_EVERY - 1);
+        // A camera without the board searches only every FULL_EVERY-th round: the board
+        // back in view is found then.
+        let rounds: Vec<bool> = (0..FULL_EVERY)
+            .map(|_| look(&big, &board, 0, &mut hint).unwrap().sees_board)
+            .collect();
+        let mut want = vec![false; FULL_EVERY as usize];
+        want[FULL_EVERY as usize - 1] = true;
+        assert_eq!(rounds, want);
     }
 }

@@ -54,6 +54,10 @@ pub struct Preview {
     pub rate_hz: f64,
     /// Time to detect and draw the last round (ms).
     pub detect_ms: f64,
+    /// What each stage of the last round took, summed over its cameras (ms of CPU).
+    pub stages: super::preview::Stages,
+    /// Cameras that saw the board in the last round.
+    pub seeing: usize,
     /// Why the preview stopped, if it failed.
     pub error: Option<String>,
 }
