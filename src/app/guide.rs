@@ -12,7 +12,7 @@ pub mod operator;
 
 use crate::board::{Board, Hex, Side};
 use crate::calib::bundle::{Device, DeviceKind};
-use crate::calib::diagnostics::{lens_covariance, lens_uncertainty};
+use crate::calib::diagnostics::lens_covariance;
 use crate::calib::solve::{Calibration, DeviceInfo};
 use crate::camera::{CameraModel, LensParam};
 use nalgebra::{
@@ -161,8 +161,42 @@ pub fn sightings(
     out
 }
 
-/// The worst [`lens_uncertainty`] over a [`GRID`] of `m`'s image, and where.
-fn worst(m: &CameraModel, free: &[LensParam], cov: &DMatrix<f64>) -> Option<(f64, [f64; 2])> {
+/// Uncertainty (px, 1σ along the worst direction) of where device `dev` sees the rig point
+/// at depth `distance` (m, along its axis) behind `pixel`: its lens block and, when
+/// `has_pose`, its pose block (T_device_ref's increment, the columns of (J4)) of `cov`
+/// propagated through the projection's Jacobians, J·Σ·Jᵀ (docs/design.md §15). A device
+/// whose lens is sure but whose position is not (a board side seen in few poses) is not
+/// done: the point it would triangulate is off.
+pub fn rig_uncertainty(
+    dev: &Device,
+    free: &[LensParam],
+    has_pose: bool,
+    cov: &DMatrix<f64>,
+    distance: f64,
+    pixel: Point2<f64>,
+) -> Option<f64> {
+    let x_device = Point3::from(dev.model.ray(pixel)? * distance);
+    let x_ref = dev.pose.inverse() * x_device;
+    let j = dev.model.project_with_jacobians(&dev.pose, &x_ref)?;
+    let n = free.len() + if has_pose { 6 } else { 0 };
+    let js = DMatrix::from_fn(2, n, |r, c| match free.get(c) {
+        Some(f) => j.d_lens[(r, f.index())],
+        None => j.d_pose[(r, c - free.len())],
+    });
+    let s = &js * cov * js.transpose();
+    Some(s.symmetric_eigenvalues().max().max(0.0).sqrt())
+}
+
+/// The worst [`rig_uncertainty`] over a [`GRID`] of `dev`'s image at depth `distance`, and
+/// where.
+fn worst(
+    dev: &Device,
+    free: &[LensParam],
+    has_pose: bool,
+    cov: &DMatrix<f64>,
+    distance: f64,
+) -> Option<(f64, [f64; 2])> {
+    let m = &dev.model;
     let (nx, ny) = GRID;
     let (w, h) = (f64::from(m.width) - 1.0, f64::from(m.height) - 1.0);
     let mut best: Option<(f64, [f64; 2])> = None;
@@ -172,13 +206,36 @@ fn worst(m: &CameraModel, free: &[LensParam], cov: &DMatrix<f64>) -> Option<(f64
                 w * i as f64 / (nx - 1) as f64,
                 h * j as f64 / (ny - 1) as f64,
             );
-            let u = lens_uncertainty(m, free, cov, p)?;
+            let u = rig_uncertainty(dev, free, has_pose, cov, distance, p)?;
             if best.is_none_or(|(b, _)| u > b) {
                 best = Some((u, [p.x, p.y]));
             }
         }
     }
     best
+}
+
+/// Every device's [`working_distance`] over `boards`.
+fn working_distances(devices: &[Device], boards: &[Isometry3<f64>]) -> Vec<f64> {
+    devices
+        .iter()
+        .map(|d| working_distance(d, boards))
+        .collect()
+}
+
+/// Working distance (m) of device `dev` over board poses T_ref_board `boards`: the median
+/// depth of the board origins in front of it (1 m when none is).
+pub fn working_distance(dev: &Device, boards: &[Isometry3<f64>]) -> f64 {
+    let mut z: Vec<f64> = boards
+        .iter()
+        .map(|b| (dev.pose * b).translation.vector.z)
+        .filter(|z| *z > 0.0)
+        .collect();
+    if z.is_empty() {
+        return 1.0;
+    }
+    z.sort_by(f64::total_cmp);
+    z[z.len() / 2]
 }
 
 /// The device block of the calibration: per calibrated device its free lens parameters and
@@ -206,10 +263,26 @@ impl Block {
         Block { lens, pose, state }
     }
 
-    /// The lens block of device `d` of covariance `cov` (block order).
-    fn lens_cov(&self, cov: &DMatrix<f64>, d: usize) -> DMatrix<f64> {
+    /// The lens and pose block of device `d` of covariance `cov` (block order: the lens's
+    /// free parameters, then the pose's six when it has one).
+    fn device_cov(&self, cov: &DMatrix<f64>, d: usize) -> DMatrix<f64> {
         let (at, free) = &self.lens[d];
-        cov.view((*at, *at), (free.len(), free.len())).into_owned()
+        let n = free.len() + if self.pose[d].is_some() { 6 } else { 0 };
+        cov.view((*at, *at), (n, n)).into_owned()
+    }
+
+    /// Device `d`'s worst [`rig_uncertainty`] under covariance `cov` (block order) at depth
+    /// `distance`.
+    fn worst(
+        &self,
+        devices: &[Device],
+        cov: &DMatrix<f64>,
+        d: usize,
+        distance: f64,
+    ) -> Option<(f64, [f64; 2])> {
+        let has_pose = self.pose[d].is_some();
+        let c = self.device_cov(cov, d);
+        worst(&devices[d], &self.lens[d].1, has_pose, &c, distance)
     }
 }
 
@@ -306,14 +379,9 @@ pub fn candidates(boards: &[Isometry3<f64>]) -> Vec<Isometry3<f64>> {
 pub fn guide(cal: &Calibration, devices: &[DeviceInfo], threshold: f64) -> Guidance {
     let block = Block::of(cal);
     let cov = cal.solution.covariance.block(&block.state);
+    let distance = working_distances(&cal.devices, &cal.solution.boards);
     let now: Vec<Option<(f64, [f64; 2])>> = (0..cal.devices.len())
-        .map(|d| {
-            worst(
-                &cal.devices[d].model,
-                &block.lens[d].1,
-                &block.lens_cov(&cov, d),
-            )
-        })
+        .map(|d| block.worst(&cal.devices, &cov, d, distance[d]))
         .collect();
     let uncertainties: Vec<DeviceUncertainty> = devices
         .iter()
@@ -335,7 +403,7 @@ pub fn guide(cal: &Calibration, devices: &[DeviceInfo], threshold: f64) -> Guida
         .iter()
         .all(|u| u.worst.is_some_and(|w| w <= threshold));
     let suggestion = (!done)
-        .then(|| suggest(cal, devices, &block, &cov, &uncertainties))
+        .then(|| suggest(cal, devices, &block, &cov, &distance, &uncertainties))
         .flatten();
     Guidance {
         devices: uncertainties,
@@ -378,14 +446,15 @@ pub fn predicted_worst(
         .filter(|&d| seen_in[d] >= min_poses)
         .collect();
     let mut idx = Vec::new();
-    let mut lens_at = Vec::new();
+    let mut block_at = Vec::new();
     for &d in &ready {
         let (at, free) = &block.lens[d];
-        lens_at.push((idx.len(), free.len()));
+        let start = idx.len();
         idx.extend(*at..at + free.len());
         if let Some(p) = block.pose[d] {
             idx.extend(p..p + 6);
         }
+        block_at.push((start, idx.len() - start));
     }
     let sub = DMatrix::from_fn(idx.len(), idx.len(), |r, c| {
         info[(idx[r], idx[c])] * if r == c { 1.0 + ridge } else { 1.0 }
@@ -393,10 +462,12 @@ pub fn predicted_worst(
     let Some(cov) = sub.cholesky().map(|c| c.inverse()) else {
         return vec![None; devices.len()];
     };
+    let distance = working_distances(devices, poses);
     let mut out = vec![None; devices.len()];
-    for (&d, &(at, len)) in ready.iter().zip(&lens_at) {
-        let lens = cov.view((at, at), (len, len)).into_owned();
-        out[d] = worst(&devices[d].model, &block.lens[d].1, &lens).map(|w| w.0);
+    for (&d, &(at, len)) in ready.iter().zip(&block_at) {
+        let c = cov.view((at, at), (len, len)).into_owned();
+        let has_pose = block.pose[d].is_some();
+        out[d] = worst(&devices[d], &block.lens[d].1, has_pose, &c, distance[d]).map(|w| w.0);
     }
     out
 }
@@ -408,6 +479,7 @@ fn suggest(
     devices: &[DeviceInfo],
     block: &Block,
     cov: &DMatrix<f64>,
+    distance: &[f64],
     now: &[DeviceUncertainty],
 ) -> Option<Suggestion> {
     let info0 = cov.clone().cholesky()?.inverse();
@@ -429,12 +501,9 @@ fn suggest(
         let after = (&info0 + h).cholesky()?.inverse();
         (0..cal.devices.len())
             .map(|d| {
-                worst(
-                    &cal.devices[d].model,
-                    &block.lens[d].1,
-                    &block.lens_cov(&after, d),
-                )
-                .map(|w| w.0)
+                block
+                    .worst(&cal.devices, &after, d, distance[d])
+                    .map(|w| w.0)
             })
             .try_fold(0.0f64, |m, w| Some(m.max(w?)))
     };

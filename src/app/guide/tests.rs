@@ -47,16 +47,9 @@ fn predicted_worst(
         sol.sigma,
     );
     let after = (info0 + h).cholesky().unwrap().inverse();
+    let distance = working_distances(&cal.devices, &sol.boards);
     (0..cal.devices.len())
-        .map(|d| {
-            worst(
-                &cal.devices[d].model,
-                &block.lens[d].1,
-                &block.lens_cov(&after, d),
-            )
-            .unwrap()
-            .0
-        })
+        .map(|d| block.worst(&cal.devices, &after, d, distance[d]).unwrap().0)
         .fold(0.0, f64::max)
 }
 
@@ -70,15 +63,31 @@ fn uncertainty_is_the_diagnostics_one_and_prediction_matches_a_resolve() {
     let cal = calibration(&rig, 4);
     let block = Block::of(&cal);
     let cov = cal.solution.covariance.block(&block.state);
-    // The block's lens covariance gives what the report's diagnostics give.
+    // With its pose held (the pose block zeroed), a device's rig uncertainty at any depth is
+    // the report's lens-only projection uncertainty; with it, the pose adds what it adds.
+    let mut posed = 0;
     for d in 0..cal.devices.len() {
-        let m = &cal.devices[d].model;
+        let dev = &cal.devices[d];
+        let free = &block.lens[d].1;
+        let full = block.device_cov(&cov, d);
+        let mut held = full.clone();
+        held.view_mut((free.len(), 0), (full.nrows() - free.len(), full.ncols()))
+            .fill(0.0);
+        held.view_mut((0, free.len()), (full.nrows(), full.ncols() - free.len()))
+            .fill(0.0);
+        let has_pose = block.pose[d].is_some();
+        posed += usize::from(has_pose);
         for p in [Point2::new(10.0, 10.0), Point2::new(960.0, 500.0)] {
-            let mine = lens_uncertainty(m, &block.lens[d].1, &block.lens_cov(&cov, d), p).unwrap();
             let theirs = projection_uncertainty(&cal, d, p).unwrap();
-            assert!((mine / theirs - 1.0).abs() < 1e-9, "{mine} vs {theirs}");
+            for depth in [0.5, 2.0] {
+                let mine = rig_uncertainty(dev, free, has_pose, &held, depth, p).unwrap();
+                assert!((mine / theirs - 1.0).abs() < 1e-9, "{mine} vs {theirs}");
+            }
+            let with_pose = rig_uncertainty(dev, free, has_pose, &full, 1.0, p).unwrap();
+            assert!(with_pose.is_finite() && (with_pose != theirs) == has_pose);
         }
     }
+    assert_eq!(posed, cal.devices.len() - 1, "one reference device");
     // Adding pose 4's information to the normal equations predicts the covariance of the
     // re-solve with pose 4: the worst uncertainty within 15 % (σ̂ of the re-solve differs
     // by ~1 %, the linearisation point by the estimate's error).
