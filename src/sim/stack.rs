@@ -13,7 +13,7 @@ use super::texture::face_side;
 use super::{geometry, sensor, Scene, SimError};
 use crate::camera::CameraModel;
 use crate::pattern::{Direction, Sequence};
-use hexcal_simulator::{Frame, ImageSize, Sensor};
+use hexcal_simulator::{Frame, Geometry, ImageSize, Sensor};
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 use std::sync::Mutex;
@@ -175,6 +175,45 @@ impl GroupPhases {
     }
 }
 
+/// Projector `p`'s truth in `scene`'s camera from its geometry pass `geo`: the projector
+/// pixel of each lit pixel's board point (on the side facing the projector, inside its
+/// raster), computed row by row on all cores; one whole-image map at a time (the rest of the
+/// image is dark), kept over the lit rectangle.
+fn projector_truth(scene: &Scene, geo: &Geometry, p: &StackProjector) -> ProjectorTruth {
+    let n = geo.point.len();
+    let w = geo.size.width as usize;
+    let (mut u, mut v) = (vec![f32::NAN; n], vec![f32::NAN; n]);
+    let board_from_proj = p.proj_from_board.inverse();
+    let centre = board_from_proj * Point3::origin();
+    let (pw, ph) = (f64::from(p.model.width), f64::from(p.model.height));
+    u.par_chunks_mut(w)
+        .zip(v.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (u, v))| {
+            for (x, (u, v)) in u.iter_mut().zip(v.iter_mut()).enumerate() {
+                let i = y * w + x;
+                let Some(side) = face_side(geo.face[i]) else {
+                    continue;
+                };
+                // The projector lights the side whose outward normal points at it.
+                let face = scene.board.side_transform(side);
+                let normal = face.rotation * nalgebra::Vector3::z();
+                let [px, py, pz] = geo.point[i];
+                let pt = Point3::new(f64::from(px), f64::from(py), f64::from(pz));
+                if normal.dot(&(centre - pt)) <= 0.0 {
+                    continue;
+                }
+                if let Some(q) = p.model.project(&(p.proj_from_board * pt)) {
+                    if q.x >= -0.5 && q.y >= -0.5 && q.x < pw - 0.5 && q.y < ph - 0.5 {
+                        *u = q.x as f32;
+                        *v = q.y as f32;
+                    }
+                }
+            }
+        });
+    ProjectorTruth::cropped(w, &u, &v)
+}
+
 impl StackRenderer {
     /// Prepare the stack of `scene`'s camera and pose under `projectors`, which show
     /// `sequence` (its projector order); `ambient_dn` is the ambient light on white.
@@ -194,34 +233,7 @@ impl StackRenderer {
         let geo = geometry(scene)?;
         let truth: Vec<ProjectorTruth> = projectors
             .iter()
-            .map(|p| {
-                let n = geo.point.len();
-                let (mut u, mut v) = (vec![f32::NAN; n], vec![f32::NAN; n]);
-                let board_from_proj = p.proj_from_board.inverse();
-                let centre = board_from_proj * Point3::origin();
-                for i in 0..n {
-                    let Some(side) = face_side(geo.face[i]) else {
-                        continue;
-                    };
-                    // The projector lights the side whose outward normal points at it.
-                    let face = scene.board.side_transform(side);
-                    let normal = face.rotation * nalgebra::Vector3::z();
-                    let [x, y, z] = geo.point[i];
-                    let x = Point3::new(f64::from(x), f64::from(y), f64::from(z));
-                    if normal.dot(&(centre - x)) <= 0.0 {
-                        continue;
-                    }
-                    if let Some(q) = p.model.project(&(p.proj_from_board * x)) {
-                        let (w, h) = (f64::from(p.model.width), f64::from(p.model.height));
-                        if q.x >= -0.5 && q.y >= -0.5 && q.x < w - 0.5 && q.y < h - 0.5 {
-                            u[i] = q.x as f32;
-                            v[i] = q.y as f32;
-                        }
-                    }
-                }
-                // One projector's whole-image maps at a time (the rest of the image is dark).
-                ProjectorTruth::cropped(geo.size.width as usize, &u, &v)
-            })
+            .map(|p| projector_truth(scene, &geo, p))
             .collect();
         let sensor = sensor(&scene.imaging);
         let (w, h) = (geo.size.width as usize, geo.size.height as usize);
