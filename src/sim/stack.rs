@@ -117,6 +117,9 @@ pub struct StackRenderer {
     phases: Mutex<GroupPhases>,
 }
 
+/// Image rows per band when a frame is exposed.
+const EXPOSE_ROWS: usize = 64;
+
 /// The fixed-point unit of cached cosines and sines.
 const PHASE_UNIT: f64 = 32767.0;
 
@@ -401,38 +404,58 @@ impl StackRenderer {
     }
 
     /// The sensor's frame of the ambient light plus the projectors' irradiance `lit` gives
-    /// inside the lit box, with noise seed `seed`.
+    /// inside the lit box, with noise seed `seed`; exposed band by band of
+    /// [`EXPOSE_ROWS`] rows (the whole frame's signal is never held).
     fn expose(&self, lit: impl FnOnce([usize; 4]) -> Vec<f32>, seed: u64) -> Frame {
+        let (w, h) = (self.size.width as usize, self.size.height as usize);
         // The optics are linear: the ambient signal (once) plus the projectors' light through
         // the optics inside the lit box, exact there because the box reaches twice as far as
         // the PSF beyond the last lit pixel.
-        let mut signal = self.ambient_signal.clone();
-        if let Some(b @ [x0, y0, x1, y1]) = self.lit_box {
-            let (bw, bh) = (x1 - x0, y1 - y0);
-            let mut irr = lit(b);
-            let (w, h) = (self.size.width as usize, self.size.height as usize);
-            if self.sensor.vignetting != 0.0 {
-                let (cx, cy) = (0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0));
-                let corner2 = (cx * cx + cy * cy).max(1e-12);
-                for (by, row) in irr.chunks_mut(bw).enumerate() {
-                    let dy2 = ((y0 + by) as f64 - cy).powi(2);
-                    for (bx, v) in row.iter_mut().enumerate() {
-                        let rho2 = ((x0 + bx) as f64 - cx).powi(2) + dy2;
-                        *v *= (1.0 - self.sensor.vignetting * rho2 / corner2) as f32;
+        let light = self.lit_box.map(|b| (b, self.optics(b, lit(b))));
+        let mut data = vec![0u16; w * h];
+        let mut band = vec![0f32; EXPOSE_ROWS.min(h) * w];
+        for (i, out) in data.chunks_mut(EXPOSE_ROWS * w).enumerate() {
+            let y0 = i * EXPOSE_ROWS;
+            let signal = &mut band[..out.len()];
+            signal.copy_from_slice(&self.ambient_signal[y0 * w..][..out.len()]);
+            if let Some(([x0, by0, x1, by1], irr)) = &light {
+                let bw = x1 - x0;
+                for y in y0.max(*by0)..(y0 + out.len() / w).min(*by1) {
+                    let row = &irr[(y - by0) * bw..][..bw];
+                    for (s, v) in signal[(y - y0) * w + x0..][..bw].iter_mut().zip(row) {
+                        *s += v;
                     }
                 }
             }
-            if self.sensor.psf_sigma > 0.0 {
-                irr = hexcal_simulator::sensor::gaussian_blur(&irr, bw, bh, self.sensor.psf_sigma);
-            }
-            for (by, row) in irr.chunks(bw).enumerate() {
-                let start = (y0 + by) * w + x0;
-                for (s, v) in signal[start..start + bw].iter_mut().zip(row) {
-                    *s += v;
+            self.sensor.expose_rows(w, y0, signal, seed, out);
+        }
+        Frame {
+            size: self.size,
+            bits: self.sensor.bits,
+            data,
+        }
+    }
+
+    /// The projectors' irradiance `irr` over the lit box `[x0, y0, x1, y1]` through the
+    /// optics: vignetting, then the PSF.
+    fn optics(&self, [x0, y0, x1, y1]: [usize; 4], mut irr: Vec<f32>) -> Vec<f32> {
+        let (bw, bh) = (x1 - x0, y1 - y0);
+        let (w, h) = (self.size.width as usize, self.size.height as usize);
+        if self.sensor.vignetting != 0.0 {
+            let (cx, cy) = (0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0));
+            let corner2 = (cx * cx + cy * cy).max(1e-12);
+            for (by, row) in irr.chunks_mut(bw).enumerate() {
+                let dy2 = ((y0 + by) as f64 - cy).powi(2);
+                for (bx, v) in row.iter_mut().enumerate() {
+                    let rho2 = ((x0 + bx) as f64 - cx).powi(2) + dy2;
+                    *v *= (1.0 - self.sensor.vignetting * rho2 / corner2) as f32;
                 }
             }
         }
-        self.sensor.expose(self.size, &signal, seed)
+        if self.sensor.psf_sigma > 0.0 {
+            irr = hexcal_simulator::sensor::gaussian_blur(&irr, bw, bh, self.sensor.psf_sigma);
+        }
+        irr
     }
 }
 
