@@ -14,7 +14,7 @@ use crate::grid::{build, GridParams};
 use crate::images::{CameraFrame, GrayImage, Pixels};
 use crate::pattern::Sequence;
 use crate::phase::files::decode_dir;
-use crate::phase::{CompactStack, DecodedStack, Decoder, DenseMaps, FrameRef};
+use crate::phase::{CompactStack, DecodedStack, Decoder, FrameRef};
 use crossbeam_channel::Receiver;
 use serde::{Deserialize, Serialize};
 
@@ -156,7 +156,8 @@ pub fn process_decoded(
 }
 
 /// Detection, grid and projector fits on one camera's compactly held stack: each
-/// projector's maps are spread over the image only for this call.
+/// projector's maps are read in place through the pixels' slots (4 bytes per pixel, for
+/// this call only).
 pub fn process_compact(
     stack: &CompactStack,
     board: &Board,
@@ -164,13 +165,9 @@ pub fn process_compact(
     pose: usize,
     first_projector: usize,
 ) -> StackResult {
-    let dense: Vec<DenseMaps> = (0..stack.projectors.len())
-        .map(|p| stack.dense_maps(p))
-        .collect();
-    let maps: Vec<ProjectorMap> = dense
-        .iter()
-        .enumerate()
-        .map(|(p, m)| ProjectorMap::from_dense(first_projector + p, m))
+    let slots = stack.candidate_slots();
+    let maps: Vec<ProjectorMap> = (0..stack.projectors.len())
+        .map(|p| ProjectorMap::from_compact(first_projector + p, stack, p, &slots))
         .collect();
     let at = ViewAt {
         camera,
