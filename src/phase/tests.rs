@@ -541,9 +541,15 @@ fn compact_stack_gives_the_full_maps_at_its_candidates() {
     for (p, maps) in full.projectors.iter().enumerate() {
         let c = &compact.projectors[p].at_candidates;
         let at = |i: usize| (slots[i] != NO_SLOT).then(|| slots[i] as usize);
-        let u: Vec<f32> = (0..npx).map(|i| at(i).map_or(f32::NAN, |k| c.u[k])).collect();
-        let v: Vec<f32> = (0..npx).map(|i| at(i).map_or(f32::NAN, |k| c.v[k])).collect();
-        let valid: Vec<bool> = (0..npx).map(|i| at(i).is_some_and(|k| c.valid[k])).collect();
+        let u: Vec<f32> = (0..npx)
+            .map(|i| at(i).map_or(f32::NAN, |k| c.u[k]))
+            .collect();
+        let v: Vec<f32> = (0..npx)
+            .map(|i| at(i).map_or(f32::NAN, |k| c.v[k]))
+            .collect();
+        let valid: Vec<bool> = (0..npx)
+            .map(|i| at(i).is_some_and(|k| c.valid[k]))
+            .collect();
         assert_eq!(bits(maps.u.as_raw()), bits(&u), "projector {p}: u");
         assert_eq!(bits(maps.v.as_raw()), bits(&v), "projector {p}: v");
         assert_eq!(maps.valid.as_slice(), &valid[..], "projector {p}: valid");

@@ -596,7 +596,11 @@ impl SimCamera {
         {
             self.renderer = None;
             let built = {
-                let _turn = self.world.building.lock().unwrap_or_else(|e| e.into_inner());
+                let _turn = self
+                    .world
+                    .building
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner());
                 self.world
                     .stack_renderer_at(self.index, state.pose, board, &sequence)
             };
