@@ -7,7 +7,8 @@
 //! complete its DFT is taken on all cores in strips of 64 pixels whose sums stay in L1 (per
 //! pixel: the mean and, for each projector frequency f_p, X_f = Σ I_s·e^{i2πf_p s/N}, with
 //! steps s and N − s paired so that the P frequencies share one sum and one difference per
-//! pair), and only the wrapped phase and modulation per projector are kept (16 bit each).
+//! pair), and only the wrapped phase and modulation per projector are kept (16 bit each),
+//! at the pixels that projector lights (its first-group modulation at the candidate floor).
 //! Accumulating the DFT over the whole image frame by frame would stream (2P+1) f32
 //! accumulators through memory for every frame (≈ 130 MB per 1920×1200 frame at P = 3,
 //! ≈ 12 GB per stack), which is bandwidth-bound; the group buffer (N 8-bit frames) is smaller
