@@ -110,6 +110,7 @@ fn view(rig: &SyntheticRig, camera: usize, pose: usize) -> Option<CameraView> {
             v,
             valid,
             modulation: None,
+            slots: None,
         })
         .collect();
     camera_view(camera, pose, &grid, &circles, &views, &FitParams::default())

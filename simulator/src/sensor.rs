@@ -75,11 +75,32 @@ impl Sensor {
 
     /// Add noise to a noise-free signal, apply gamma and quantise; `seed` picks the noise.
     pub fn expose(&self, size: ImageSize, signal: &[f32], seed: u64) -> Frame {
-        let w = size.width as usize;
+        let mut data = vec![0u16; signal.len()];
+        self.expose_rows(size.width as usize, 0, signal, seed, &mut data);
+        Frame {
+            size,
+            bits: self.bits,
+            data,
+        }
+    }
+
+    /// [`Sensor::expose`] of a band of whole rows of an image `width` wide, from row
+    /// `first_row` on, into `out` (as long as `signal`): the same values as those rows of
+    /// the whole frame's exposure (each row's noise is seeded by its own index), so a frame
+    /// can be exposed band by band without its whole signal.
+    pub fn expose_rows(
+        &self,
+        width: usize,
+        first_row: usize,
+        signal: &[f32],
+        seed: u64,
+        out: &mut [u16],
+    ) {
+        let w = width;
         assert!(matches!(self.bits, 8 | 12 | 16), "8, 12 or 16 bits");
+        assert_eq!(signal.len(), out.len(), "a signal value per output sample");
         let max = f64::from((1u32 << self.bits) - 1);
         let scale = max / FULL_SCALE;
-        let mut data = vec![0u16; signal.len()];
         let read2 = (self.read_noise * self.read_noise) as f32;
         let shot = self.shot_gain as f32;
         let (scale, max) = (scale as f32, max as f32);
@@ -94,10 +115,11 @@ impl Sensor {
         // vectorises: adding 2²³ to v ∈ [0, 2¹⁶] leaves round(v) in the mantissa's low bits.
         let quantise =
             move |v: f32| (((v * scale).min(max) + 8_388_608.0).to_bits() & 0x7F_FFFF) as u16;
-        data.par_chunks_mut(w)
+        out.par_chunks_mut(w)
             .zip(signal.par_chunks(w))
             .enumerate()
-            .for_each(|(y, (out, inp))| {
+            .for_each(|(i, (out, inp))| {
+                let y = first_row + i;
                 let mut rng = SmallRng::seed_from_u64(splitmix64(seed ^ splitmix64(y as u64)));
                 // The filters of this row: even and odd columns (chunks start on even ones).
                 let filter = self
@@ -129,11 +151,6 @@ impl Sensor {
                     }
                 }
             });
-        Frame {
-            size,
-            bits: self.bits,
-            data,
-        }
     }
 
     /// The whole chain: [`Sensor::optics`] then [`Sensor::expose`].
@@ -268,6 +285,25 @@ mod tests {
             (var - model).abs() < 5.0 * model * (2.0 / n).sqrt(),
             "var {var} vs {model}"
         );
+    }
+
+    #[test]
+    fn a_frame_exposed_band_by_band_is_the_whole_frame() {
+        let img: Vec<f32> = (0..SIZE.pixels()).map(|k| (k % 241) as f32).collect();
+        let s = Sensor {
+            cfa: Some([0.5, 1.0, 1.0, 0.75]),
+            gamma: 2.2,
+            ..sensor()
+        };
+        let whole = s.expose(SIZE, &img, 11);
+        let w = SIZE.width as usize;
+        let mut bands = vec![0u16; img.len()];
+        // Bands of 7 rows: odd starts, so the colour filter's row parity is the row's own.
+        for (i, out) in bands.chunks_mut(7 * w).enumerate() {
+            let signal = &img[i * 7 * w..][..out.len()];
+            s.expose_rows(w, i * 7, signal, 11, out);
+        }
+        assert_eq!(whole.data, bands);
     }
 
     #[test]

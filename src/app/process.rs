@@ -14,7 +14,7 @@ use crate::grid::{build, GridParams};
 use crate::images::{CameraFrame, GrayImage, Pixels};
 use crate::pattern::Sequence;
 use crate::phase::files::decode_dir;
-use crate::phase::{CompactStack, DecodedStack, Decoder, DenseMaps, FrameRef};
+use crate::phase::{CompactStack, DecodedStack, Decoder, FrameRef};
 use crossbeam_channel::Receiver;
 use serde::{Deserialize, Serialize};
 
@@ -156,7 +156,8 @@ pub fn process_decoded(
 }
 
 /// Detection, grid and projector fits on one camera's compactly held stack: each
-/// projector's maps are spread over the image only for this call.
+/// projector's maps are read in place through the pixels' slots (4 bytes per pixel, for
+/// this call only).
 pub fn process_compact(
     stack: &CompactStack,
     board: &Board,
@@ -164,13 +165,9 @@ pub fn process_compact(
     pose: usize,
     first_projector: usize,
 ) -> StackResult {
-    let dense: Vec<DenseMaps> = (0..stack.projectors.len())
-        .map(|p| stack.dense_maps(p))
-        .collect();
-    let maps: Vec<ProjectorMap> = dense
-        .iter()
-        .enumerate()
-        .map(|(p, m)| ProjectorMap::from_dense(first_projector + p, m))
+    let slots = stack.candidate_slots();
+    let maps: Vec<ProjectorMap> = (0..stack.projectors.len())
+        .map(|p| ProjectorMap::from_compact(first_projector + p, stack, p, &slots))
         .collect();
     let at = ViewAt {
         camera,
@@ -274,6 +271,15 @@ enum AnyDecoder {
     Sixteen(Decoder<u16>),
 }
 
+/// The turns the stacks of one pose take one at a time.
+#[derive(Default)]
+pub(crate) struct Turns {
+    /// Taken while a decoder's final pass makes its compact stack.
+    pub(crate) judge: std::sync::Mutex<()>,
+    /// Taken while a compact stack is spread over its image and processed.
+    pub(crate) process: std::sync::Mutex<()>,
+}
+
 /// One camera's stack of one pose to decode and process.
 pub(crate) struct StackJob {
     pub(crate) sequence: Sequence,
@@ -282,8 +288,11 @@ pub(crate) struct StackJob {
     pub(crate) camera: usize,
     pub(crate) pose: usize,
     pub(crate) first_projector: usize,
-    /// Taken while finishing (one stack at a time).
-    pub(crate) finishing: std::sync::Arc<std::sync::Mutex<()>>,
+    /// The pose's turns: one stack at a time finishes its decoder, one at a time is processed.
+    pub(crate) turns: std::sync::Arc<Turns>,
+    /// Dropped once the stack is compact (its decoder freed), or on failure: the run waits
+    /// for every camera's before the next pose's decoders fill.
+    pub(crate) decoded: crossbeam_channel::Sender<()>,
 }
 
 /// Decode one camera's stack as its frames arrive on `frames`, then process it.
@@ -298,7 +307,8 @@ pub(crate) fn stack_worker(frames: Receiver<CameraFrame>, job: StackJob) -> Stac
         camera,
         pose,
         first_projector,
-        finishing,
+        turns,
+        decoded: decoded_signal,
     } = job;
     let failed =
         |error: String| StackResult::failed(&entry.name, sequence.projectors().len(), error);
@@ -341,15 +351,21 @@ pub(crate) fn stack_worker(frames: Receiver<CameraFrame>, job: StackJob) -> Stac
         }
     }
     // The maps at once, held compactly (the decoder's buffers are freed) while the stack
-    // waits for its turn; one stack at a time spreads its maps over the image and detects
+    // waits for its turn to be processed. One stack at a time finishes (its decoder and its
+    // compact maps are both held while it does: the pose's other decoders wait rather than
+    // all doubling at once) and one at a time spreads its maps over the image and detects
     // (bounds the memory of full-image maps while the next pose's decoders fill up).
-    let decoded = match decoder {
-        Some(Ok(AnyDecoder::Eight(d))) => d.finish_compact(),
-        Some(Ok(AnyDecoder::Sixteen(d))) => d.finish_compact(),
-        Some(Err(e)) => return failed(e.to_string()),
-        None => return failed("empty sequence".into()),
+    let decoded = {
+        let _turn = turns.judge.lock().unwrap_or_else(|e| e.into_inner());
+        match decoder {
+            Some(Ok(AnyDecoder::Eight(d))) => d.finish_compact(),
+            Some(Ok(AnyDecoder::Sixteen(d))) => d.finish_compact(),
+            Some(Err(e)) => return failed(e.to_string()),
+            None => return failed("empty sequence".into()),
+        }
     };
-    let _turn = finishing.lock().unwrap_or_else(|e| e.into_inner());
+    drop(decoded_signal);
+    let _turn = turns.process.lock().unwrap_or_else(|e| e.into_inner());
     match decoded {
         Ok(d) => process_compact(&d, &board, camera, pose, first_projector),
         Err(e) => failed(e.to_string()),

@@ -10,7 +10,7 @@
 
 use super::calibrate::{devices_of, finish, Collected};
 use super::capture::{prepare, PlaceBoard, Prepared};
-use super::process::{process_stored, stack_worker, PoseViews, StackJob, StackResult};
+use super::process::{process_stored, stack_worker, PoseViews, StackJob, StackResult, Turns};
 use super::progress::{Event, Outcome};
 use super::truth::{check_truth, format_truth};
 use super::AppError;
@@ -337,8 +337,13 @@ fn preview_rounds(session: &mut Session, tap: &PreviewFn, quit: &AtomicBool) {
     }
 }
 
-/// One pose's decoding threads: the frame senders (camera order) and the threads.
-type StackWorkers = (Vec<Sender<CameraFrame>>, Vec<JoinHandle<StackResult>>);
+/// One pose's decoding threads: the frame senders (camera order), the threads, and a
+/// receiver that disconnects once every thread has made its compact stack (or failed).
+type StackWorkers = (
+    Vec<Sender<CameraFrame>>,
+    Vec<JoinHandle<StackResult>>,
+    Receiver<()>,
+);
 
 /// A run between poses: the dataset, every pose's views so far, and the one pose whose
 /// stacks are still being processed while the next is captured.
@@ -445,7 +450,7 @@ impl<'e> Stream<'e> {
     ) -> Result<Timeline, AppError> {
         // A camera-only pose is one frame per camera: always kept (docs/dataset.md).
         let keep_stacks = options.keep_stacks || self.sequence.is_camera_only();
-        let (senders, workers) = self.spawn_stack_workers(k)?;
+        let (senders, workers, decoded) = self.spawn_stack_workers(k)?;
         let (cameras, frames) = (self.cameras(), self.sequence.frame_count());
         let mut writer = self.data.pose_writer(k)?;
         let mut last = 0;
@@ -480,6 +485,9 @@ impl<'e> Stream<'e> {
             seconds: timeline.total.as_secs_f64(),
             frames_per_second: timeline.frames_per_second(cameras),
         });
+        // The next pose's decoders start filling only once this pose's are compact: the
+        // capture of pose k + 1 overlaps the processing of pose k, not its decoding.
+        while decoded.recv().is_ok() {}
         self.hand_over(k, workers, info)?;
         Ok(timeline)
     }
@@ -488,7 +496,8 @@ impl<'e> Stream<'e> {
     fn spawn_stack_workers(&self, k: usize) -> Result<StackWorkers, AppError> {
         let mut senders = Vec::new();
         let mut workers = Vec::new();
-        let finishing = std::sync::Arc::new(std::sync::Mutex::new(()));
+        let turns = std::sync::Arc::new(Turns::default());
+        let (decoded_tx, decoded_rx) = bounded(0);
         for (c, entry) in self.data.info.cameras.iter().enumerate() {
             let (tx, rx) = bounded(2);
             senders.push(tx);
@@ -499,7 +508,8 @@ impl<'e> Stream<'e> {
                 camera: c,
                 pose: k,
                 first_projector: self.cameras(),
-                finishing: std::sync::Arc::clone(&finishing),
+                turns: std::sync::Arc::clone(&turns),
+                decoded: decoded_tx.clone(),
             };
             let worker = std::thread::Builder::new()
                 .name(format!("stack {}", entry.name))
@@ -507,7 +517,7 @@ impl<'e> Stream<'e> {
                 .map_err(AppError::Spawn)?;
             workers.push(worker);
         }
-        Ok((senders, workers))
+        Ok((senders, workers, decoded_rx))
     }
 
     /// Pose `k`'s stack threads finish in a thread of their own; at most one pose is in

@@ -117,6 +117,10 @@ pub struct ProjectorMap<'a> {
     /// Modulation B per camera pixel (DN), row-major, when known: the fit weighs each
     /// pixel by B² (its phase noise is ∝ 1/B).
     pub modulation: Option<&'a [f32]>,
+    /// When given, `u`, `v`, `valid` and `modulation` hold values at some pixels only, and
+    /// pixel i's are at index `slots[i]` ([`crate::phase::NO_SLOT`]: none held, invalid);
+    /// otherwise at index i.
+    pub slots: Option<&'a [u32]>,
 }
 
 impl<'a> ProjectorMap<'a> {
@@ -130,21 +134,46 @@ impl<'a> ProjectorMap<'a> {
             v: maps.v.as_raw(),
             valid: maps.valid.as_slice(),
             modulation: Some(maps.modulation.as_raw()),
+            slots: None,
         }
     }
 
-    /// The view of one projector's maps spread from a compact stack, for projector
-    /// `projector`.
-    pub fn from_dense(projector: usize, maps: &'a crate::phase::DenseMaps) -> Self {
+    /// The view of projector p's maps in a compact stack, read in place at the candidates
+    /// through `slots` (the stack's [`crate::phase::CompactStack::candidate_slots`]), as
+    /// device `projector`.
+    pub fn from_compact(
+        projector: usize,
+        stack: &'a crate::phase::CompactStack,
+        p: usize,
+        slots: &'a [u32],
+    ) -> Self {
+        let c = &stack.projectors[p].at_candidates;
         ProjectorMap {
             projector,
-            width: maps.width,
-            height: maps.height,
-            u: &maps.u,
-            v: &maps.v,
-            valid: &maps.valid,
-            modulation: Some(&maps.modulation),
+            width: stack.ambient.width(),
+            height: stack.ambient.height(),
+            u: &c.u,
+            v: &c.v,
+            valid: &c.valid,
+            modulation: Some(&c.modulation),
+            slots: Some(slots),
         }
+    }
+
+    /// Where pixel i's values are held (None: nowhere, the pixel is invalid).
+    fn slot(&self, i: usize) -> Option<usize> {
+        match self.slots {
+            None => Some(i),
+            Some(s) => s
+                .get(i)
+                .filter(|&&k| k != crate::phase::NO_SLOT)
+                .map(|&k| k as usize),
+        }
+    }
+
+    /// Whether pixel i's (u, v) is valid.
+    fn valid_at(&self, i: usize) -> bool {
+        self.slot(i).is_some_and(|k| self.valid[k])
     }
 }
 
@@ -241,7 +270,9 @@ fn fit_at(
     let (mut atu, mut atv) = (SVector::<f64, 6>::zeros(), SVector::<f64, 6>::zeros());
     let mut n = 0;
     for &(x, y) in pixels {
-        let i = (y * map.width + x) as usize;
+        let Some(i) = map.slot((y * map.width + x) as usize) else {
+            continue;
+        };
         let (u, v) = (map.u[i], map.v[i]);
         if !map.valid[i] || !u.is_finite() || !v.is_finite() {
             continue;
@@ -304,7 +335,7 @@ pub fn camera_view(
                     let own_px = params.white_pixels(own, p.ringed, m.width, m.height);
                     let own_valid = own_px
                         .iter()
-                        .filter(|&&(x, y)| m.valid[(y * m.width + x) as usize])
+                        .filter(|&&(x, y)| m.valid_at((y * m.width + x) as usize))
                         .count();
                     if own_valid == 0
                         || (own_valid as f64) < params.min_own_valid * own_px.len() as f64

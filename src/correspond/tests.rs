@@ -142,6 +142,7 @@ fn projector_pixels_at_ellipse_centres_match_the_geometry() {
         v: &vv,
         valid: &valid,
         modulation: None,
+        slots: None,
     };
     let cv = camera_view(
         2,

@@ -4,9 +4,10 @@
 //! and saturation flags of every pixel, and each projector's u, v, reliability, modulation
 //! and validity only at the candidate pixels (those whose first-group modulation reached the
 //! candidate floor, half the validity floor: no other pixel can be valid). `hexcal run`
-//! hands a pose's stacks over in this form while the next pose is captured, and spreads one
-//! camera's maps over its image ([`CompactStack::dense_maps`]) only while that camera is
-//! processed; [`super::Decoder::finish`] spreads them at once into a [`DecodedStack`].
+//! hands a pose's stacks over in this form while the next pose is captured, and reads the
+//! maps in place through each pixel's slot ([`CompactStack::candidate_slots`]) while that
+//! camera is processed; [`super::Decoder::finish`] spreads them at once into a
+//! [`DecodedStack`].
 
 use super::decode::{DecodedStack, FloatImage, Mask, NoiseModel, PhaseNoise, ProjectorMaps};
 
@@ -107,23 +108,8 @@ pub struct CompactStack {
     pub projectors: Vec<CompactProjector>,
 }
 
-/// One projector's maps spread over the whole image, row-major (what the projector fits of
-/// `correspond` read).
-#[derive(Clone, Debug, PartialEq)]
-pub struct DenseMaps {
-    /// Width (px).
-    pub width: u32,
-    /// Height (px).
-    pub height: u32,
-    /// Projector column u; NaN where not unwrapped.
-    pub u: Vec<f32>,
-    /// Projector row v; NaN where not unwrapped.
-    pub v: Vec<f32>,
-    /// Validity.
-    pub valid: Vec<bool>,
-    /// Modulation at the candidate pixels, 0 at the others (never valid).
-    pub modulation: Vec<f32>,
-}
+/// The slot of a pixel that is not a candidate in [`CompactStack::candidate_slots`].
+pub const NO_SLOT: u32 = u32::MAX;
 
 impl CompactStack {
     /// Number of candidate pixels.
@@ -140,18 +126,21 @@ impl CompactStack {
         npx * (4 + 1 + 1) + self.projectors.iter().map(per_projector).sum::<usize>()
     }
 
-    /// Projector p's maps spread over the image (u, v NaN and invalid, modulation 0 away
-    /// from the candidates).
-    pub fn dense_maps(&self, p: usize) -> DenseMaps {
-        let c = &self.projectors[p].at_candidates;
-        DenseMaps {
-            width: self.ambient.width(),
-            height: self.ambient.height(),
-            u: spread(&self.candidate, &c.u, f32::NAN),
-            v: spread(&self.candidate, &c.v, f32::NAN),
-            valid: spread(&self.candidate, &c.valid, false),
-            modulation: spread(&self.candidate, &c.modulation, 0.0),
-        }
+    /// Per pixel, row-major, its index in the maps at the candidates ([`NO_SLOT`] where it is
+    /// not a candidate): 4 bytes per pixel for every projector's maps, where spreading them
+    /// over the image takes 13 per projector.
+    pub fn candidate_slots(&self) -> Vec<u32> {
+        let mut next = 0u32;
+        self.candidate
+            .iter()
+            .map(|&c| match c {
+                true => {
+                    next += 1;
+                    next - 1
+                }
+                false => NO_SLOT,
+            })
+            .collect()
     }
 
     /// The maps spread over the image as a [`DecodedStack`]; its modulation images are those

@@ -7,7 +7,8 @@
 //! complete its DFT is taken on all cores in strips of 64 pixels whose sums stay in L1 (per
 //! pixel: the mean and, for each projector frequency f_p, X_f = Σ I_s·e^{i2πf_p s/N}, with
 //! steps s and N − s paired so that the P frequencies share one sum and one difference per
-//! pair), and only the wrapped phase and modulation per projector are kept (16 bit each).
+//! pair), and only the wrapped phase and modulation per projector are kept (16 bit each),
+//! at the pixels that projector lights (its first-group modulation at the candidate floor).
 //! Accumulating the DFT over the whole image frame by frame would stream (2P+1) f32
 //! accumulators through memory for every frame (≈ 130 MB per 1920×1200 frame at P = 3,
 //! ≈ 12 GB per stack), which is bandwidth-bound; the group buffer (N 8-bit frames) is smaller
@@ -333,9 +334,13 @@ pub struct Decoder<T: Sample> {
     frames: Vec<T>,
     /// (cos, sin) of 2π·f_p·s/N at [p·N + s].
     twiddles: Vec<[f32; 2]>,
-    /// Per completed group: per candidate pixel and projector (wrapped phase, modulation),
-    /// 16 bit.
-    groups: Vec<Vec<u16>>,
+    /// Per completed group and projector: at the pixels it lights (see `lit`), in pixel
+    /// order, the (wrapped phase, modulation) pair, 16 bit each.
+    groups: Vec<Vec<Vec<u16>>>,
+    /// Per projector: the pixels whose own modulation in the first group reached
+    /// [`CANDIDATE`] of full scale (a bit each; no other pair can be valid), and per image
+    /// row the slot of the row's first one (height + 1 entries). Filled by the first group.
+    lit: Vec<LitPixels>,
     /// Per pixel: whether it is a candidate (some projector's modulation in the first group
     /// reached [`CANDIDATE`] of full scale); filled by the first group.
     candidate: Vec<bool>,
@@ -438,6 +443,7 @@ impl<T: Sample> Decoder<T> {
             groups: Vec::with_capacity(seq.groups()),
             candidate: Vec::new(),
             row_slots: Vec::new(),
+            lit: Vec::new(),
             bsq: vec![0.0; npx * seq.projectors().len()],
             levels: vec![Level::default(); npx],
             saturated: vec![false; npx],
@@ -451,7 +457,13 @@ impl<T: Sample> Decoder<T> {
     /// saturation flags (once every group is in, its peak before [`Self::finish`]).
     pub fn buffer_bytes(&self) -> usize {
         self.frames.len() * std::mem::size_of::<T>()
-            + self.groups.iter().map(|g| g.len() * 2).sum::<usize>()
+            + self
+                .groups
+                .iter()
+                .flatten()
+                .map(|g| g.len() * 2)
+                .sum::<usize>()
+            + self.lit.iter().map(LitPixels::bytes).sum::<usize>()
             + self.candidate.len()
             + self.row_slots.len() * 4
             + self.bsq.len() * 4
@@ -517,30 +529,34 @@ impl<T: Sample> Decoder<T> {
         let np = self.seq.projectors().len();
         if g == 0 {
             self.candidate = vec![false; w * h];
+            self.lit = (0..np).map(|_| LitPixels::new(w * h)).collect();
         }
-        let slots = self.row_slots.last().map_or(0, |&n| n as usize);
-        let mut kept: Vec<u16> = Vec::with_capacity(slots * np * 2);
+        let mut kept: Vec<Vec<u16>> = (self.lit.iter())
+            .map(|l| Vec::with_capacity(l.count() * 2))
+            .collect();
         let mut band = vec![0u16; BAND_ROWS.min(h) * w * np * 2];
         for y0 in (0..h).step_by(BAND_ROWS) {
             let rows = BAND_ROWS.min(h - y0);
             let out = &mut band[..rows * w * np * 2];
             self.band_dft(g, y0, out);
             self.add_modulation_squares(y0, out);
-            let candidate = &mut self.candidate[y0 * w..(y0 + rows) * w];
             if g == 0 {
-                mark_candidates(out, np, candidate);
+                let candidate = &mut self.candidate[y0 * w..(y0 + rows) * w];
+                mark_candidates(out, np, y0 * w, candidate, &mut self.lit);
             }
-            // The candidates' pairs in pixel order: candidate k of the image at slot k.
-            kept.extend(
-                out.chunks_exact(np * 2)
-                    .zip(candidate.iter())
-                    .filter(|(_, &c)| c)
-                    .flat_map(|(px, _)| px.iter().copied()),
-            );
+            // Each projector's pairs at the pixels it lights, in pixel order.
+            for (i, px) in out.chunks_exact(np * 2).enumerate() {
+                for ((kept, lit), pair) in kept.iter_mut().zip(&self.lit).zip(px.chunks_exact(2)) {
+                    if lit.get(y0 * w + i) {
+                        kept.extend_from_slice(pair);
+                    }
+                }
+            }
         }
         if g == 0 {
-            kept.shrink_to_fit();
+            kept.iter_mut().for_each(Vec::shrink_to_fit);
             self.row_slots = row_slots(&self.candidate, w);
+            self.lit.iter_mut().for_each(|l| l.count_rows(w, h));
         }
         self.groups.push(kept);
     }
@@ -653,12 +669,74 @@ impl<T: Sample> Decoder<T> {
     }
 }
 
-/// Marks the candidates among the pixels of `out` (P (ψ, B) pairs per pixel, one flag each
-/// in `candidate`): where some projector's B reached [`CANDIDATE`] of full scale.
-fn mark_candidates(out: &[u16], np: usize, candidate: &mut [bool]) {
+/// Marks the candidates among the pixels of `out` (P (ψ, B) pairs per pixel, from pixel
+/// `first` of the image on; one flag each in `candidate`): where some projector's B reached
+/// [`CANDIDATE`] of full scale; and in each projector's `lit` the pixels where its own did.
+fn mark_candidates(
+    out: &[u16],
+    np: usize,
+    first: usize,
+    candidate: &mut [bool],
+    lit: &mut [LitPixels],
+) {
     let floor = (CANDIDATE * B_STEPS).round() as u16;
-    for (c, px) in candidate.iter_mut().zip(out.chunks_exact(np * 2)) {
-        *c = px.chunks_exact(2).any(|pair| pair[1] >= floor);
+    for (i, (c, px)) in candidate
+        .iter_mut()
+        .zip(out.chunks_exact(np * 2))
+        .enumerate()
+    {
+        for (lit, pair) in lit.iter_mut().zip(px.chunks_exact(2)) {
+            if pair[1] >= floor {
+                lit.set(first + i);
+                *c = true;
+            }
+        }
+    }
+}
+
+/// One projector's lit pixels: a bit per pixel, and per image row the slot of its first lit
+/// pixel among all of them in row-major order.
+struct LitPixels {
+    bits: Vec<u64>,
+    /// Height + 1 entries (the last the number of lit pixels); filled by `count_rows`.
+    row_slots: Vec<u32>,
+}
+
+impl LitPixels {
+    /// No pixel of `npx` lit.
+    fn new(npx: usize) -> Self {
+        LitPixels {
+            bits: vec![0; npx.div_ceil(64)],
+            row_slots: Vec::new(),
+        }
+    }
+
+    fn set(&mut self, i: usize) {
+        self.bits[i / 64] |= 1 << (i % 64);
+    }
+
+    fn get(&self, i: usize) -> bool {
+        self.bits[i / 64] >> (i % 64) & 1 == 1
+    }
+
+    /// Lit pixels (0 before `count_rows`).
+    fn count(&self) -> usize {
+        self.row_slots.last().map_or(0, |&n| n as usize)
+    }
+
+    /// Fill the row slots of an image of `rows` rows of `w` pixels.
+    fn count_rows(&mut self, w: usize, rows: usize) {
+        let mut next = 0u32;
+        self.row_slots = Vec::with_capacity(rows + 1);
+        self.row_slots.push(0);
+        for y in 0..rows {
+            next += (y * w..(y + 1) * w).filter(|&i| self.get(i)).count() as u32;
+            self.row_slots.push(next);
+        }
+    }
+
+    fn bytes(&self) -> usize {
+        self.bits.len() * 8 + self.row_slots.len() * 4
     }
 }
 
@@ -1061,9 +1139,11 @@ impl<'a, T: Sample> Judge<'a, T> {
         let dec = self.dec;
         let (w, np) = (dec.width as usize, self.mean_ratio.len());
         let mut acc = vec![[0f64; 6]; np];
-        // The row's candidates are slots row_slots[y].. in pixel order; `k` counts them.
-        let first = dec.row_slots[y];
+        // The row's candidates are slots row_slots[y].. in pixel order; `k` counts them; the
+        // pixels projector p lights are its slots from lit[p].row_slots[y] on, counted in
+        // `next[p]`.
         let mut k = 0usize;
+        let mut next: Vec<u32> = dec.lit.iter().map(|l| l.row_slots[y]).collect();
         for x in 0..w {
             let px = y * w + x;
             let (mean, _) = dec.levels[px].mean_and_var(self.steps, self.groups);
@@ -1072,6 +1152,9 @@ impl<'a, T: Sample> Judge<'a, T> {
             let (saturated, candidate) = (dec.saturated[px], dec.candidate[px]);
             let mut amb = mean as f32;
             for (p, acc) in acc.iter_mut().enumerate() {
+                let lit = dec.lit[p].get(px);
+                let slot = next[p];
+                next[p] += u32::from(lit);
                 let bsq = dec.bsq[px * np + p];
                 let bmod = (bsq / self.groups as f32 - var4).max(0.0).sqrt();
                 amb -= self.mean_ratio[p] * bmod;
@@ -1083,7 +1166,7 @@ impl<'a, T: Sample> Judge<'a, T> {
                 }
                 let c = &mut row.candidates[p];
                 c.modulation[k] = bmod;
-                if saturated || bmod < self.min_b.max(5.0 * sigma) {
+                if !lit || saturated || bmod < self.min_b.max(5.0 * sigma) {
                     // Invalid whatever the phases say: not unwrapped.
                     c.u[k] = f32::NAN;
                     c.v[k] = f32::NAN;
@@ -1091,7 +1174,7 @@ impl<'a, T: Sample> Judge<'a, T> {
                     c.valid[k] = false;
                     continue;
                 }
-                let pos = self.position(first + k as u32, p, sigma);
+                let pos = self.position(slot, p, sigma);
                 let ok = pos.distance[0] < self.half_spacing[0]
                     && pos.distance[1] < self.half_spacing[1]
                     && pos.clear_of_wrap;
@@ -1109,14 +1192,13 @@ impl<'a, T: Sample> Judge<'a, T> {
         acc
     }
 
-    /// Projector p's wrapped phase ψ (cycles) and B² (DN²) in every group at candidate
+    /// Projector p's wrapped phase ψ (cycles) and B² (DN²) in every group at its lit pixel
     /// `slot`.
     fn group_phases(&self, slot: u32, p: usize) -> ([f32; 2 * MAX_COUNTS], [f32; 2 * MAX_COUNTS]) {
-        let np = self.mean_ratio.len();
         let mut psi_g = [0f32; 2 * MAX_COUNTS];
         let mut bsq_g = [0f32; 2 * MAX_COUNTS];
         for (g, data) in self.dec.groups.iter().enumerate() {
-            let o = &data[(slot as usize * np + p) * 2..][..2];
+            let o = &data[p][slot as usize * 2..][..2];
             psi_g[g] = f32::from(o[0]) * (1.0 / 65536.0);
             let b = f32::from(o[1]) * self.inv_b_scale;
             bsq_g[g] = b * b;

@@ -535,33 +535,36 @@ fn compact_stack_gives_the_full_maps_at_its_candidates() {
     assert_eq!(bits(full.ambient.as_raw()), bits(compact.ambient.as_raw()));
     assert_eq!(full.saturated, compact.saturated);
     assert_eq!(full.noise, compact.noise);
+    // Every pixel's values in the compact maps, through its slot (NaN, invalid and 0 away
+    // from the candidates).
+    let slots = compact.candidate_slots();
     for (p, maps) in full.projectors.iter().enumerate() {
-        let dense = compact.dense_maps(p);
-        assert_eq!(bits(maps.u.as_raw()), bits(&dense.u), "projector {p}: u");
-        assert_eq!(bits(maps.v.as_raw()), bits(&dense.v), "projector {p}: v");
-        assert_eq!(
-            maps.valid.as_slice(),
-            &dense.valid[..],
-            "projector {p}: valid"
-        );
+        let c = &compact.projectors[p].at_candidates;
+        let at = |i: usize| (slots[i] != NO_SLOT).then(|| slots[i] as usize);
+        let u: Vec<f32> = (0..npx)
+            .map(|i| at(i).map_or(f32::NAN, |k| c.u[k]))
+            .collect();
+        let v: Vec<f32> = (0..npx)
+            .map(|i| at(i).map_or(f32::NAN, |k| c.v[k]))
+            .collect();
+        let valid: Vec<bool> = (0..npx)
+            .map(|i| at(i).is_some_and(|k| c.valid[k]))
+            .collect();
+        assert_eq!(bits(maps.u.as_raw()), bits(&u), "projector {p}: u");
+        assert_eq!(bits(maps.v.as_raw()), bits(&v), "projector {p}: v");
+        assert_eq!(maps.valid.as_slice(), &valid[..], "projector {p}: valid");
         assert!(
             maps.valid.count() > 1000,
             "projector {p}: {}",
             maps.valid.count()
         );
         assert_eq!(maps.noise, compact.projectors[p].noise);
-        // The modulation: the same wherever the pixel is a candidate (0 elsewhere).
-        for (i, (&b, &d)) in maps
-            .modulation
-            .as_raw()
-            .iter()
-            .zip(&dense.modulation)
-            .enumerate()
-        {
-            assert!(
-                d == b || (d == 0.0 && maps.u.as_raw()[i].is_nan()),
-                "pixel {i}"
-            );
+        // The modulation: the same wherever the pixel is a candidate.
+        for (i, &b) in maps.modulation.as_raw().iter().enumerate() {
+            match at(i) {
+                Some(k) => assert_eq!(b, c.modulation[k], "pixel {i}"),
+                None => assert!(maps.u.as_raw()[i].is_nan(), "pixel {i}"),
+            }
         }
     }
 }

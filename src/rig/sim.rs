@@ -94,6 +94,10 @@ pub struct SimWorld {
     mount: MountSlot,
     /// Poses placed elsewhere than `board_poses` says (a guided operator's), T_rig_board.
     moved: Mutex<std::collections::BTreeMap<usize, Isometry3<f64>>>,
+    /// Taken while a camera builds its stack renderer: one at a time (the geometry pass and
+    /// a projector's whole-image truth are transient per-pixel buffers; each build runs on
+    /// all cores).
+    building: Mutex<()>,
 }
 
 /// The slot of a [`BoardMount`] (Debug shows whether something holds the board).
@@ -215,6 +219,7 @@ impl SimWorld {
             pulses: std::sync::atomic::AtomicU64::new(0),
             mount: MountSlot::default(),
             moved: Mutex::new(Default::default()),
+            building: Mutex::new(()),
         })
     }
 
@@ -590,10 +595,16 @@ impl SimCamera {
             .is_none_or(|(p, b, _)| *p != state.pose || *b != board)
         {
             self.renderer = None;
-            let mut r = self
-                .world
-                .stack_renderer_at(self.index, state.pose, board, &sequence)
-                .map_err(|e| self.failed(e.to_string()))?;
+            let built = {
+                let _turn = self
+                    .world
+                    .building
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner());
+                self.world
+                    .stack_renderer_at(self.index, state.pose, board, &sequence)
+            };
+            let mut r = built.map_err(|e| self.failed(e.to_string()))?;
             if let SimFormat::Bayer(cfa) = self.world.formats[self.index] {
                 r.set_cfa(Some(cfa_response(cfa)));
             }

@@ -13,7 +13,7 @@ use super::texture::face_side;
 use super::{geometry, sensor, Scene, SimError};
 use crate::camera::CameraModel;
 use crate::pattern::{Direction, Sequence};
-use hexcal_simulator::{Frame, ImageSize, Sensor};
+use hexcal_simulator::{Frame, Geometry, ImageSize, Sensor};
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 use std::sync::Mutex;
@@ -120,6 +120,9 @@ pub struct StackRenderer {
     flat_signal: [std::sync::OnceLock<Vec<f32>>; 2],
 }
 
+/// Image rows per band when a frame is exposed.
+const EXPOSE_ROWS: usize = 64;
+
 /// The fixed-point unit of cached cosines and sines.
 const PHASE_UNIT: f64 = 32767.0;
 
@@ -178,6 +181,45 @@ impl GroupPhases {
     }
 }
 
+/// Projector `p`'s truth in `scene`'s camera from its geometry pass `geo`: the projector
+/// pixel of each lit pixel's board point (on the side facing the projector, inside its
+/// raster), computed row by row on all cores; one whole-image map at a time (the rest of the
+/// image is dark), kept over the lit rectangle.
+fn projector_truth(scene: &Scene, geo: &Geometry, p: &StackProjector) -> ProjectorTruth {
+    let n = geo.point.len();
+    let w = geo.size.width as usize;
+    let (mut u, mut v) = (vec![f32::NAN; n], vec![f32::NAN; n]);
+    let board_from_proj = p.proj_from_board.inverse();
+    let centre = board_from_proj * Point3::origin();
+    let (pw, ph) = (f64::from(p.model.width), f64::from(p.model.height));
+    u.par_chunks_mut(w)
+        .zip(v.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (u, v))| {
+            for (x, (u, v)) in u.iter_mut().zip(v.iter_mut()).enumerate() {
+                let i = y * w + x;
+                let Some(side) = face_side(geo.face[i]) else {
+                    continue;
+                };
+                // The projector lights the side whose outward normal points at it.
+                let face = scene.board.side_transform(side);
+                let normal = face.rotation * nalgebra::Vector3::z();
+                let [px, py, pz] = geo.point[i];
+                let pt = Point3::new(f64::from(px), f64::from(py), f64::from(pz));
+                if normal.dot(&(centre - pt)) <= 0.0 {
+                    continue;
+                }
+                if let Some(q) = p.model.project(&(p.proj_from_board * pt)) {
+                    if q.x >= -0.5 && q.y >= -0.5 && q.x < pw - 0.5 && q.y < ph - 0.5 {
+                        *u = q.x as f32;
+                        *v = q.y as f32;
+                    }
+                }
+            }
+        });
+    ProjectorTruth::cropped(w, &u, &v)
+}
+
 impl StackRenderer {
     /// Prepare the stack of `scene`'s camera and pose under `projectors`, which show
     /// `sequence` (its projector order); `ambient_dn` is the ambient light on white.
@@ -197,34 +239,7 @@ impl StackRenderer {
         let geo = geometry(scene)?;
         let truth: Vec<ProjectorTruth> = projectors
             .iter()
-            .map(|p| {
-                let n = geo.point.len();
-                let (mut u, mut v) = (vec![f32::NAN; n], vec![f32::NAN; n]);
-                let board_from_proj = p.proj_from_board.inverse();
-                let centre = board_from_proj * Point3::origin();
-                for i in 0..n {
-                    let Some(side) = face_side(geo.face[i]) else {
-                        continue;
-                    };
-                    // The projector lights the side whose outward normal points at it.
-                    let face = scene.board.side_transform(side);
-                    let normal = face.rotation * nalgebra::Vector3::z();
-                    let [x, y, z] = geo.point[i];
-                    let x = Point3::new(f64::from(x), f64::from(y), f64::from(z));
-                    if normal.dot(&(centre - x)) <= 0.0 {
-                        continue;
-                    }
-                    if let Some(q) = p.model.project(&(p.proj_from_board * x)) {
-                        let (w, h) = (f64::from(p.model.width), f64::from(p.model.height));
-                        if q.x >= -0.5 && q.y >= -0.5 && q.x < w - 0.5 && q.y < h - 0.5 {
-                            u[i] = q.x as f32;
-                            v[i] = q.y as f32;
-                        }
-                    }
-                }
-                // One projector's whole-image maps at a time (the rest of the image is dark).
-                ProjectorTruth::cropped(geo.size.width as usize, &u, &v)
-            })
+            .map(|p| projector_truth(scene, &geo, p))
             .collect();
         let sensor = sensor(&scene.imaging);
         let (w, h) = (geo.size.width as usize, geo.size.height as usize);
@@ -393,45 +408,76 @@ impl StackRenderer {
         self.sensor.expose(self.size, signal, seed)
     }
 
-    /// The sensor's frame of the ambient light plus the projectors' irradiance `lit` gives
-    /// inside the lit box, with noise seed `seed`.
-    fn expose(&self, lit: impl FnOnce([usize; 4]) -> Vec<f32>, seed: u64) -> Frame {
-        self.sensor.expose(self.size, &self.signal(lit), seed)
-    }
-
-    /// The noise-free signal of the ambient light plus the projectors' irradiance `lit`
-    /// gives inside the lit box.
+    /// The whole frame's noise-free signal of the ambient light plus the projectors'
+    /// irradiance `lit` gives inside the lit box (what [`Self::expose`] forms band by band).
     fn signal(&self, lit: impl FnOnce([usize; 4]) -> Vec<f32>) -> Vec<f32> {
-        // The optics are linear: the ambient signal (once) plus the projectors' light through
-        // the optics inside the lit box, exact there because the box reaches twice as far as
-        // the PSF beyond the last lit pixel.
+        let w = self.size.width as usize;
         let mut signal = self.ambient_signal.clone();
-        if let Some(b @ [x0, y0, x1, y1]) = self.lit_box {
-            let (bw, bh) = (x1 - x0, y1 - y0);
-            let mut irr = lit(b);
-            let (w, h) = (self.size.width as usize, self.size.height as usize);
-            if self.sensor.vignetting != 0.0 {
-                let (cx, cy) = (0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0));
-                let corner2 = (cx * cx + cy * cy).max(1e-12);
-                for (by, row) in irr.chunks_mut(bw).enumerate() {
-                    let dy2 = ((y0 + by) as f64 - cy).powi(2);
-                    for (bx, v) in row.iter_mut().enumerate() {
-                        let rho2 = ((x0 + bx) as f64 - cx).powi(2) + dy2;
-                        *v *= (1.0 - self.sensor.vignetting * rho2 / corner2) as f32;
-                    }
-                }
-            }
-            if self.sensor.psf_sigma > 0.0 {
-                irr = hexcal_simulator::sensor::gaussian_blur(&irr, bw, bh, self.sensor.psf_sigma);
-            }
-            for (by, row) in irr.chunks(bw).enumerate() {
+        if let Some(b @ [x0, y0, x1, _]) = self.lit_box {
+            let irr = self.optics(b, lit(b));
+            for (by, row) in irr.chunks(x1 - x0).enumerate() {
                 let start = (y0 + by) * w + x0;
-                for (s, v) in signal[start..start + bw].iter_mut().zip(row) {
+                for (s, v) in signal[start..start + (x1 - x0)].iter_mut().zip(row) {
                     *s += v;
                 }
             }
         }
         signal
+    }
+
+    /// The sensor's frame of the ambient light plus the projectors' irradiance `lit` gives
+    /// inside the lit box, with noise seed `seed`; exposed band by band of
+    /// [`EXPOSE_ROWS`] rows (the whole frame's signal is never held).
+    fn expose(&self, lit: impl FnOnce([usize; 4]) -> Vec<f32>, seed: u64) -> Frame {
+        let (w, h) = (self.size.width as usize, self.size.height as usize);
+        // The optics are linear: the ambient signal (once) plus the projectors' light through
+        // the optics inside the lit box, exact there because the box reaches twice as far as
+        // the PSF beyond the last lit pixel.
+        let light = self.lit_box.map(|b| (b, self.optics(b, lit(b))));
+        let mut data = vec![0u16; w * h];
+        let mut band = vec![0f32; EXPOSE_ROWS.min(h) * w];
+        for (i, out) in data.chunks_mut(EXPOSE_ROWS * w).enumerate() {
+            let y0 = i * EXPOSE_ROWS;
+            let signal = &mut band[..out.len()];
+            signal.copy_from_slice(&self.ambient_signal[y0 * w..][..out.len()]);
+            if let Some(([x0, by0, x1, by1], irr)) = &light {
+                let bw = x1 - x0;
+                for y in y0.max(*by0)..(y0 + out.len() / w).min(*by1) {
+                    let row = &irr[(y - by0) * bw..][..bw];
+                    for (s, v) in signal[(y - y0) * w + x0..][..bw].iter_mut().zip(row) {
+                        *s += v;
+                    }
+                }
+            }
+            self.sensor.expose_rows(w, y0, signal, seed, out);
+        }
+        Frame {
+            size: self.size,
+            bits: self.sensor.bits,
+            data,
+        }
+    }
+
+    /// The projectors' irradiance `irr` over the lit box `[x0, y0, x1, y1]` through the
+    /// optics: vignetting, then the PSF.
+    fn optics(&self, [x0, y0, x1, y1]: [usize; 4], mut irr: Vec<f32>) -> Vec<f32> {
+        let (bw, bh) = (x1 - x0, y1 - y0);
+        let (w, h) = (self.size.width as usize, self.size.height as usize);
+        if self.sensor.vignetting != 0.0 {
+            let (cx, cy) = (0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0));
+            let corner2 = (cx * cx + cy * cy).max(1e-12);
+            for (by, row) in irr.chunks_mut(bw).enumerate() {
+                let dy2 = ((y0 + by) as f64 - cy).powi(2);
+                for (bx, v) in row.iter_mut().enumerate() {
+                    let rho2 = ((x0 + bx) as f64 - cx).powi(2) + dy2;
+                    *v *= (1.0 - self.sensor.vignetting * rho2 / corner2) as f32;
+                }
+            }
+        }
+        if self.sensor.psf_sigma > 0.0 {
+            irr = hexcal_simulator::sensor::gaussian_blur(&irr, bw, bh, self.sensor.psf_sigma);
+        }
+        irr
     }
 }
 
