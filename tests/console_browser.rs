@@ -71,8 +71,9 @@ sim.pose = { eye = [335.2, 113.3, 1250.9], target = [0.0, 0.0, 0.0] }
 
 /// The rig's done threshold on projection uncertainty (px): between what the first interim
 /// calibration (3 poses) and the second (4 poses) reach on this rig's fixed schedule (with
-/// the lens model chosen by the data, the projector's worst was 0.207 px after 3 poses and
-/// 0.155 after 4), so the page must show one suggestion before the sign turns.
+/// the lens model chosen by the data and each device's pose in its uncertainty, the
+/// projector's worst was 0.207 px after 3 poses and 0.146 after 4), so the page must show
+/// one suggestion before the sign turns.
 const THRESHOLD: &str = "0.18";
 
 /// How long any one step may take in the debug build on a loaded machine.
