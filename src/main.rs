@@ -404,6 +404,20 @@ fn keep_freed_blocks() {
     }
 }
 
+/// `e` and its causes in one line, each cause once: a library error that already names
+/// its cause in its own message (`cannot read F: {source}`) is not followed by it again.
+fn one_line(e: &anyhow::Error) -> String {
+    let mut line = e.to_string();
+    for cause in e.chain().skip(1) {
+        let cause = cause.to_string();
+        if !line.contains(&cause) {
+            line.push_str(": ");
+            line.push_str(&cause);
+        }
+    }
+    line
+}
+
 fn main() -> ExitCode {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     keep_freed_blocks();
@@ -426,7 +440,7 @@ fn main() -> ExitCode {
             ExitCode::from(EXIT_UNCALIBRATED)
         }
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", one_line(&e));
             let interrupted = matches!(
                 e.downcast_ref::<AppError>(),
                 Some(AppError::Interrupted { .. })

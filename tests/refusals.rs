@@ -331,6 +331,29 @@ fn held_out_leaving_too_few_poses_is_refused_before_capture() {
     assert!(!out.exists(), "nothing captured");
 }
 
+#[test]
+fn a_missing_rig_file_is_named_with_its_cause_once() {
+    let dir = scratch("refuse-missing-rig");
+    let rig = dir.join("absent.toml");
+    let out = dir.join("run");
+    for cmd in [&["run", "--auto"][..], &["capture"][..]] {
+        let mut args = cmd.to_vec();
+        args.extend([
+            "--rig",
+            rig.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let err = refused(
+            &hexcal(&args),
+            &["absent.toml", "No such file or directory"],
+        );
+        assert_eq!(err.matches("No such file").count(), 1, "{err}");
+        assert_eq!(err.matches("absent.toml").count(), 1, "{err}");
+    }
+    assert!(!out.exists(), "nothing written");
+}
+
 /// A pipe whose reading end is closed: writing to it fails with EPIPE.
 fn closed_pipe() -> Stdio {
     let mut fds = [0; 2];
