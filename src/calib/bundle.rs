@@ -829,8 +829,11 @@ fn residuals(p: &Problem, s: &State, l: &Layout, an: &[Bias]) -> Residuals {
 const COST_CHUNK: usize = 4096;
 
 /// A trial state's cost (30) over the active observations that `reference` (the residuals
-/// at the linearisation point) predicts, infinite when one of them cannot be predicted (a
-/// trial must neither gain by losing observations nor lose by regaining them); with
+/// at the linearisation point) predicts; one the trial cannot predict (its camera ray
+/// beyond a lens estimate's fold or missing the board, its point behind the device) is
+/// charged its loss at the linearisation point, so a trial neither gains by losing
+/// observations nor loses by regaining them, and no single observation among millions can
+/// veto every step (docs/design.md §8, issue 17 at 60/4/100); with
 /// `norms`, also every residual's norm (NaN where not predicted) for the robust phase's
 /// next set (30a). No residual is stored.
 #[allow(clippy::too_many_arguments)]
@@ -859,7 +862,8 @@ fn trial_cost(
                 }
                 match (known(&e), known(&reference[i]), active[i]) {
                     (true, true, true) => total += loss(&e, huber),
-                    (false, true, true) => total = f64::INFINITY,
+                    // Lost by the trial: charged what it cost at the linearisation point.
+                    (false, true, true) => total += loss(&reference[i], huber),
                     _ => {}
                 }
             }
@@ -1603,6 +1607,56 @@ mod tests {
                     ob.via.map(|v| v.camera)
                 );
             }
+        }
+    }
+
+    #[test]
+    fn a_trial_that_loses_observations_is_charged_their_loss_at_the_start() {
+        // Issue 17: at 60/4/100 every useful step lost 2–50 of 10⁷ observations (projector
+        // pixels whose camera pixel lies beyond an intermediate lens estimate's fold, or whose
+        // ray misses the board); charged an infinite cost, such a trial was rejected until λ
+        // reached 10⁴ and the adjustment stalled at σ̂ 114 px. Here camera 1's k1 = −3 folds
+        // its lens at 0.33 (normalised): the projector pixels found near its image's rim are
+        // lost, and the trial's cost must be the others' plus the lost ones' at the start.
+        let rig = SyntheticRig::paper(4, 0.1, 9);
+        let p = Problem {
+            board: rig.board.clone(),
+            devices: rig.devices.clone(),
+            boards: rig.boards.clone(),
+            observations: rig.observations.clone(),
+        };
+        let o = Options::default();
+        let l = Layout::new(&p, &o);
+        let s = State {
+            devices: p.devices.clone(),
+            boards: p.boards.clone(),
+            front_back: p.board.side_transform(Side::Back),
+            bend: Bend::flat(&p.board),
+        };
+        let an = anchors(&p, &s, &o);
+        let reference = residuals(&p, &s, &l, &an);
+        let mut trial = s.clone();
+        trial.devices[1].model.distortion.k1 = -3.0;
+        let at_trial = residuals(&p, &trial, &l, &an);
+        let active: Vec<bool> = (0..p.observations.len()).map(|i| i % 5 != 0).collect();
+        for huber in [None, Some(1.0)] {
+            let (mut want, mut lost) = (0.0, 0);
+            for ((e, r), a) in at_trial.iter().zip(&reference).zip(&active) {
+                match (known(e), known(r), a) {
+                    (true, true, true) => want += loss(e, huber),
+                    (false, true, true) => {
+                        want += loss(r, huber);
+                        lost += 1;
+                    }
+                    _ => {}
+                }
+            }
+            assert!(lost > 10, "the fold loses only {lost} observations");
+            let (got, _) = trial_cost(&p, &trial, &l, &an, &reference, &active, huber, false);
+            assert!(
+                (got - want).abs() <= 1e-9 * want,
+                "{huber:?}: {got} against {want}, {lost} lost"
+            );
         }
     }
 }

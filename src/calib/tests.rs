@@ -750,6 +750,22 @@ mod convergence {
         assert!(failed.is_empty(), "failed: {failed:?}");
     }
 
+    /// Issue 17's largest rig (10.5 million observations, p = 1560): before the trial-cost
+    /// change it stalled at the first iterations with λ climbing to 10⁴ (a few of 10⁷
+    /// observations lost by every useful step vetoed it) and stopped at the iteration limit
+    /// with σ̂ 114 px. Ten minutes and 1.8 GiB on two cores:
+    /// `cargo test --release --lib calib::tests::convergence::sixty_cameras -- --ignored
+    /// --nocapture`. It checks convergence and σ̂ only: the worst parameter is printed (8.1σ
+    /// against a bound of 5.0 for seed 1, open: docs/design.md §8).
+    #[test]
+    #[ignore]
+    fn sixty_cameras_four_projectors_hundred_poses_converge() {
+        let c = case(60, 4, 100, 1, Start::Perturbed);
+        let r = check(c);
+        assert!(r.converged, "{r:?}");
+        assert!((r.posterior_sigma / c.sigma - 1.0).abs() <= 0.02, "{r:?}");
+    }
+
     /// Every cell of the grid over `cameras` × projectors {0, 3, 4} × `poses` × seeds 1–3 ×
     /// both starts, one line each (pass or FAIL); fails naming the cells that did not pass.
     fn grid(cameras: &[usize], poses: &[usize]) {
