@@ -9,7 +9,8 @@
 //!
 //! Solver: Levenberg–Marquardt on the normal equations with left pose increments
 //! T ← (exp(ω), τ)·T, a Huber loss first, then rejection of outliers beyond a multiple of a
-//! robust σ, then plain least squares; covariance σ²(JᵀJ)⁻¹ at the end.
+//! robust σ, then plain least squares, the outliers decided again at each of its minima
+//! until they hold; covariance σ²(JᵀJ)⁻¹ at the end.
 
 use super::circle::ellipse_bias_px;
 use super::schur::{BlockSystem, Covariance, PoseBlock, Scaled, Step};
