@@ -9,7 +9,8 @@
 //!
 //! Solver: Levenberg–Marquardt on the normal equations with left pose increments
 //! T ← (exp(ω), τ)·T, a Huber loss first, then rejection of outliers beyond a multiple of a
-//! robust σ, then plain least squares; covariance σ²(JᵀJ)⁻¹ at the end.
+//! robust σ, then plain least squares, the outliers decided again at each of its minima
+//! until they hold; covariance σ²(JᵀJ)⁻¹ at the end.
 
 use super::circle::ellipse_bias_px;
 use super::schur::{BlockSystem, Covariance, PoseBlock, Scaled, Step};
@@ -1199,6 +1200,54 @@ fn check_problem(p: &Problem, o: &Options) -> Result<(), CalibError> {
     Ok(())
 }
 
+/// Re-decisions of the outlier set (31) at most after the first plain phase.
+const MAX_REDECISIONS: usize = 4;
+
+/// The plain phase (32) after the robust one: the outliers (31) are decided from the
+/// residuals where the robust phase stopped, then re-decided from those at each plain
+/// minimum, and the phase re-run, until the set no longer changes. An observation held out
+/// while its pose or device was still far off is so re-admitted once they have arrived
+/// (60/4/100 seed 1: 2444 of board 98's observations held out to the end, its x 8.1σ off;
+/// docs/design.md §8). Gives the last phase, its set and the iterations of all phases.
+fn plain_phase(
+    p: &Problem,
+    l: &Layout,
+    o: &Options,
+    by_pose: &[Vec<usize>],
+    robust: Phase,
+) -> (Phase, Vec<bool>, usize) {
+    let decide = |phase: &Phase| -> Vec<bool> {
+        let norms: Vec<f64> = match &phase.system {
+            Some((_, _, res)) => res.iter().map(|e| e.norm()).collect(),
+            None => residuals(p, &phase.state, l, &anchors(p, &phase.state, o))
+                .iter()
+                .map(|e| e.norm())
+                .collect(),
+        };
+        inliers(p, &norms, o)
+    };
+    let mut iterations = robust.iterations;
+    let mut active = decide(&robust);
+    // The plain phase goes on from where the robust one stopped, with its damping: the
+    // minimum moves little when the outliers leave, and restarting at the first λ takes
+    // many damped steps along the weakest directions (paper rig: 11 iterations, not 3).
+    let mut phase = robust;
+    let mut round = 0;
+    loop {
+        phase = levenberg_marquardt(p, phase.state, l, o, &active, None, by_pose, phase.lambda);
+        iterations += phase.iterations;
+        if round == MAX_REDECISIONS || !phase.converged {
+            return (phase, active, iterations);
+        }
+        let next = decide(&phase);
+        if next == active {
+            return (phase, active, iterations);
+        }
+        active = next;
+        round += 1;
+    }
+}
+
 /// Run the adjustment: robust phase, outlier rejection per device, plain phase, covariance.
 pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     check_problem(p, o)?;
@@ -1212,28 +1261,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     };
     let all = vec![true; p.observations.len()];
     let robust = levenberg_marquardt(p, start, &l, o, &all, Some(o.huber), &by_pose, LAMBDA0);
-    // The residuals where the robust phase stopped (those of its last linear system, when it
-    // ended with one).
-    let res = match robust.system {
-        Some((_, _, res)) => res,
-        None => residuals(p, &robust.state, &l, &anchors(p, &robust.state, o)),
-    };
-    let res: Vec<f64> = res.iter().map(|e| e.norm()).collect();
-    let active = inliers(p, &res, o);
-    drop(res);
-    // The plain phase goes on from where the robust one stopped, with its damping: the
-    // minimum moves little when the outliers leave, and restarting at the first λ takes
-    // many damped steps along the weakest directions (paper rig: 11 iterations, not 3).
-    let plain = levenberg_marquardt(
-        p,
-        robust.state,
-        &l,
-        o,
-        &active,
-        None,
-        &by_pose,
-        robust.lambda,
-    );
+    let (plain, active, iterations) = plain_phase(p, &l, o, &by_pose, robust);
     let s = plain.state;
     let (sys, cost, res) = plain.system.unwrap_or_else(|| {
         let (sys, cost, res) =
@@ -1297,7 +1325,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         board_index: l.board.clone(),
         side_index: l.side,
         covariance,
-        iterations: robust.iterations + plain.iterations,
+        iterations,
         converged: plain.converged,
     })
 }
@@ -1658,5 +1686,78 @@ mod tests {
                 "{huber:?}: {got} against {want}, {lost} lost"
             );
         }
+    }
+
+    #[test]
+    fn observations_held_out_while_their_pose_was_off_are_readmitted() {
+        // Issue 17: at 60/4/100 seed 1 the outliers (31) were decided once, where the robust
+        // phase stopped, and 2444 of board 98's observations (45–111 for every other pose)
+        // stayed out to the end, its x 8.1σ off. Here board 1 is turned about its origin
+        // before the plain phase, so the first decision holds out its far observations; at
+        // convergence its held-out count must be that of the noise (P(|e| > 4σ) = e⁻⁸ for a
+        // 2D Gaussian residual), as the other poses' are.
+        let rig = SyntheticRig::paper(4, 0.1, 9);
+        let p = Problem {
+            board: rig.board.clone(),
+            devices: rig.devices.clone(),
+            boards: rig.boards.clone(),
+            observations: rig.observations.clone(),
+        };
+        let (o, l, by_pose) = (
+            Options::default(),
+            Layout::new(&p, &Options::default()),
+            group_by_pose(&p),
+        );
+        let mut state = State {
+            devices: p.devices.clone(),
+            boards: p.boards.clone(),
+            front_back: p.board.side_transform(Side::Back),
+            bend: Bend::flat(&p.board),
+        };
+        // 2 mrad about the board's normal.
+        let turn = UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, 0.002));
+        state.boards[1] *= Isometry3::from_parts(Default::default(), turn);
+        let held_out = |active: &[bool]| -> Vec<usize> {
+            let mut count = vec![0; p.boards.len()];
+            for (ob, a) in p.observations.iter().zip(active) {
+                count[ob.pose] += usize::from(!a);
+            }
+            count
+        };
+        let an = anchors(&p, &state, &o);
+        let norms: Vec<f64> = residuals(&p, &state, &l, &an)
+            .iter()
+            .map(|e| e.norm())
+            .collect();
+        let first = held_out(&inliers(&p, &norms, &o));
+        let robust = Phase {
+            state,
+            iterations: 0,
+            converged: true,
+            system: None,
+            lambda: LAMBDA0,
+        };
+        let (phase, active, _) = plain_phase(&p, &l, &o, &by_pose, robust);
+        assert!(phase.converged);
+        let last = held_out(&active);
+        for k in 0..p.boards.len() {
+            let n = by_pose[k].len() as f64;
+            let expected = n * (-8.0f64).exp();
+            let bound = expected + 4.0 * expected.sqrt() + 3.0;
+            eprintln!(
+                "pose {k}: {n} observations, held out {} first, {} at the end (bound {bound:.1})",
+                first[k], last[k]
+            );
+            assert!(
+                last[k] as f64 <= bound,
+                "pose {k}: {} held out at the end, bound {bound:.1}",
+                last[k]
+            );
+        }
+        assert!(
+            first[1] as f64 > 0.2 * by_pose[1].len() as f64,
+            "the turn holds out only {} first",
+            first[1]
+        );
     }
 }
