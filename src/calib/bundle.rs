@@ -321,6 +321,16 @@ struct State {
 }
 
 impl State {
+    /// The problem's own devices and board poses, the nominal side transform, a flat board.
+    fn start(p: &Problem) -> State {
+        State {
+            devices: p.devices.clone(),
+            boards: p.boards.clone(),
+            front_back: p.board.side_transform(Side::Back),
+            bend: Bend::flat(&p.board),
+        }
+    }
+
     fn side(&self, s: Side) -> Isometry3<f64> {
         match s {
             Side::Front => Isometry3::identity(),
@@ -1253,12 +1263,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     check_problem(p, o)?;
     let l = Layout::new(p, o);
     let by_pose = group_by_pose(p);
-    let start = State {
-        devices: p.devices.clone(),
-        boards: p.boards.clone(),
-        front_back: p.board.side_transform(Side::Back),
-        bend: Bend::flat(&p.board),
-    };
+    let start = State::start(p);
     let all = vec![true; p.observations.len()];
     let robust = levenberg_marquardt(p, start, &l, o, &all, Some(o.huber), &by_pose, LAMBDA0);
     let (plain, active, iterations) = plain_phase(p, &l, o, &by_pose, robust);
@@ -1485,12 +1490,7 @@ mod tests {
         let problem = rig.perturbed_start(2);
         let o = Options::default();
         let l = Layout::new(&problem, &o);
-        let state = State {
-            devices: problem.devices.clone(),
-            boards: problem.boards.clone(),
-            front_back: problem.board.side_transform(Side::Back),
-            bend: Bend::flat(&problem.board),
-        };
+        let state = State::start(&problem);
         let an = anchors(&problem, &state, &o);
         let active = vec![true; problem.observations.len()];
         let by_pose = group_by_pose(&problem);
@@ -1555,12 +1555,7 @@ mod tests {
             ..Options::default()
         };
         let l = Layout::new(&problem, &o);
-        let mut state = State {
-            devices: problem.devices.clone(),
-            boards: problem.boards.clone(),
-            front_back: problem.board.side_transform(Side::Back),
-            bend: Bend::flat(&problem.board),
-        };
+        let mut state = State::start(&problem);
         // Move off the truth so no term vanishes by symmetry.
         let wiggle = DVector::from_fn(l.len, |i, _| 1e-4 * ((i * 7919 % 13) as f64 - 6.0));
         state = state.update(&l, &wiggle, &vec![false; l.len]);
@@ -1638,6 +1633,16 @@ mod tests {
         }
     }
 
+    /// `rig`'s observations with its true devices and board poses as the start.
+    fn truth_problem(rig: &SyntheticRig) -> Problem {
+        Problem {
+            board: rig.board.clone(),
+            devices: rig.devices.clone(),
+            boards: rig.boards.clone(),
+            observations: rig.observations.clone(),
+        }
+    }
+
     #[test]
     fn a_trial_that_loses_observations_is_charged_their_loss_at_the_start() {
         // Issue 17: at 60/4/100 every useful step lost 2–50 of 10⁷ observations (projector
@@ -1646,21 +1651,10 @@ mod tests {
         // reached 10⁴ and the adjustment stalled at σ̂ 114 px. Here camera 1's k1 = −3 folds
         // its lens at 0.33 (normalised): the projector pixels found near its image's rim are
         // lost, and the trial's cost must be the others' plus the lost ones' at the start.
-        let rig = SyntheticRig::paper(4, 0.1, 9);
-        let p = Problem {
-            board: rig.board.clone(),
-            devices: rig.devices.clone(),
-            boards: rig.boards.clone(),
-            observations: rig.observations.clone(),
-        };
+        let p = truth_problem(&SyntheticRig::paper(4, 0.1, 9));
         let o = Options::default();
         let l = Layout::new(&p, &o);
-        let s = State {
-            devices: p.devices.clone(),
-            boards: p.boards.clone(),
-            front_back: p.board.side_transform(Side::Back),
-            bend: Bend::flat(&p.board),
-        };
+        let s = State::start(&p);
         let an = anchors(&p, &s, &o);
         let reference = residuals(&p, &s, &l, &an);
         let mut trial = s.clone();
@@ -1696,24 +1690,13 @@ mod tests {
         // before the plain phase, so the first decision holds out its far observations; at
         // convergence its held-out count must be that of the noise (P(|e| > 4σ) = e⁻⁸ for a
         // 2D Gaussian residual), as the other poses' are.
-        let rig = SyntheticRig::paper(4, 0.1, 9);
-        let p = Problem {
-            board: rig.board.clone(),
-            devices: rig.devices.clone(),
-            boards: rig.boards.clone(),
-            observations: rig.observations.clone(),
-        };
+        let p = truth_problem(&SyntheticRig::paper(4, 0.1, 9));
         let (o, l, by_pose) = (
             Options::default(),
             Layout::new(&p, &Options::default()),
             group_by_pose(&p),
         );
-        let mut state = State {
-            devices: p.devices.clone(),
-            boards: p.boards.clone(),
-            front_back: p.board.side_transform(Side::Back),
-            bend: Bend::flat(&p.board),
-        };
+        let mut state = State::start(&p);
         // 2 mrad about the board's normal.
         let turn = UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, 0.002));
         state.boards[1] *= Isometry3::from_parts(Default::default(), turn);
