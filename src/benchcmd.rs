@@ -507,26 +507,50 @@ fn bench_guide(rig: &Path, sigma: f64, max_poses: usize, seed: u64) -> anyhow::R
         let trail: Vec<String> = r.worst.iter().map(|(k, w)| format!("{k}:{w:.3}")).collect();
         println!("{:<7} worst px after poses  {}", r.label, trail.join("  "));
     }
+    let poses = |k: Option<usize>, r: &hexcal::bench::guide::OperatorRun| {
+        k.map_or_else(
+            || format!("> {}", r.worst.last().map_or(0, |w| w.0)),
+            |k| k.to_string(),
+        )
+    };
     println!(
-        "{:<7} {:>14} {:>12} {:>12} {:>12} {:>12} {:>10}  worst position",
-        "", "poses to done", "focal err %", "pp err px", "rot err deg", "pos err mm", "s/pose"
+        "until done (every device below {} px and covered):",
+        b.threshold
     );
-    for r in &b.runs {
+    guide_table(&b.runs, &|r| (poses(r.done_at, r), &r.truth));
+    println!(
+        "until the fixed schedule's uncertainty after all its poses ({:.3} px):",
+        b.fixed_final
+    );
+    guide_table(&b.runs, &|r| (poses(r.matched_at, r), &r.truth_matched));
+    Ok(())
+}
+
+/// One table of `bench guide`: per operator the poses `at` gives and the accuracy there.
+#[allow(clippy::type_complexity)]
+fn guide_table(
+    runs: &[hexcal::bench::guide::OperatorRun],
+    at: &dyn Fn(
+        &hexcal::bench::guide::OperatorRun,
+    ) -> (String, &Vec<hexcal::app::truth::TruthCheck>),
+) {
+    println!(
+        "{:<7} {:>6} {:>12} {:>12} {:>12} {:>12} {:>10}  worst position",
+        "", "poses", "focal err %", "pp err px", "rot err deg", "pos err mm", "s/pose"
+    );
+    for r in runs {
+        let (poses, truth) = at(r);
         let max = |f: &dyn Fn(&hexcal::app::truth::TruthCheck) -> f64| {
-            r.truth.iter().map(f).fold(0.0, f64::max)
+            truth.iter().map(f).fold(0.0, f64::max)
         };
-        let far = r
-            .truth
+        let far = truth
             .iter()
             .max_by(|a, b| a.position_error_mm.total_cmp(&b.position_error_mm))
             .map_or("", |c| c.name.as_str());
         println!(
-            "{:<7} {:>14} {:>12.4} {:>12.3} {:>12.4} {:>12.3} {:>10.2}  {far}",
+            "{:<7} {:>6} {:>12.4} {:>12.3} {:>12.4} {:>12.3} {:>10.2}  {far}",
             r.label,
-            r.done_at.map_or_else(
-                || format!("> {}", r.worst.last().map_or(0, |w| w.0)),
-                |k| k.to_string()
-            ),
+            poses,
             100.0 * max(&|c| c.focal_error),
             max(&|c| c.principal_error),
             max(&|c| c.rotation_error_deg),
@@ -534,7 +558,6 @@ fn bench_guide(rig: &Path, sigma: f64, max_poses: usize, seed: u64) -> anyhow::R
             r.seconds_per_pose
         );
     }
-    Ok(())
 }
 
 /// `hexcal bench script`: the script's step timing, per kind of step.

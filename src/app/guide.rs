@@ -344,6 +344,34 @@ fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }
 
+/// The console's advice for pose `pose` (0-based) while fewer than `need` poses exist, so
+/// no interim calibration yet (docs/design.md §15 "First poses"): the board where every
+/// device shows it (cameras in their live pictures, projectors by their light on it), each
+/// pose turned as far from the ones before as that allows; `seen` is each device's name and poses seen so far,
+/// and the devices missing from some pose are named. `None` from pose `need` on.
+pub fn first_pose_advice(pose: usize, need: usize, seen: &[(&str, usize)]) -> Option<String> {
+    if pose >= need {
+        return None;
+    }
+    let mut s = format!(
+        "First poses ({} of {need} before the first calibration): put the board where every \
+         camera shows it in its live picture and every projector lights it",
+        pose + 1
+    );
+    if pose > 0 {
+        s += ", turned as far from the poses so far as it goes while every device still sees it";
+        let behind: Vec<String> = seen
+            .iter()
+            .filter(|(_, n)| *n < pose)
+            .map(|(name, n)| format!("{name} ({n} of {pose})"))
+            .collect();
+        if !behind.is_empty() {
+            s += &format!("; not seen in every pose so far: {}", behind.join(", "));
+        }
+    }
+    Some(s + ".")
+}
+
 /// Candidate board poses T_ref_board around the working volume of the poses so far: the
 /// mean board position and the first pose's orientation, turned about the board's y by
 /// up to ±50°, tilted about its x by up to ±40°, shifted in its plane by ±250 / ±200 mm.

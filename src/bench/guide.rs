@@ -1,10 +1,12 @@
 //! `hexcal bench guide`: a guided operator against a fixed schedule on a simulated rig.
 //!
 //! Takes a rig file with simulated devices and `[poses]` (its fixed schedule); gives, for
-//! the fixed schedule and for an operator who places each next pose where the console's
-//! guidance ([`crate::app::guide`]) suggests (with placement noise), every device's worst
-//! projection uncertainty after each pose, the poses needed until every device is below
-//! the rig's threshold with its image covered, and the accuracy against the ground truth.
+//! the fixed schedule, for an operator who places each pose where the console's first-pose
+//! advice and then its guidance ([`crate::app::guide`]) lead (with placement noise), and
+//! for an oracle, every device's worst projection uncertainty after each pose, the poses
+//! needed until every device is below the rig's threshold with its image covered and
+//! until the worst is down to the fixed schedule's after all its poses, and the accuracy
+//! against the ground truth at both.
 //!
 //! The board is observed at the level of calibration input: every circle centre a device
 //! would see (cameras: the ellipse centre, §8) plus Gaussian noise, projectors through the
@@ -12,7 +14,7 @@
 //! decoding and detection are left out (they are what `hexcal run` times), so both
 //! operators get the same observation model.
 
-use crate::app::guide::operator::{aim, placed, truth_devices, START_POSES};
+use crate::app::guide::operator::{aim, first_pose, placed, truth_devices, START_POSES};
 use crate::app::guide::{candidates, guide, predicted_worst, sightings, Guidance, MIN_SEEN};
 use crate::app::truth::{check_truth, TruthCheck};
 use crate::app::AppError;
@@ -47,6 +49,11 @@ pub struct OperatorRun {
     pub done_at: Option<usize>,
     /// Accuracy against the truth at `done_at` (or after the last pose).
     pub truth: Vec<TruthCheck>,
+    /// Poses until the worst uncertainty is at most the fixed schedule's after its last
+    /// pose (the same uncertainty), if reached.
+    pub matched_at: Option<usize>,
+    /// Accuracy against the truth at `matched_at` (or after the last pose).
+    pub truth_matched: Vec<TruthCheck>,
     /// Seconds of interim calibration and guidance (the oracle: interim calibration only),
     /// per pose (mean).
     pub seconds_per_pose: f64,
@@ -59,6 +66,9 @@ pub struct GuideBench {
     pub threshold: f64,
     /// Observation noise (px).
     pub sigma: f64,
+    /// The fixed schedule's worst uncertainty after its last pose (px): the target of
+    /// [`OperatorRun::matched_at`].
+    pub fixed_final: f64,
     /// Both operators.
     pub runs: Vec<OperatorRun>,
 }
@@ -120,14 +130,15 @@ fn observe(
     views
 }
 
-/// The interim calibration of `views` and its guidance; done also needs every device's
-/// image covered.
+/// The interim calibration of `views` and its guidance towards `aim` (px: the operator
+/// goes on to it past done); done (below `threshold`) also needs every device's image
+/// covered.
 fn interim(
     board: &Board,
     devices: &[DeviceInfo],
     poses: usize,
     views: &[CameraView],
-    threshold: f64,
+    (threshold, aim): (f64, f64),
 ) -> Result<(Calibration, Guidance, bool), AppError> {
     let cal = calibrate_registering(
         board,
@@ -137,9 +148,9 @@ fn interim(
         &CalibrateOptions::default(),
         &GeometricParams::default(),
     )?;
-    let g = guide(&cal, devices, threshold);
+    let g = guide(&cal, devices, threshold.min(aim));
     let covered = cal.excluded.is_empty() && coverage(&cal).iter().all(|c| c.0 <= MAX_EMPTY);
-    let done = g.done && covered;
+    let done = covered && worst(&g) <= threshold;
     Ok((cal, g, done))
 }
 
@@ -163,41 +174,40 @@ struct Setup<'a> {
     noise: Normal<f64>,
 }
 
-/// One operator: the first [`START_POSES`] of the schedule, then the schedule (`guided`
-/// false) or the guidance's suggestions, until done or `max_poses`.
+/// One operator: the whole schedule (`guided` false), or the first-pose advice for the
+/// first [`START_POSES`] and then the guidance's suggestions, until done with the worst
+/// uncertainty at most `target` (the same uncertainty as the fixed schedule's) or
+/// `max_poses`.
 fn operate(
     s: &Setup,
     guided: bool,
-    max_poses: usize,
+    (max_poses, target): (usize, f64),
     seed: u64,
     log: &mut dyn FnMut(&str),
 ) -> Result<OperatorRun, AppError> {
     let mut rng = StdRng::seed_from_u64(seed);
-    let mut views = Vec::new();
-    let mut run = OperatorRun {
-        label: if guided { "guided" } else { "fixed" },
-        worst: Vec::new(),
-        done_at: None,
-        truth: Vec::new(),
-        seconds_per_pose: 0.0,
-    };
+    let (mut views, mut poses) = (Vec::new(), Vec::new());
+    let mut run = OperatorRun::new(if guided { "guided" } else { "fixed" });
     let max = if guided { max_poses } else { s.schedule.len() };
     let mut next = s.schedule[0];
     let mut seconds = 0.0;
     for k in 0..max {
-        let pose = if k < START_POSES || !guided {
-            s.schedule[k]
-        } else {
-            placed(&next, &mut rng)
+        let pose = match (guided, k < START_POSES) {
+            (false, _) => s.schedule[k],
+            (true, true) => {
+                let first = first_pose(s.board, s.truth, &poses, s.schedule);
+                placed(&first.unwrap_or(s.schedule[k]), &mut rng)
+            }
+            (true, false) => placed(&next, &mut rng),
         };
+        poses.push(pose);
         views.extend(observe(s.board, s.truth, k, &pose, &s.noise, &mut rng));
         if k + 1 < START_POSES {
             continue;
         }
         let t = std::time::Instant::now();
-        let (cal, g, done) = interim(s.board, s.devices, k + 1, &views, s.threshold)?;
+        let (cal, g, done) = interim(s.board, s.devices, k + 1, &views, (s.threshold, target))?;
         seconds += t.elapsed().as_secs_f64();
-        run.worst.push((k + 1, worst(&g)));
         log(&format!(
             "{}: {} poses, worst {:.3} px{}",
             run.label,
@@ -207,9 +217,7 @@ fn operate(
                 .as_ref()
                 .map_or(String::new(), |s| format!("; next: {}", s.sentence))
         ));
-        run.truth = check_truth(&cal, s.world);
-        if done {
-            run.done_at = Some(k + 1);
+        if run.record(k + 1, &g, done, target, &check_truth(&cal, s.world)) && guided {
             break;
         }
         match aim(&g, s.truth, s.schedule) {
@@ -220,6 +228,42 @@ fn operate(
     }
     run.seconds_per_pose = seconds / run.worst.len().max(1) as f64;
     Ok(run)
+}
+
+impl OperatorRun {
+    fn new(label: &'static str) -> OperatorRun {
+        OperatorRun {
+            label,
+            worst: Vec::new(),
+            done_at: None,
+            truth: Vec::new(),
+            matched_at: None,
+            truth_matched: Vec::new(),
+            seconds_per_pose: 0.0,
+        }
+    }
+
+    /// Record the interim calibration after `poses` (guidance `g`, `done`, accuracy
+    /// `truth`) against the same-uncertainty `target`; whether both marks are reached.
+    fn record(
+        &mut self,
+        poses: usize,
+        g: &Guidance,
+        done: bool,
+        target: f64,
+        truth: &[TruthCheck],
+    ) -> bool {
+        self.worst.push((poses, worst(g)));
+        if self.done_at.is_none() {
+            self.truth = truth.to_vec();
+            self.done_at = done.then_some(poses);
+        }
+        if self.matched_at.is_none() {
+            self.truth_matched = truth.to_vec();
+            self.matched_at = (worst(g) <= target).then_some(poses);
+        }
+        self.done_at.is_some() && self.matched_at.is_some()
+    }
 }
 
 /// The oracle's weak prior while devices are seen in fewer than [`MIN_VIEWS`] poses (a
@@ -260,10 +304,11 @@ fn seen_by(board: &Board, truth: &[Device], pose: &Isometry3<f64>) -> Vec<usize>
 /// The oracle: knowing the rig's truth from the first pose on, each next pose is the
 /// candidate (the guidance's candidates around the schedule, and the schedule's own
 /// poses) whose predicted uncertainties at the truth rank best ([`rank`]), placed without
-/// error; observed and calibrated as the other operators' poses are.
+/// error; observed and calibrated as the other operators' poses are, until done with the
+/// worst uncertainty at most `target` or `max_poses`.
 fn oracle(
     s: &Setup,
-    max_poses: usize,
+    (max_poses, target): (usize, f64),
     seed: u64,
     log: &mut dyn FnMut(&str),
 ) -> Result<OperatorRun, AppError> {
@@ -274,7 +319,13 @@ fn oracle(
     for (k, pose) in s.schedule.iter().enumerate() {
         all.extend(observe(s.board, s.truth, k, pose, &s.noise, &mut rng));
     }
-    let (layout, _, _) = interim(s.board, s.devices, s.schedule.len(), &all, s.threshold)?;
+    let (layout, _, _) = interim(
+        s.board,
+        s.devices,
+        s.schedule.len(),
+        &all,
+        (s.threshold, s.threshold),
+    )?;
     if layout.devices.len() != s.truth.len() {
         return Err(AppError::Input(
             "the oracle needs every device calibrated by the fixed schedule".into(),
@@ -288,13 +339,7 @@ fn oracle(
     let mut pool = candidates(s.schedule);
     pool.extend_from_slice(s.schedule);
     let sigma = s.noise.std_dev();
-    let mut run = OperatorRun {
-        label: "oracle",
-        worst: Vec::new(),
-        done_at: None,
-        truth: Vec::new(),
-        seconds_per_pose: 0.0,
-    };
+    let mut run = OperatorRun::new("oracle");
     let (mut chosen, mut seen, mut views) = (Vec::new(), vec![0usize; truth.len()], Vec::new());
     let mut rng = StdRng::seed_from_u64(seed);
     let mut seconds = 0.0;
@@ -335,7 +380,7 @@ fn oracle(
             continue;
         }
         let t = std::time::Instant::now();
-        let solved = interim(s.board, s.devices, k + 1, &views, s.threshold);
+        let solved = interim(s.board, s.devices, k + 1, &views, (s.threshold, target));
         seconds += t.elapsed().as_secs_f64();
         let (cal, g, done) = match solved {
             Ok(i) => i,
@@ -345,15 +390,12 @@ fn oracle(
                 continue;
             }
         };
-        run.worst.push((k + 1, worst(&g)));
         log(&format!(
             "oracle: {} poses, worst {:.3} px",
             k + 1,
             worst(&g)
         ));
-        run.truth = check_truth(&cal, s.world);
-        if done {
-            run.done_at = Some(k + 1);
+        if run.record(k + 1, &g, done, target, &check_truth(&cal, s.world)) {
             break;
         }
     }
@@ -361,8 +403,10 @@ fn oracle(
     Ok(run)
 }
 
-/// Both operators on the rig file at `rig_path`: observation noise `sigma` (px), the guided
-/// one stopping at `max_poses`, noise from `seed`; `log` hears each interim calibration.
+/// The three operators on the rig file at `rig_path`: the fixed schedule to its end, then
+/// the guided operator and the oracle until done and at the fixed schedule's final worst
+/// uncertainty, or `max_poses`; observation noise `sigma` (px), noise from `seed`; `log`
+/// hears each interim calibration.
 pub fn bench_guide(
     rig_path: &Path,
     sigma: f64,
@@ -391,13 +435,22 @@ pub fn bench_guide(
         threshold: rig.guidance.uncertainty_px,
         noise: Normal::new(0.0, sigma).map_err(|e| AppError::Input(e.to_string()))?,
     };
-    let fixed = operate(&setup, false, max_poses, seed, log)?;
-    let guided = operate(&setup, true, max_poses, seed, log)?;
-    let oracle = oracle(&setup, max_poses, seed, log)?;
-    let runs = vec![fixed, guided, oracle];
+    // The fixed schedule runs to its end; its last worst is the others' target.
+    let mut fixed = operate(
+        &setup,
+        false,
+        (schedule.len(), f64::NEG_INFINITY),
+        seed,
+        log,
+    )?;
+    let fixed_final = fixed.worst.last().map_or(f64::INFINITY, |w| w.1);
+    fixed.matched_at = fixed.worst.last().map(|w| w.0);
+    let guided = operate(&setup, true, (max_poses, fixed_final), seed, log)?;
+    let oracle = oracle(&setup, (max_poses, fixed_final), seed, log)?;
     Ok(GuideBench {
         threshold: setup.threshold,
         sigma,
-        runs,
+        fixed_final,
+        runs: vec![fixed, guided, oracle],
     })
 }

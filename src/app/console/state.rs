@@ -100,6 +100,9 @@ pub struct State {
     pub guidance_error: Option<String>,
     /// The live preview, once it has run.
     pub preview: Option<Preview>,
+    /// Before the first interim calibration, where to put the next pose
+    /// ([`crate::app::guide::first_pose_advice`]).
+    pub advice: Option<String>,
 }
 
 impl State {
@@ -130,6 +133,19 @@ impl State {
             })
             .collect();
         self.done = !self.devices.is_empty() && self.missing.is_empty();
+        let seen: Vec<(&str, usize)> = self
+            .devices
+            .iter()
+            .map(|d| (d.name.as_str(), d.poses))
+            .collect();
+        self.advice = match (guidance, self.pose, self.auto) {
+            (None, Some([k, _]), false) => crate::app::guide::first_pose_advice(
+                k,
+                crate::app::calibrate::MIN_CALIBRATION_POSES,
+                &seen,
+            ),
+            _ => None,
+        };
     }
 }
 
@@ -139,6 +155,43 @@ mod tests {
     use crate::app::guide::DeviceUncertainty;
     use crate::calib::bundle::DeviceKind;
     use crate::calib::solve::DeviceInfo;
+
+    #[test]
+    fn first_pose_advice_shows_until_the_first_interim_calibration() {
+        let info = DeviceInfo {
+            name: "cam1".into(),
+            kind: DeviceKind::Camera,
+            width: 960,
+            height: 600,
+        };
+        let mut s = State {
+            devices: vec![DeviceStats::new(&info)],
+            pose: Some([1, 6]),
+            ..State::default()
+        };
+        s.judge();
+        let advice = s
+            .advice
+            .clone()
+            .expect("advice before the first calibration");
+        assert!(
+            advice.contains("2 of 3") && advice.contains("cam1 (0 of 1)"),
+            "{advice}"
+        );
+        // Poses placed automatically need no advice; nor does a rig with guidance.
+        s.auto = true;
+        s.judge();
+        assert_eq!(s.advice, None);
+        s.auto = false;
+        s.guidance = Some(Guidance {
+            devices: Vec::new(),
+            threshold: 0.25,
+            done: false,
+            suggestion: None,
+        });
+        s.judge();
+        assert_eq!(s.advice, None);
+    }
 
     #[test]
     fn done_needs_every_device_covered_and_certain() {

@@ -194,3 +194,48 @@ fn predictions_from_scratch_need_enough_poses_and_fall_with_more() {
         assert!(t.unwrap() > f.unwrap(), "{t:?} vs {f:?}");
     }
 }
+
+#[test]
+fn first_pose_advice_names_the_devices_left_out_until_the_first_calibration() {
+    let seen = [("cam0", 2), ("cam1", 1), ("proj0", 2)];
+    let first = first_pose_advice(0, 3, &[("cam0", 0)]).unwrap();
+    assert!(first.contains("1 of 3") && first.contains("every camera shows it"));
+    assert!(!first.contains("turned"), "{first}");
+    let third = first_pose_advice(2, 3, &seen).unwrap();
+    assert!(
+        third.contains("3 of 3") && third.contains("turned as far"),
+        "{third}"
+    );
+    assert!(
+        third.ends_with("not seen in every pose so far: cam1 (1 of 2)."),
+        "{third}"
+    );
+    // From the pose that completes the first calibration's set on, the guidance speaks.
+    assert_eq!(first_pose_advice(3, 3, &seen), None);
+}
+
+#[test]
+fn the_first_poses_show_the_board_to_every_device_each_turned_from_the_others() {
+    let text = include_str!("../../../rigs/sim-paper.toml");
+    let rig = crate::rig::file::RigFile::parse(text, "sim-paper.toml").unwrap();
+    let world = crate::rig::sim::SimWorld::new(&rig, rig.board().unwrap()).unwrap();
+    let (truth, ref_rig) = operator::truth_devices(&world);
+    let schedule: Vec<Isometry3<f64>> = world.board_poses.iter().map(|b| ref_rig * b).collect();
+    let board = &world.board;
+    let mut placed: Vec<Isometry3<f64>> = Vec::new();
+    for k in 0..operator::START_POSES {
+        let pose = operator::first_pose(board, &truth, &placed, &schedule).unwrap();
+        assert_eq!(
+            operator::devices_showing(board, &truth, &pose),
+            truth.len(),
+            "pose {k}"
+        );
+        // Turned from every earlier pose by more than the candidates' 20° step: a
+        // different orientation for Zhang's method in every device.
+        for p in &placed {
+            let turn = pose.rotation.angle_to(&p.rotation).to_degrees();
+            assert!(turn > 20.0, "pose {k}: {turn}° from an earlier pose");
+        }
+        placed.push(pose);
+    }
+}
