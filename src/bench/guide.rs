@@ -14,7 +14,9 @@
 //! decoding and detection are left out (they are what `hexcal run` times), so both
 //! operators get the same observation model.
 
-use crate::app::guide::operator::{aim, first_pose, placed, truth_devices, START_POSES};
+use crate::app::guide::operator::{
+    aim, first_pose, placed, placed_in_view, truth_devices, START_POSES,
+};
 use crate::app::guide::{candidates, guide, predicted_worst, sightings, Guidance, MIN_SEEN};
 use crate::app::truth::{check_truth, TruthCheck};
 use crate::app::AppError;
@@ -196,7 +198,7 @@ fn operate(
             (false, _) => s.schedule[k],
             (true, true) => {
                 let first = first_pose(s.board, s.truth, &poses, s.schedule);
-                placed(&first.unwrap_or(s.schedule[k]), &mut rng)
+                placed_in_view(s.board, s.truth, &first.unwrap_or(s.schedule[k]), &mut rng)
             }
             (true, false) => placed(&next, &mut rng),
         };

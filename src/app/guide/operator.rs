@@ -62,6 +62,29 @@ pub fn placed(pose: &Isometry3<f64>, rng: &mut StdRng) -> Isometry3<f64> {
     )
 }
 
+/// Placements a person makes of a first pose before every device shows it (the live
+/// pictures tell them when one does not).
+pub const PLACEMENT_TRIES: usize = 5;
+
+/// `pose` placed as in [`placed`] by a person who checks the live pictures: placed again
+/// (at most [`PLACEMENT_TRIES`] times in all) while fewer devices show it than at `pose`.
+pub fn placed_in_view(
+    board: &Board,
+    truth: &[Device],
+    pose: &Isometry3<f64>,
+    rng: &mut StdRng,
+) -> Isometry3<f64> {
+    let want = devices_showing(board, truth, pose);
+    let mut p = placed(pose, rng);
+    for _ in 1..PLACEMENT_TRIES {
+        if devices_showing(board, truth, &p) >= want {
+            break;
+        }
+        p = placed(pose, rng);
+    }
+    p
+}
+
 /// The board at the schedule's mean position, its front turned to face `device`.
 pub fn facing(device: &Device, schedule: &[Isometry3<f64>]) -> Isometry3<f64> {
     let centre = schedule
@@ -169,7 +192,7 @@ impl SimOperator {
         let g = guidance.filter(|_| k >= START_POSES);
         let (ref_board, what) = match (first, g.and_then(|g| aim(g, &self.truth, &self.schedule))) {
             (Some(pose), _) => (
-                placed(&pose, &mut self.rng),
+                placed_in_view(&self.board, &self.truth, &pose, &mut self.rng),
                 "as the first-pose advice asks: every device shows it, turned unlike before"
                     .to_string(),
             ),
