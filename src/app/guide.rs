@@ -319,11 +319,23 @@ fn information(
                 cols.push((at + k, j.d_pose.column(k).into_owned()));
             }
         }
-        // Left increment of the board pose: dX_ref = −[X_ref]×·ω + τ.
-        let mut jb = Matrix2x6::<f64>::zeros();
-        jb.fixed_columns_mut::<3>(0)
-            .copy_from(&(-j.d_point * skew(&x_ref.coords)));
-        jb.fixed_columns_mut::<3>(3).copy_from(&j.d_point);
+        let jb = match s.via {
+            // Left increment of the board pose: dX_ref = −[X_ref]×·ω + τ.
+            None => {
+                let mut jb = Matrix2x6::<f64>::zeros();
+                jb.fixed_columns_mut::<3>(0)
+                    .copy_from(&(-j.d_point * skew(&x_ref.coords)));
+                jb.fixed_columns_mut::<3>(3).copy_from(&j.d_point);
+                jb
+            }
+            Some(c) => {
+                let plane = pose * side_frame(s.side, front_back);
+                match through_camera(b, &devices[c], c, &plane, &x_ref, &j.d_point, &mut cols) {
+                    Some(jb) => jb,
+                    None => continue,
+                }
+            }
+        };
         for (ci, vi) in &cols {
             for (cj, vj) in &cols {
                 haa[(*ci, *cj)] += vi.dot(vj);
@@ -338,6 +350,61 @@ fn information(
         haa -= &hab * hbb_inv * hab.transpose();
     }
     haa / (sigma * sigma)
+}
+
+/// A projector sighting's dependence on the camera `cam` (index `c`) it is found through,
+/// as the adjustment models it (docs/design.md §7, `bundle::linearise`): the projector sees
+/// the point where the camera's ray through its pixel of the circle meets the side's plane
+/// (T_ref_side `plane`), so the camera's lens and pose move that point, and the board pose
+/// moves it only through the plane. Pushes the camera's columns onto `cols`, given the
+/// projector pixel's derivative `d_ref` with respect to the point (reference frame); gives
+/// the board pose's columns.
+fn through_camera(
+    b: &Block,
+    cam: &Device,
+    c: usize,
+    plane: &Isometry3<f64>,
+    x_ref: &Point3<f64>,
+    d_ref: &nalgebra::Matrix2x3<f64>,
+    cols: &mut Vec<(usize, Vector2<f64>)>,
+) -> Option<Matrix2x6<f64>> {
+    use crate::calib::bundle::plane_increment;
+    let p_c = cam.pose * x_ref;
+    let lambda = p_c.z;
+    if lambda <= 0.0 {
+        return None;
+    }
+    let r = p_c.coords / lambda;
+    let normal = (cam.pose * plane).rotation * Vector3::z();
+    // d pixel / d P_c (camera frame).
+    let jpc = d_ref * cam.pose.rotation.to_rotation_matrix().matrix().transpose();
+    let (at, free) = &b.lens[c];
+    if !free.is_empty() {
+        let un = cam
+            .model
+            .undistort_with_jacobians(cam.model.project(&p_c)?)?;
+        // The lens moves the ray: dP_c = λ·(I − r·Nᵀ/(N·r))·(dn, 0).
+        let slide = (Matrix3::identity() - r * normal.transpose() / normal.dot(&r)) * lambda;
+        let d_lens = jpc * slide.fixed_columns::<2>(0) * un.d_lens;
+        for (k, f) in free.iter().enumerate() {
+            cols.push((at + k, d_lens.column(f.index()).into_owned()));
+        }
+    }
+    if let Some(at) = b.pose[c] {
+        // The camera's pose moves the plane in its frame and T_c⁻¹ as well.
+        let (aw, at_) = plane_increment(&r, &normal, lambda, &Isometry3::identity());
+        let dw = jpc * (aw + skew(&p_c.coords));
+        let dt = jpc * (at_ - Matrix3::identity());
+        for k in 0..3 {
+            cols.push((at + k, dw.column(k).into_owned()));
+            cols.push((at + 3 + k, dt.column(k).into_owned()));
+        }
+    }
+    let (aw, at_) = plane_increment(&r, &normal, lambda, &cam.pose);
+    let mut jb = Matrix2x6::<f64>::zeros();
+    jb.fixed_columns_mut::<3>(0).copy_from(&(jpc * aw));
+    jb.fixed_columns_mut::<3>(3).copy_from(&(jpc * at_));
+    Some(jb)
 }
 
 fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
