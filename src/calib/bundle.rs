@@ -949,13 +949,11 @@ fn linear_system(
                 (cols, acc)
             })
             .collect();
+        add_in_order(&mut u, &shares);
         for (cols, acc) in shares {
             let (nl, h) = (cols.len(), &acc.h);
             let nh = nl + 6;
             for (c, &cc) in cols.iter().enumerate() {
-                for (r, &cr) in cols[..=c].iter().enumerate() {
-                    u[(cr, cc)] += h[c * nh + r];
-                }
                 g[cc] += acc.g[c];
             }
             total += acc.cost;
@@ -973,6 +971,38 @@ fn linear_system(
     }
     u.fill_lower_triangle_with_upper_triangle();
     (BlockSystem { u, g, poses }, total, res)
+}
+
+/// U += each share's U_k (upper triangle), each column of U by one thread and each entry
+/// in share order: the same sums as one thread's, for any thread count.
+fn add_in_order(u: &mut DMatrix<f64>, shares: &[(Vec<usize>, PoseAcc)]) {
+    let m = u.nrows();
+    // Each share's local index of every device column (u32::MAX: not one of its columns).
+    let local: Vec<Vec<u32>> = shares
+        .iter()
+        .map(|(cols, _)| {
+            let mut at = vec![u32::MAX; m];
+            for (i, &c) in cols.iter().enumerate() {
+                at[c] = i as u32;
+            }
+            at
+        })
+        .collect();
+    u.as_mut_slice()
+        .par_chunks_mut(m)
+        .enumerate()
+        .for_each(|(cc, column)| {
+            for ((cols, acc), at) in shares.iter().zip(&local) {
+                if at[cc] == u32::MAX {
+                    continue;
+                }
+                let (c, nh) = (at[cc] as usize, cols.len() + 6);
+                let from = &acc.h[c * nh..][..=c];
+                for (&cr, v) in cols[..=c].iter().zip(from) {
+                    column[cr] += v;
+                }
+            }
+        });
 }
 
 /// Observation indices of each board pose.
@@ -1048,6 +1078,12 @@ struct Phase {
     system: Option<LinearSystem>,
     /// The damping it ended with.
     lambda: f64,
+    /// The biases it held at `state`, when known (computed at `state` or kept from a point a
+    /// small step before it, as within the phase).
+    anchors: Option<Vec<Bias>>,
+    /// The residual norms at `state` with those biases, when the phase ended on an accepted
+    /// robust step (its trial's): the plain phase's first outlier set without another pass.
+    norms: Option<Vec<f32>>,
 }
 
 /// A scaled linear system with its cost and residuals, as [`linear_system`] gives them.
@@ -1057,11 +1093,14 @@ type LinearSystem = (Scaled, f64, Residuals);
 /// ratio ρ (actual over predicted decrease), λ ← λ·max(1/3, 1 − (2ρ − 1)³); after a
 /// rejected one λ ← λ·ν, ν ← 2ν. Stops when the undamped step would lower the cost by less
 /// than 0.1·σ̂²: then the state is within ~0.3 standard deviations of the minimum in the
-/// parameters' own metric.
+/// parameters' own metric. A plain phase (no `huber`) tests that from its first iteration
+/// (it starts where the last phase stopped at a minimum, or a small step from one); the
+/// biases are computed afresh only after a step that lowered the cost by at least 0.1·σ̂²,
+/// else held from the last point (`held_anchors`: those of the start, when given).
 #[allow(clippy::too_many_arguments)]
 fn levenberg_marquardt(
     p: &Problem,
-    mut s: State,
+    (mut s, held_anchors): (State, Option<Vec<Bias>>),
     l: &Layout,
     o: &Options,
     active: &[bool],
@@ -1071,12 +1110,16 @@ fn levenberg_marquardt(
 ) -> Phase {
     let (mut lambda, mut nu) = (lambda, 2.0);
     let n = 2 * active.iter().filter(|a| **a).count().max(1);
-    let mut small_drop = false;
+    let mut small_drop = huber.is_none();
     // Residual norms at the accepted trial: the next robust set (30a) without another pass.
     let mut last: Option<Vec<f32>> = None;
     let mut frozen: Option<(f64, Vec<bool>)> = None;
+    let mut an = held_anchors.unwrap_or_default();
     for iteration in 1..=o.max_iterations {
-        let an = anchors(p, &s, o);
+        // After a step within ~0.3σ the bias has moved by far less than its rounding.
+        if an.is_empty() || (iteration > 1 && !small_drop) {
+            an = anchors(p, &s, o);
+        }
         let (huber, trimmed) = match (huber, &frozen) {
             (Some(_), Some((k, set))) => (Some(*k), Some(set.clone())),
             (Some(floor), None) => {
@@ -1103,6 +1146,8 @@ fn levenberg_marquardt(
                 converged: true,
                 system: Some((sys, c0, res)),
                 lambda,
+                anchors: Some(an),
+                norms: None,
             };
         }
         let fixed = held(&sys);
@@ -1114,8 +1159,9 @@ fn levenberg_marquardt(
             };
             let trial = s.update(l, &full_step(l, &step), &fixed);
             // The anchors stay those of the linearisation point within a step.
-            let robust_next = huber.is_some() && frozen.is_none();
-            let (c, trial_norms) = trial_cost(p, &trial, l, &an, &res, active, huber, robust_next);
+            // The robust phase's norms give its next set (30a) or the plain phase's first.
+            let (c, trial_norms) =
+                trial_cost(p, &trial, l, &an, &res, active, huber, huber.is_some());
             if c < c0 {
                 let rho = (c0 - c) / step.predicted.max(1e-300);
                 lambda *= (1.0 / 3.0f64).max(1.0 - (2.0 * rho - 1.0).powi(3));
@@ -1135,6 +1181,8 @@ fn levenberg_marquardt(
                 converged: at_minimum,
                 system: Some((sys, c0, res)),
                 lambda,
+                anchors: Some(an),
+                norms: None,
             };
         };
         s = trial;
@@ -1148,6 +1196,8 @@ fn levenberg_marquardt(
                 converged: true,
                 system: None,
                 lambda,
+                anchors: Some(an),
+                norms: last,
             };
         }
     }
@@ -1157,6 +1207,8 @@ fn levenberg_marquardt(
         converged: false,
         system: None,
         lambda,
+        anchors: None,
+        norms: None,
     }
 }
 
@@ -1227,12 +1279,21 @@ fn plain_phase(
     robust: Phase,
 ) -> (Phase, Vec<bool>, usize) {
     let decide = |phase: &Phase| -> Vec<bool> {
+        if let (None, Some(norms)) = (&phase.system, &phase.norms) {
+            return inliers(p, norms, o);
+        }
         let norms: Vec<f64> = match &phase.system {
             Some((_, _, res)) => res.iter().map(|e| e.norm()).collect(),
-            None => residuals(p, &phase.state, l, &anchors(p, &phase.state, o))
-                .iter()
-                .map(|e| e.norm())
-                .collect(),
+            None => {
+                let an = match &phase.anchors {
+                    Some(an) => an.clone(),
+                    None => anchors(p, &phase.state, o),
+                };
+                residuals(p, &phase.state, l, &an)
+                    .iter()
+                    .map(|e| e.norm())
+                    .collect()
+            }
         };
         inliers(p, &norms, o)
     };
@@ -1244,7 +1305,8 @@ fn plain_phase(
     let mut phase = robust;
     let mut round = 0;
     loop {
-        phase = levenberg_marquardt(p, phase.state, l, o, &active, None, by_pose, phase.lambda);
+        let start = (phase.state, phase.anchors);
+        phase = levenberg_marquardt(p, start, l, o, &active, None, by_pose, phase.lambda);
         iterations += phase.iterations;
         if round == MAX_REDECISIONS || !phase.converged {
             return (phase, active, iterations);
@@ -1265,7 +1327,16 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     let by_pose = group_by_pose(p);
     let start = State::start(p);
     let all = vec![true; p.observations.len()];
-    let robust = levenberg_marquardt(p, start, &l, o, &all, Some(o.huber), &by_pose, LAMBDA0);
+    let robust = levenberg_marquardt(
+        p,
+        (start, None),
+        &l,
+        o,
+        &all,
+        Some(o.huber),
+        &by_pose,
+        LAMBDA0,
+    );
     let (plain, active, iterations) = plain_phase(p, &l, o, &by_pose, robust);
     let s = plain.state;
     let (sys, cost, res) = plain.system.unwrap_or_else(|| {
@@ -1719,6 +1790,8 @@ mod tests {
             converged: true,
             system: None,
             lambda: LAMBDA0,
+            anchors: Some(an),
+            norms: None,
         };
         let (phase, active, _) = plain_phase(&p, &l, &o, &by_pose, robust);
         assert!(phase.converged);

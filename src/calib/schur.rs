@@ -106,6 +106,43 @@ impl BlockSystem {
     }
 }
 
+/// S −= W_k·V_k⁻¹·W_kᵀ for the poses of `chunk` (their products `xw` at the pose's
+/// columns), each column of S by one thread and each entry in pose order: the same sums as
+/// one thread's, for any thread count.
+fn subtract_in_order(
+    s: &mut DMatrix<f64>,
+    chunk: &[PoseBlock],
+    products: &[(DMatrix<f64>, Vector6<f64>, DMatrix<f64>)],
+) {
+    let m = s.nrows();
+    // Each pose's local index of every device column (u32::MAX: not one of its columns).
+    let local: Vec<Vec<u32>> = chunk
+        .iter()
+        .map(|b| {
+            let mut at = vec![u32::MAX; m];
+            for (i, &c) in b.cols.iter().enumerate() {
+                at[c] = i as u32;
+            }
+            at
+        })
+        .collect();
+    s.as_mut_slice()
+        .par_chunks_mut(m)
+        .enumerate()
+        .for_each(|(cc, column)| {
+            for ((b, (_, _, xw)), at) in chunk.iter().zip(products).zip(&local) {
+                let c = at[cc];
+                if c == u32::MAX {
+                    continue;
+                }
+                let from = xw.column(c as usize);
+                for (a, &ca) in b.cols.iter().enumerate() {
+                    column[ca] -= from[a];
+                }
+            }
+        });
+}
+
 impl Scaled {
     /// Held parameters: the device columns, then 6 per board pose.
     pub fn held(&self) -> (Vec<bool>, Vec<[bool; 6]>) {
@@ -152,11 +189,9 @@ impl Scaled {
                     Some((x, y, xw))
                 })
                 .collect::<Option<Vec<_>>>()?;
-            for (b, (x, y, xw)) in chunk.iter().zip(products) {
+            subtract_in_order(&mut s, chunk, &products);
+            for (b, (x, y, _)) in chunk.iter().zip(products) {
                 for (a, &ca) in b.cols.iter().enumerate() {
-                    for (c, &cc) in b.cols.iter().enumerate() {
-                        s[(ca, cc)] -= xw[(a, c)];
-                    }
                     rhs[ca] -= x.row(a).transpose().dot(&b.g);
                 }
                 solved.push((x, y));
