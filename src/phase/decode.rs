@@ -345,10 +345,11 @@ pub struct Decoder<T: Sample> {
     /// Per image row: the slot of its first candidate among all candidates in row-major
     /// order (height + 1 entries, the last one the number of candidates).
     row_slots: Vec<u32>,
-    /// Per projector: Σ over groups of the quantised B² at the pixels it does not light, in
-    /// pixel order (for the modulation and ambient images; at a lit pixel the sum is rebuilt
+    /// Per projector, at the pixels it does not light, in pixel order: √(Σ_g B_g²) over the
+    /// groups so far in steps of [`UNLIT_STEP`] (rounded after each group; docs/design.md
+    /// §6, "Memory"), for the modulation and ambient images (at a lit pixel Σ B² is rebuilt
     /// from the kept modulations). Filled by the first group.
-    unlit_bsq: Vec<Vec<f32>>,
+    unlit_b: Vec<Vec<u16>>,
     levels: Vec<Level>,
     /// Pixels with a sample at full scale in some frame.
     saturated: Vec<bool>,
@@ -358,6 +359,11 @@ pub struct Decoder<T: Sample> {
 
 /// Modulation quantisation: 2^15 steps per full scale (B ≤ 2·full scale).
 const B_STEPS: f32 = 32768.0;
+
+/// Step of the unlit pixels' root sums √(Σ_g B_g²): a quarter of B's 16-bit step, so at most
+/// 2^14 steps of B (half of full scale) in all, 13 times the candidate floor; a larger sum
+/// (the light changed between groups at a pixel unlit in the first) is clamped there.
+const UNLIT_STEP: f32 = 0.25;
 
 /// Fraction of full scale a pixel's first-group modulation must reach, for some projector,
 /// for its phases to be kept: half the validity floor of 3 %.
@@ -442,7 +448,7 @@ impl<T: Sample> Decoder<T> {
             groups: Vec::with_capacity(seq.groups()),
             row_slots: Vec::new(),
             lit: Vec::new(),
-            unlit_bsq: Vec::new(),
+            unlit_b: Vec::new(),
             levels: vec![Level::default(); npx],
             saturated: vec![false; npx],
             columns: cons(Direction::Columns),
@@ -464,7 +470,7 @@ impl<T: Sample> Decoder<T> {
                 .sum::<usize>()
             + self.lit.iter().map(LitPixels::bytes).sum::<usize>()
             + self.row_slots.len() * 4
-            + self.unlit_bsq.iter().map(|v| v.len() * 4).sum::<usize>()
+            + self.unlit_b.iter().map(|v| v.len() * 2).sum::<usize>()
             + self.levels.len() * std::mem::size_of::<Level>()
             + self.saturated.len()
     }
@@ -528,7 +534,7 @@ impl<T: Sample> Decoder<T> {
         let np = self.seq.projectors().len();
         if g == 0 {
             self.lit = (0..np).map(|_| LitPixels::new(w * h)).collect();
-            self.unlit_bsq = vec![Vec::new(); np];
+            self.unlit_b = vec![Vec::new(); np];
         }
         // Per projector, the next unlit pixel's slot in its sums.
         let mut unlit = vec![0usize; np];
@@ -547,7 +553,7 @@ impl<T: Sample> Decoder<T> {
         }
         if g == 0 {
             kept.iter_mut().for_each(Vec::shrink_to_fit);
-            self.unlit_bsq.iter_mut().for_each(Vec::shrink_to_fit);
+            self.unlit_b.iter_mut().for_each(Vec::shrink_to_fit);
             self.row_slots = row_slots(&self.lit, w, h);
             self.lit.iter_mut().for_each(|l| l.count_rows(w, h));
         }
@@ -590,10 +596,10 @@ impl<T: Sample> Decoder<T> {
     }
 
     /// The band of pixels from `first` on (their (ψ, B) pairs `out`), projector by projector
-    /// in pixel order: the pair appended to `kept` where it lights the pixel, else its B²
-    /// added to (the first group: appended to) its unlit sums, `unlit` counting their slots.
+    /// in pixel order: the pair appended to `kept` where it lights the pixel, else its B
+    /// added in quadrature to (the first group: appended to) its unlit root sums, `unlit`
+    /// counting their slots.
     fn keep_band(&mut self, first: usize, out: &[u16], kept: &mut [Vec<u16>], unlit: &mut [usize]) {
-        let inv_b_scale = self.full_scale / B_STEPS;
         let first_group = self.groups.is_empty();
         let np = kept.len();
         for (i, px) in out.chunks_exact(np * 2).enumerate() {
@@ -602,12 +608,19 @@ impl<T: Sample> Decoder<T> {
                     kept[p].extend_from_slice(pair);
                     continue;
                 }
-                let b = f32::from(pair[1]) * inv_b_scale;
-                let sums = &mut self.unlit_bsq[p];
-                if first_group {
-                    sums.push(b * b);
+                let sums = &mut self.unlit_b[p];
+                let b = f32::from(pair[1]);
+                let r = if first_group {
+                    b
                 } else {
-                    sums[unlit[p]] += b * b;
+                    let r = f32::from(sums[unlit[p]]) * UNLIT_STEP;
+                    (r * r + b * b).sqrt()
+                };
+                let r = (r / UNLIT_STEP).round().min(65535.0) as u16;
+                if first_group {
+                    sums.push(r);
+                } else {
+                    sums[unlit[p]] = r;
                 }
                 unlit[p] += 1;
             }
@@ -1160,8 +1173,8 @@ impl<'a, T: Sample> Judge<'a, T> {
                 let lit = dec.lit[p].get(px);
                 let slot = next[p];
                 next[p] += u32::from(lit);
-                // Σ_g B² from the kept modulations where p lights the pixel (summed in group
-                // order, as the unlit sums are), else from p's unlit sums.
+                // Σ_g B² from the kept modulations where p lights the pixel, else from p's
+                // unlit root sum.
                 let (psi_g, bsq_g) = if lit {
                     self.group_phases(slot, p)
                 } else {
@@ -1170,7 +1183,9 @@ impl<'a, T: Sample> Judge<'a, T> {
                 let bsq = if lit {
                     bsq_g[..self.groups].iter().fold(0.0, |s, &b2| s + b2)
                 } else {
-                    dec.unlit_bsq[p][px - slot as usize]
+                    let r = f32::from(dec.unlit_b[p][px - slot as usize])
+                        * (UNLIT_STEP * self.inv_b_scale);
+                    r * r
                 };
                 let bmod = (bsq / self.groups as f32 - var4).max(0.0).sqrt();
                 amb -= self.mean_ratio[p] * bmod;

@@ -173,20 +173,22 @@ impl GroupPhases {
             if out.is_empty() {
                 continue;
             }
-            out.par_chunks_mut(x1 - x0).enumerate().for_each(|(by, row)| {
-                let base = (y0 + by) * w + x0;
-                for (bx, o) in row.iter_mut().enumerate() {
-                    let i = base + bx;
-                    if t.lit(i) {
-                        let pos = f64::from(if rows { t.v(i) } else { t.u(i) });
-                        let (s, c) = (a * (pos + 0.5)).sin_cos();
-                        *o = [
-                            (c * PHASE_UNIT).round() as i16,
-                            (s * PHASE_UNIT).round() as i16,
-                        ];
+            out.par_chunks_mut(x1 - x0)
+                .enumerate()
+                .for_each(|(by, row)| {
+                    let base = (y0 + by) * w + x0;
+                    for (bx, o) in row.iter_mut().enumerate() {
+                        let i = base + bx;
+                        if t.lit(i) {
+                            let pos = f64::from(if rows { t.v(i) } else { t.u(i) });
+                            let (s, c) = (a * (pos + 0.5)).sin_cos();
+                            *o = [
+                                (c * PHASE_UNIT).round() as i16,
+                                (s * PHASE_UNIT).round() as i16,
+                            ];
+                        }
                     }
-                }
-            });
+                });
         }
         self.group = Some(group);
     }
