@@ -3,12 +3,14 @@
 //! ambient image; the per-pixel noise model measured from the stack itself.
 //!
 //! Streaming: frames arrive one by one. The frames of the current (direction, count) group —
-//! N of the stack's G·N frames — are kept as they came (8 or 16 bit); when a group is
-//! complete its DFT is taken on all cores in strips of 64 pixels whose sums stay in L1 (per
-//! pixel: the mean and, for each projector frequency f_p, X_f = Σ I_s·e^{i2πf_p s/N}, with
-//! steps s and N − s paired so that the P frequencies share one sum and one difference per
-//! pair), and only the wrapped phase and modulation per projector are kept (16 bit each),
-//! at the pixels that projector lights (its first-group modulation at the candidate floor).
+//! N of the stack's G·N frames — are kept as they came (8 or 16 bit; the last is read where
+//! it arrives); when a group is complete its DFT is taken on all cores in strips of 64
+//! pixels whose sums stay in L1 (per pixel: the mean and, for each projector frequency f_p,
+//! X_f = Σ I_s·e^{i2πf_p s/N}, with steps s and N − s paired so that the P frequencies share
+//! one sum and one difference per pair), and only the wrapped phase and modulation per
+//! projector are kept (16 bit each), at the pixels that projector lights (its first-group
+//! modulation at the candidate floor); where it does not, only a 16-bit root sum of its
+//! modulations over the groups (for the ambient and modulation images).
 //! Accumulating the DFT over the whole image frame by frame would stream (2P+1) f32
 //! accumulators through memory for every frame (≈ 130 MB per 1920×1200 frame at P = 3,
 //! ≈ 12 GB per stack), which is bandwidth-bound; the group buffer (N 8-bit frames) is smaller
@@ -602,29 +604,35 @@ impl<T: Sample> Decoder<T> {
     fn keep_band(&mut self, first: usize, out: &[u16], kept: &mut [Vec<u16>], unlit: &mut [usize]) {
         let first_group = self.groups.is_empty();
         let np = kept.len();
-        for (i, px) in out.chunks_exact(np * 2).enumerate() {
-            for (p, pair) in px.chunks_exact(2).enumerate() {
-                if self.lit[p].get(first + i) {
-                    kept[p].extend_from_slice(pair);
-                    continue;
+        // Each projector's lists are its own: the projectors run on all cores.
+        kept.par_iter_mut()
+            .zip(self.unlit_b.par_iter_mut())
+            .zip(self.lit.par_iter())
+            .zip(unlit.par_iter_mut())
+            .enumerate()
+            .for_each(|(p, (((kept, sums), lit), next))| {
+                for (i, px) in out.chunks_exact(np * 2).enumerate() {
+                    let pair = &px[p * 2..p * 2 + 2];
+                    if lit.get(first + i) {
+                        kept.extend_from_slice(pair);
+                        continue;
+                    }
+                    let b = f32::from(pair[1]);
+                    let r = if first_group {
+                        b
+                    } else {
+                        let r = f32::from(sums[*next]) * UNLIT_STEP;
+                        (r * r + b * b).sqrt()
+                    };
+                    let r = (r / UNLIT_STEP).round().min(65535.0) as u16;
+                    if first_group {
+                        sums.push(r);
+                    } else {
+                        sums[*next] = r;
+                    }
+                    *next += 1;
                 }
-                let sums = &mut self.unlit_b[p];
-                let b = f32::from(pair[1]);
-                let r = if first_group {
-                    b
-                } else {
-                    let r = f32::from(sums[unlit[p]]) * UNLIT_STEP;
-                    (r * r + b * b).sqrt()
-                };
-                let r = (r / UNLIT_STEP).round().min(65535.0) as u16;
-                if first_group {
-                    sums.push(r);
-                } else {
-                    sums[unlit[p]] = r;
-                }
-                unlit[p] += 1;
-            }
-        }
+            });
     }
 
     /// Unwrap, fuse and judge every pixel; fails when frames are missing.
