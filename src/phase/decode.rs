@@ -407,8 +407,9 @@ impl<T: Sample> Decoder<T> {
         let npx = width as usize * height as usize;
         let n = seq.steps() as usize;
         let projectors = seq.projectors().len();
-        // The group's frames, B² sums and statistics, and per group a 16-bit phase and
-        // modulation per projector and pixel.
+        // At most: the group's frames, 4 bytes of sums per projector, the statistics, and per
+        // group a 16-bit phase and modulation per projector and pixel (as if every projector
+        // lit every pixel).
         let per_pixel = n * std::mem::size_of::<T>()
             + 4 * projectors
             + std::mem::size_of::<Level>()
@@ -459,7 +460,7 @@ impl<T: Sample> Decoder<T> {
     }
 
     /// Bytes the decoder holds now: the group's frame buffer, the lit pixels' 16-bit phases
-    /// and modulations, the lit bits and row slots, the unlit pixels' B² sums, level
+    /// and modulations, the lit bits and row slots, the unlit pixels' root sums of B, level
     /// statistics and saturation flags (once every group is in, its peak before
     /// [`Self::finish`]).
     pub fn buffer_bytes(&self) -> usize {
@@ -530,7 +531,7 @@ impl<T: Sample> Decoder<T> {
 
     /// Take the DFT of the completed group g, band by band of [`BAND_ROWS`] rows (each band's
     /// rows on all cores): each projector's (ψ, B) pairs kept where it lights the pixel and
-    /// B² added to its sums where it does not (the first group chooses the lit pixels).
+    /// B added to its root sums where it does not (the first group chooses the lit pixels).
     fn close_group(&mut self, g: usize, last: &[T]) {
         let (w, h) = (self.width as usize, self.height as usize);
         let np = self.seq.projectors().len();
