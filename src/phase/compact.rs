@@ -10,6 +10,7 @@
 //! [`DecodedStack`].
 
 use super::decode::{DecodedStack, FloatImage, Mask, NoiseModel, PhaseNoise, ProjectorMaps};
+use rayon::prelude::*;
 
 /// One projector's maps at the candidate pixels, in row-major pixel order.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -152,9 +153,10 @@ impl CompactStack {
             FloatImage::from_raw(w, h, data).expect("map has width × height values")
         };
         let candidate = &self.candidate;
+        // One projector's maps per task, on all cores.
         let projectors = self
             .projectors
-            .into_iter()
+            .into_par_iter()
             .map(|p| {
                 let c = &p.at_candidates;
                 let modulation = p

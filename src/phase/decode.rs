@@ -3,12 +3,14 @@
 //! ambient image; the per-pixel noise model measured from the stack itself.
 //!
 //! Streaming: frames arrive one by one. The frames of the current (direction, count) group —
-//! N of the stack's G·N frames — are kept as they came (8 or 16 bit); when a group is
-//! complete its DFT is taken on all cores in strips of 64 pixels whose sums stay in L1 (per
-//! pixel: the mean and, for each projector frequency f_p, X_f = Σ I_s·e^{i2πf_p s/N}, with
-//! steps s and N − s paired so that the P frequencies share one sum and one difference per
-//! pair), and only the wrapped phase and modulation per projector are kept (16 bit each),
-//! at the pixels that projector lights (its first-group modulation at the candidate floor).
+//! N of the stack's G·N frames — are kept as they came (8 or 16 bit; the last is read where
+//! it arrives); when a group is complete its DFT is taken on all cores in strips of 64
+//! pixels whose sums stay in L1 (per pixel: the mean and, for each projector frequency f_p,
+//! X_f = Σ I_s·e^{i2πf_p s/N}, with steps s and N − s paired so that the P frequencies share
+//! one sum and one difference per pair), and only the wrapped phase and modulation per
+//! projector are kept (16 bit each), at the pixels that projector lights (its first-group
+//! modulation at the candidate floor); where it does not, only a 16-bit root sum of its
+//! modulations over the groups (for the ambient and modulation images).
 //! Accumulating the DFT over the whole image frame by frame would stream (2P+1) f32
 //! accumulators through memory for every frame (≈ 130 MB per 1920×1200 frame at P = 3,
 //! ≈ 12 GB per stack), which is bandwidth-bound; the group buffer (N 8-bit frames) is smaller
@@ -330,7 +332,8 @@ pub struct Decoder<T: Sample> {
     height: u32,
     full_scale: f32,
     next: usize,
-    /// The current group's frames, N × pixels.
+    /// The current group's frames but its last, (N − 1) × pixels (the last is read where it
+    /// arrives).
     frames: Vec<T>,
     /// (cos, sin) of 2π·f_p·s/N at [p·N + s].
     twiddles: Vec<[f32; 2]>,
@@ -341,15 +344,14 @@ pub struct Decoder<T: Sample> {
     /// [`CANDIDATE`] of full scale (a bit each; no other pair can be valid), and per image
     /// row the slot of the row's first one (height + 1 entries). Filled by the first group.
     lit: Vec<LitPixels>,
-    /// Per pixel: whether it is a candidate (some projector's modulation in the first group
-    /// reached [`CANDIDATE`] of full scale); filled by the first group.
-    candidate: Vec<bool>,
     /// Per image row: the slot of its first candidate among all candidates in row-major
     /// order (height + 1 entries, the last one the number of candidates).
     row_slots: Vec<u32>,
-    /// Per pixel and projector: Σ over groups of the quantised B² (every pixel, for the
-    /// modulation and ambient images).
-    bsq: Vec<f32>,
+    /// Per projector, at the pixels it does not light, in pixel order: √(Σ_g B_g²) over the
+    /// groups so far in steps of [`UNLIT_STEP`] (rounded after each group; docs/design.md
+    /// §6, "Memory"), for the modulation and ambient images (at a lit pixel Σ B² is rebuilt
+    /// from the kept modulations). Filled by the first group.
+    unlit_b: Vec<Vec<u16>>,
     levels: Vec<Level>,
     /// Pixels with a sample at full scale in some frame.
     saturated: Vec<bool>,
@@ -359,6 +361,11 @@ pub struct Decoder<T: Sample> {
 
 /// Modulation quantisation: 2^15 steps per full scale (B ≤ 2·full scale).
 const B_STEPS: f32 = 32768.0;
+
+/// Step of the unlit pixels' root sums √(Σ_g B_g²): a quarter of B's 16-bit step, so at most
+/// 2^14 steps of B (half of full scale) in all, 13 times the candidate floor; a larger sum
+/// (the light changed between groups at a pixel unlit in the first) is clamped there.
+const UNLIT_STEP: f32 = 0.25;
 
 /// Fraction of full scale a pixel's first-group modulation must reach, for some projector,
 /// for its phases to be kept: half the validity floor of 3 %.
@@ -400,8 +407,9 @@ impl<T: Sample> Decoder<T> {
         let npx = width as usize * height as usize;
         let n = seq.steps() as usize;
         let projectors = seq.projectors().len();
-        // The group's frames, B² sums and statistics, and per group a 16-bit phase and
-        // modulation per projector and pixel.
+        // At most: the group's frames, 4 bytes of sums per projector, the statistics, and per
+        // group a 16-bit phase and modulation per projector and pixel (as if every projector
+        // lit every pixel).
         let per_pixel = n * std::mem::size_of::<T>()
             + 4 * projectors
             + std::mem::size_of::<Level>()
@@ -438,13 +446,12 @@ impl<T: Sample> Decoder<T> {
             height,
             full_scale,
             next: 0,
-            frames: vec![T::default(); n * npx],
+            frames: vec![T::default(); (n - 1) * npx],
             twiddles,
             groups: Vec::with_capacity(seq.groups()),
-            candidate: Vec::new(),
             row_slots: Vec::new(),
             lit: Vec::new(),
-            bsq: vec![0.0; npx * seq.projectors().len()],
+            unlit_b: Vec::new(),
             levels: vec![Level::default(); npx],
             saturated: vec![false; npx],
             columns: cons(Direction::Columns),
@@ -452,9 +459,10 @@ impl<T: Sample> Decoder<T> {
         })
     }
 
-    /// Bytes the decoder holds now: the group's frame buffer, the candidates' 16-bit phases
-    /// and modulations, the candidate flags and row slots, B² sums, level statistics and
-    /// saturation flags (once every group is in, its peak before [`Self::finish`]).
+    /// Bytes the decoder holds now: the group's frame buffer, the lit pixels' 16-bit phases
+    /// and modulations, the lit bits and row slots, the unlit pixels' root sums of B, level
+    /// statistics and saturation flags (once every group is in, its peak before
+    /// [`Self::finish`]).
     pub fn buffer_bytes(&self) -> usize {
         self.frames.len() * std::mem::size_of::<T>()
             + self
@@ -464,9 +472,8 @@ impl<T: Sample> Decoder<T> {
                 .map(|g| g.len() * 2)
                 .sum::<usize>()
             + self.lit.iter().map(LitPixels::bytes).sum::<usize>()
-            + self.candidate.len()
             + self.row_slots.len() * 4
-            + self.bsq.len() * 4
+            + self.unlit_b.iter().map(|v| v.len() * 2).sum::<usize>()
             + self.levels.len() * std::mem::size_of::<Level>()
             + self.saturated.len()
     }
@@ -509,10 +516,11 @@ impl<T: Sample> Decoder<T> {
         }
         let n = self.seq.steps() as usize;
         let step = k % n;
-        self.frames[step * npx..(step + 1) * npx].copy_from_slice(frame.pixels);
         self.next += 1;
-        if step == n - 1 {
-            self.close_group(k / n);
+        if step < n - 1 {
+            self.frames[step * npx..(step + 1) * npx].copy_from_slice(frame.pixels);
+        } else {
+            self.close_group(k / n, frame.pixels);
             if self.next == count {
                 // The last group is in: the frame buffer is not needed any more.
                 self.frames = Vec::new();
@@ -522,15 +530,17 @@ impl<T: Sample> Decoder<T> {
     }
 
     /// Take the DFT of the completed group g, band by band of [`BAND_ROWS`] rows (each band's
-    /// rows on all cores): every pixel's B² into its sums, the candidates' (ψ, B) pairs kept
-    /// (the first group chooses the candidates).
-    fn close_group(&mut self, g: usize) {
+    /// rows on all cores): each projector's (ψ, B) pairs kept where it lights the pixel and
+    /// B added to its root sums where it does not (the first group chooses the lit pixels).
+    fn close_group(&mut self, g: usize, last: &[T]) {
         let (w, h) = (self.width as usize, self.height as usize);
         let np = self.seq.projectors().len();
         if g == 0 {
-            self.candidate = vec![false; w * h];
             self.lit = (0..np).map(|_| LitPixels::new(w * h)).collect();
+            self.unlit_b = vec![Vec::new(); np];
         }
+        // Per projector, the next unlit pixel's slot in its sums.
+        let mut unlit = vec![0usize; np];
         let mut kept: Vec<Vec<u16>> = (self.lit.iter())
             .map(|l| Vec::with_capacity(l.count() * 2))
             .collect();
@@ -538,33 +548,25 @@ impl<T: Sample> Decoder<T> {
         for y0 in (0..h).step_by(BAND_ROWS) {
             let rows = BAND_ROWS.min(h - y0);
             let out = &mut band[..rows * w * np * 2];
-            self.band_dft(g, y0, out);
-            self.add_modulation_squares(y0, out);
+            self.band_dft(g, y0, last, out);
             if g == 0 {
-                let candidate = &mut self.candidate[y0 * w..(y0 + rows) * w];
-                mark_candidates(out, np, y0 * w, candidate, &mut self.lit);
+                mark_lit(out, np, y0 * w, &mut self.lit);
             }
-            // Each projector's pairs at the pixels it lights, in pixel order.
-            for (i, px) in out.chunks_exact(np * 2).enumerate() {
-                for ((kept, lit), pair) in kept.iter_mut().zip(&self.lit).zip(px.chunks_exact(2)) {
-                    if lit.get(y0 * w + i) {
-                        kept.extend_from_slice(pair);
-                    }
-                }
-            }
+            self.keep_band(y0 * w, out, &mut kept, &mut unlit);
         }
         if g == 0 {
             kept.iter_mut().for_each(Vec::shrink_to_fit);
-            self.row_slots = row_slots(&self.candidate, w);
+            self.unlit_b.iter_mut().for_each(Vec::shrink_to_fit);
+            self.row_slots = row_slots(&self.lit, w, h);
             self.lit.iter_mut().for_each(|l| l.count_rows(w, h));
         }
         self.groups.push(kept);
     }
 
-    /// Group g's DFT of the rows from `y0` on (as many as `out` holds), row by row on all
-    /// cores: per pixel and projector the 16-bit (ψ, B) pair into `out`; updates each
-    /// pixel's level statistics and saturation flag.
-    fn band_dft(&mut self, g: usize, y0: usize, out: &mut [u16]) {
+    /// Group g's DFT (its `last` frame apart) of the rows from `y0` on (as many as `out`
+    /// holds), row by row on all cores: per pixel and projector the 16-bit (ψ, B) pair into
+    /// `out`; updates each pixel's level statistics and saturation flag.
+    fn band_dft(&mut self, g: usize, y0: usize, last: &[T], out: &mut [u16]) {
         let w = self.width as usize;
         let npx = w * self.height as usize;
         let n = self.seq.steps() as usize;
@@ -572,6 +574,7 @@ impl<T: Sample> Decoder<T> {
         let fs = self.full_scale;
         let kernel = GroupKernel {
             frames: &self.frames,
+            last,
             twiddles: &self.twiddles,
             w,
             npx,
@@ -595,19 +598,40 @@ impl<T: Sample> Decoder<T> {
             );
     }
 
-    /// Adds every pixel's B² of the band from row `y0` (its 16-bit `out` pairs) to its
-    /// per-projector Σ B².
-    fn add_modulation_squares(&mut self, y0: usize, out: &[u16]) {
-        let w = self.width as usize;
-        let np = self.seq.projectors().len();
-        let inv_b_scale = self.full_scale / B_STEPS;
-        self.bsq[y0 * w * np..][..out.len() / 2]
-            .par_chunks_mut(w * np)
-            .zip(out.par_chunks(w * np * 2))
-            .for_each(|(acc, o)| {
-                for (a, pair) in acc.iter_mut().zip(o.chunks_exact(2)) {
-                    let b = f32::from(pair[1]) * inv_b_scale;
-                    *a += b * b;
+    /// The band of pixels from `first` on (their (ψ, B) pairs `out`), projector by projector
+    /// in pixel order: the pair appended to `kept` where it lights the pixel, else its B
+    /// added in quadrature to (the first group: appended to) its unlit root sums, `unlit`
+    /// counting their slots.
+    fn keep_band(&mut self, first: usize, out: &[u16], kept: &mut [Vec<u16>], unlit: &mut [usize]) {
+        let first_group = self.groups.is_empty();
+        let np = kept.len();
+        // Each projector's lists are its own: the projectors run on all cores.
+        kept.par_iter_mut()
+            .zip(self.unlit_b.par_iter_mut())
+            .zip(self.lit.par_iter())
+            .zip(unlit.par_iter_mut())
+            .enumerate()
+            .for_each(|(p, (((kept, sums), lit), next))| {
+                for (i, px) in out.chunks_exact(np * 2).enumerate() {
+                    let pair = &px[p * 2..p * 2 + 2];
+                    if lit.get(first + i) {
+                        kept.extend_from_slice(pair);
+                        continue;
+                    }
+                    let b = f32::from(pair[1]);
+                    let r = if first_group {
+                        b
+                    } else {
+                        let r = f32::from(sums[*next]) * UNLIT_STEP;
+                        (r * r + b * b).sqrt()
+                    };
+                    let r = (r / UNLIT_STEP).round().min(65535.0) as u16;
+                    if first_group {
+                        sums.push(r);
+                    } else {
+                        sums[*next] = r;
+                    }
+                    *next += 1;
                 }
             });
     }
@@ -657,10 +681,15 @@ impl<T: Sample> Decoder<T> {
             std::mem::take(&mut self.camera),
             noise,
             saturated,
-            std::mem::take(&mut self.candidate),
+            (0..w * h).map(|i| self.is_candidate(i)).collect(),
             &stats,
             &fundamental,
         ))
+    }
+
+    /// Whether pixel i is a candidate: some projector lights it.
+    fn is_candidate(&self, i: usize) -> bool {
+        self.lit.iter().any(|l| l.get(i))
     }
 
     /// Candidate pixels (0 before the first group is in).
@@ -669,26 +698,15 @@ impl<T: Sample> Decoder<T> {
     }
 }
 
-/// Marks the candidates among the pixels of `out` (P (ψ, B) pairs per pixel, from pixel
-/// `first` of the image on; one flag each in `candidate`): where some projector's B reached
-/// [`CANDIDATE`] of full scale; and in each projector's `lit` the pixels where its own did.
-fn mark_candidates(
-    out: &[u16],
-    np: usize,
-    first: usize,
-    candidate: &mut [bool],
-    lit: &mut [LitPixels],
-) {
+/// Marks in each projector's `lit` the pixels of `out` (P (ψ, B) pairs per pixel, from pixel
+/// `first` of the image on) where its own B reached [`CANDIDATE`] of full scale; a pixel some
+/// projector lights is a candidate.
+fn mark_lit(out: &[u16], np: usize, first: usize, lit: &mut [LitPixels]) {
     let floor = (CANDIDATE * B_STEPS).round() as u16;
-    for (i, (c, px)) in candidate
-        .iter_mut()
-        .zip(out.chunks_exact(np * 2))
-        .enumerate()
-    {
+    for (i, px) in out.chunks_exact(np * 2).enumerate() {
         for (lit, pair) in lit.iter_mut().zip(px.chunks_exact(2)) {
             if pair[1] >= floor {
                 lit.set(first + i);
-                *c = true;
             }
         }
     }
@@ -740,13 +758,16 @@ impl LitPixels {
     }
 }
 
-/// Per image row of `w` pixels, the slot of its first candidate (and the count at the end).
-fn row_slots(candidate: &[bool], w: usize) -> Vec<u32> {
-    let mut slots = Vec::with_capacity(candidate.len() / w + 1);
+/// Per image row of `w` pixels (`h` rows), the slot of its first candidate (a pixel some
+/// projector in `lit` lights) and the count at the end.
+fn row_slots(lit: &[LitPixels], w: usize, h: usize) -> Vec<u32> {
+    let mut slots = Vec::with_capacity(h + 1);
     let mut next = 0u32;
     slots.push(next);
-    for row in candidate.chunks(w) {
-        next += row.iter().filter(|&&c| c).count() as u32;
+    for y in 0..h {
+        next += (y * w..(y + 1) * w)
+            .filter(|&i| lit.iter().any(|l| l.get(i)))
+            .count() as u32;
         slots.push(next);
     }
     slots
@@ -790,8 +811,10 @@ fn load<T: Sample>(dst: &mut [f32; CHUNK], src: &[T]) {
 
 /// What every row of one group's DFT shares: the frames, the twiddles and the sizes.
 struct GroupKernel<'a, T> {
-    /// The group's frames, N × pixels.
+    /// The group's frames but its last, (N − 1) × pixels.
     frames: &'a [T],
+    /// The group's last frame.
+    last: &'a [T],
     /// (cos, sin) of 2π·f_p·s/N at [p·N + s].
     twiddles: &'a [[f32; 2]],
     /// Image width (px).
@@ -841,7 +864,11 @@ impl<T: Sample> GroupKernel<'_, T> {
     /// Step s's samples of the `len` pixels from pixel `at` on.
     #[inline(always)]
     fn samples(&self, s: usize, at: usize, len: usize) -> &[T] {
-        &self.frames[s * self.npx + at..][..len]
+        if s + 1 == self.n {
+            &self.last[at..][..len]
+        } else {
+            &self.frames[s * self.npx + at..][..len]
+        }
     }
 
     /// The DFT of the `len` pixels from pixel `at` over the N steps: X_0 into `dc`, Re and
@@ -1149,13 +1176,26 @@ impl<'a, T: Sample> Judge<'a, T> {
             let (mean, _) = dec.levels[px].mean_and_var(self.steps, self.groups);
             let sigma = self.noise.sigma(mean) as f32;
             let var4 = 4.0 * sigma * sigma / self.n32;
-            let (saturated, candidate) = (dec.saturated[px], dec.candidate[px]);
+            let (saturated, candidate) = (dec.saturated[px], dec.is_candidate(px));
             let mut amb = mean as f32;
             for (p, acc) in acc.iter_mut().enumerate() {
                 let lit = dec.lit[p].get(px);
                 let slot = next[p];
                 next[p] += u32::from(lit);
-                let bsq = dec.bsq[px * np + p];
+                // Σ_g B² from the kept modulations where p lights the pixel, else from p's
+                // unlit root sum.
+                let (psi_g, bsq_g) = if lit {
+                    self.group_phases(slot, p)
+                } else {
+                    Default::default()
+                };
+                let bsq = if lit {
+                    bsq_g[..self.groups].iter().fold(0.0, |s, &b2| s + b2)
+                } else {
+                    let r = f32::from(dec.unlit_b[p][px - slot as usize])
+                        * (UNLIT_STEP * self.inv_b_scale);
+                    r * r
+                };
                 let bmod = (bsq / self.groups as f32 - var4).max(0.0).sqrt();
                 amb -= self.mean_ratio[p] * bmod;
                 if let Some(m) = row.modulation.get_mut(p) {
@@ -1174,7 +1214,7 @@ impl<'a, T: Sample> Judge<'a, T> {
                     c.valid[k] = false;
                     continue;
                 }
-                let pos = self.position(slot, p, sigma);
+                let pos = self.position(&psi_g, &bsq_g, p, sigma);
                 let ok = pos.distance[0] < self.half_spacing[0]
                     && pos.distance[1] < self.half_spacing[1]
                     && pos.clear_of_wrap;
@@ -1206,10 +1246,9 @@ impl<'a, T: Sample> Judge<'a, T> {
         (psi_g, bsq_g)
     }
 
-    /// Projector p's phases at candidate `slot` unwrapped and fused per direction, with
-    /// their σ at per-frame noise `sigma` (DN).
-    fn position(&self, slot: u32, p: usize, sigma: f32) -> Position {
-        let (psi_g, bsq_g) = self.group_phases(slot, p);
+    /// Projector p's wrapped phases `psi_g` (cycles) and B² `bsq_g` (DN²) per group
+    /// unwrapped and fused per direction, with their σ at per-frame noise `sigma` (DN).
+    fn position(&self, psi_g: &[f32], bsq_g: &[f32], p: usize, sigma: f32) -> Position {
         let code = &self.dec.seq.projectors()[p];
         let mc = self.counts[0].len();
         let mut pos = Position {

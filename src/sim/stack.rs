@@ -54,17 +54,11 @@ impl ProjectorTruth {
             *r = [r[0].min(x), r[1].min(y), r[2].max(x + 1), r[3].max(y + 1)];
         }
         let bounds = b.unwrap_or([0; 4]);
-        let [x0, y0, x1, y1] = bounds;
-        let crop = |m: &[f32]| -> Vec<f32> {
-            (y0..y1)
-                .flat_map(|y| m[y * width + x0..y * width + x1].iter().copied())
-                .collect()
-        };
         ProjectorTruth {
             width,
             bounds,
-            u: crop(u),
-            v: crop(v),
+            u: crop(u, width, bounds),
+            v: crop(v, width, bounds),
         }
     }
 
@@ -96,11 +90,24 @@ impl ProjectorTruth {
     pub fn lit(&self, i: usize) -> bool {
         !self.u(i).is_nan()
     }
+
+    /// Where pixel i is in the rectangle, when the projector lights it.
+    fn lit_index(&self, i: usize) -> Option<usize> {
+        self.index(i).filter(|&j| !self.u[j].is_nan())
+    }
+
+    /// Pixels in the rectangle.
+    fn area(&self) -> usize {
+        let [x0, y0, x1, y1] = self.bounds;
+        (x1 - x0) * (y1 - y0)
+    }
 }
 
 /// A camera's stack renderer for one board pose.
 pub struct StackRenderer {
     size: ImageSize,
+    /// Footprint-integrated albedo over the lit box (box-sized, row-major; empty without
+    /// one): projector light reaches no pixel outside it.
     albedo: Vec<f32>,
     gains: Vec<f32>,
     truth: Vec<ProjectorTruth>,
@@ -126,27 +133,27 @@ const EXPOSE_ROWS: usize = 64;
 /// The fixed-point unit of cached cosines and sines.
 const PHASE_UNIT: f64 = 32767.0;
 
-/// Per projector and lit-box pixel, (cos θ₀, sin θ₀) of one fringe group, where
+/// Per projector and pixel of its truth's rectangle, (cos θ₀, sin θ₀) of one fringe group, where
 /// θ₀ = 2π·n·(pos + ½)/size is the phase at step 0: the group's N frames differ only by a
 /// shift, so the cosine of each frame is two products away (frames come group by group).
 #[derive(Default)]
 struct GroupPhases {
     /// The group these phases belong to.
     group: Option<usize>,
-    /// Per projector, box-sized, row-major, in units of 1/32767: 3·10⁻⁵ rad, or 4·10⁻⁴
+    /// Per projector, over its truth's rectangle, row-major, in units of 1/32767: 3·10⁻⁵ rad, or 4·10⁻⁴
     /// projector px at 25 fringes across 1920 px (half the memory of f32).
     phases: Vec<Vec<[i16; 2]>>,
 }
 
 impl GroupPhases {
-    /// Compute the phases of `group` inside the lit box.
-    fn fill(&mut self, r: &StackRenderer, group: usize, [x0, y0, x1, y1]: [usize; 4]) {
+    /// Compute the phases of `group` over each projector's rectangle.
+    fn fill(&mut self, r: &StackRenderer, group: usize) {
         let steps = r.sequence.steps() as usize;
         let frame = r
             .sequence
             .frame(group * steps)
             .expect("group within the sequence");
-        let (w, bw) = (r.size.width as usize, x1 - x0);
+        let w = r.size.width as usize;
         self.phases.resize(r.truth.len(), Vec::new());
         for ((code, t), out) in r
             .sequence
@@ -160,22 +167,28 @@ impl GroupPhases {
                 Direction::Rows => (true, code.height),
             };
             let a = 2.0 * std::f64::consts::PI * f64::from(frame.count) / f64::from(size);
+            let [x0, y0, x1, _] = t.bounds;
             out.clear();
-            out.resize(bw * (y1 - y0), [0; 2]);
-            out.par_chunks_mut(bw).enumerate().for_each(|(by, row)| {
-                let base = (y0 + by) * w + x0;
-                for (bx, o) in row.iter_mut().enumerate() {
-                    let i = base + bx;
-                    if t.lit(i) {
-                        let pos = f64::from(if rows { t.v(i) } else { t.u(i) });
-                        let (s, c) = (a * (pos + 0.5)).sin_cos();
-                        *o = [
-                            (c * PHASE_UNIT).round() as i16,
-                            (s * PHASE_UNIT).round() as i16,
-                        ];
+            out.resize(t.area(), [0; 2]);
+            if out.is_empty() {
+                continue;
+            }
+            out.par_chunks_mut(x1 - x0)
+                .enumerate()
+                .for_each(|(by, row)| {
+                    let base = (y0 + by) * w + x0;
+                    for (bx, o) in row.iter_mut().enumerate() {
+                        let i = base + bx;
+                        if t.lit(i) {
+                            let pos = f64::from(if rows { t.v(i) } else { t.u(i) });
+                            let (s, c) = (a * (pos + 0.5)).sin_cos();
+                            *o = [
+                                (c * PHASE_UNIT).round() as i16,
+                                (s * PHASE_UNIT).round() as i16,
+                            ];
+                        }
                     }
-                }
-            });
+                });
         }
         self.group = Some(group);
     }
@@ -218,6 +231,13 @@ fn projector_truth(scene: &Scene, geo: &Geometry, p: &StackProjector) -> Project
             }
         });
     ProjectorTruth::cropped(w, &u, &v)
+}
+
+/// The rectangle `[x0, y0, x1, y1]` (exclusive ends) of an image `width` pixels wide, row-major.
+fn crop(image: &[f32], width: usize, [x0, y0, x1, y1]: [usize; 4]) -> Vec<f32> {
+    (y0..y1)
+        .flat_map(|y| image[y * width + x0..y * width + x1].iter().copied())
+        .collect()
 }
 
 impl StackRenderer {
@@ -272,7 +292,7 @@ impl StackRenderer {
             ambient_signal,
             lit_box,
             size: geo.size,
-            albedo: geo.albedo,
+            albedo: lit_box.map_or_else(Vec::new, |b| crop(&geo.albedo, w, b)),
             gains: projectors.iter().map(|p| p.gain_dn as f32).collect(),
             truth,
             sensor,
@@ -289,25 +309,33 @@ impl StackRenderer {
         self.size
     }
 
-    /// Footprint-integrated albedo per pixel, row-major.
-    pub fn albedo(&self) -> &[f32] {
-        &self.albedo
+    /// Footprint-integrated albedo at pixel i (row-major), known inside the box projector
+    /// light can reach (NaN outside it).
+    pub fn albedo(&self, i: usize) -> f32 {
+        self.box_index(i).map_or(f32::NAN, |j| self.albedo[j])
+    }
+
+    /// Where pixel i is in the lit box.
+    fn box_index(&self, i: usize) -> Option<usize> {
+        let [x0, y0, x1, y1] = self.lit_box?;
+        let (x, y) = (i % self.size.width as usize, i / self.size.width as usize);
+        (x >= x0 && x < x1 && y >= y0 && y < y1).then(|| (y - y0) * (x1 - x0) + x - x0)
     }
 
     /// Whether the albedo is uniform (within 10⁻⁴) over the (2r+1)² pixels around pixel `i`,
-    /// all inside the image: a pixel whose decoded phase is the decoder's alone (nearer an
+    /// all inside the image and the lit box: a pixel whose decoded phase is the decoder's alone (nearer an
     /// albedo edge the PSF mixes the phases of differently bright neighbours, which is
     /// optics, not decoding).
     pub fn uniform_albedo(&self, i: usize, r: usize) -> bool {
         let (w, h) = (self.size.width as usize, self.size.height as usize);
         let (x, y) = (i % w, i / w);
-        let a = &self.albedo;
+        let a = self.albedo(i);
         x >= r
             && y >= r
             && x + r < w
             && y + r < h
             && (y - r..=y + r)
-                .all(|yy| (x - r..=x + r).all(|xx| (a[yy * w + xx] - a[i]).abs() < 1e-4))
+                .all(|yy| (x - r..=x + r).all(|xx| (self.albedo(yy * w + xx) - a).abs() < 1e-4))
     }
 
     /// Ground truth of projector `p`.
@@ -325,7 +353,7 @@ impl StackRenderer {
         let n = self.sequence.steps();
         let mut cache = self.phases.lock().unwrap_or_else(|e| e.into_inner());
         if cache.group != Some(frame.group) {
-            cache.fill(self, frame.group, [x0, y0, x1, y1]);
+            cache.fill(self, frame.group);
         }
         // Per projector the phase shift of this step: θ = θ₀ − 2π·f_p·s/N (docs/design.md §6),
         // so cos θ = cos θ₀·cos(shift) + sin θ₀·sin(shift).
@@ -352,15 +380,15 @@ impl StackRenderer {
                 let i = base + bx;
                 let mut e = 0.0;
                 for (p, t) in self.truth.iter().enumerate() {
-                    if t.lit(i) {
-                        let [c0, s0] = cache.phases[p][by * bw + bx];
+                    if let Some(j) = t.lit_index(i) {
+                        let [c0, s0] = cache.phases[p][j];
                         let (c0, s0) = (f32::from(c0), f32::from(s0));
                         let (cs, ss) = shifts[p];
                         let level = 127.5 * (1.0 + c0 * cs + s0 * ss);
                         e += self.gains[p] * self.light[p][(level + 0.5) as usize];
                     }
                 }
-                *out = self.albedo[i] * e;
+                *out = self.albedo[by * bw + bx] * e;
             }
         });
         irr
@@ -397,7 +425,7 @@ impl StackRenderer {
                             .filter(|((t, _), _)| t.lit(i))
                             .map(|((_, g), l)| g * l[255])
                             .sum();
-                        *out = self.albedo[i] * e;
+                        *out = self.albedo[by * (x1 - x0) + bx] * e;
                     }
                 }
             }

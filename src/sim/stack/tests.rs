@@ -149,21 +149,12 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> (Vec<CircleError
     // albedo change within ±3 px ≈ 4 PSF σ: near an edge the PSF mixes the phases of
     // differently bright neighbours, which is optics, not decoding), against the predicted σ_u.
     let (w, h) = (size.width as usize, size.height as usize);
-    let albedo = renderer.albedo();
-    let uniform = |i: usize| {
-        let (x, y) = (i % w, i / w);
-        if x < 3 || y < 3 || x + 3 >= w || y + 3 >= h {
-            return false;
-        }
-        let a = albedo[i];
-        (y - 3..=y + 3).all(|yy| (x - 3..=x + 3).all(|xx| (albedo[yy * w + xx] - a).abs() < 1e-4))
-    };
     for (p, maps) in decoded.projectors.iter().enumerate() {
         let truth = renderer.truth(p);
         let (mut sq, mut n, mut worst) = (0.0, 0usize, 0.0f64);
         let (mut interior, mut interior_valid) = (0usize, 0usize);
-        for (i, &a) in albedo.iter().enumerate() {
-            if !(truth.lit(i) && a > 0.9 && uniform(i)) {
+        for i in 0..w * h {
+            if !(truth.lit(i) && renderer.albedo(i) > 0.9 && renderer.uniform_albedo(i, 3)) {
                 continue;
             }
             interior += 1;
@@ -507,9 +498,9 @@ fn flat_frames_light_the_board_evenly_and_leave_the_stack_as_it_was() {
     let (white, black) = (renderer.flat_frame(true, 0), renderer.flat_frame(false, 0));
     // Where every projector lights a white part of the board (albedo near 1 at the pixel),
     // white reaches ambient + every projector's full light (235 DN), black the ambient.
-    let n = renderer.albedo().len();
+    let n = renderer.size().width as usize * renderer.size().height as usize;
     let lit_white: Vec<usize> = (0..n)
-        .filter(|&i| renderer.albedo()[i] > 0.95 && (0..3).all(|p| renderer.truth(p).lit(i)))
+        .filter(|&i| renderer.albedo(i) > 0.95 && (0..3).all(|p| renderer.truth(p).lit(i)))
         .collect();
     assert!(lit_white.len() > 1000, "{} pixels", lit_white.len());
     let mean = |f: &Frame| {
