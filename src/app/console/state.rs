@@ -156,18 +156,25 @@ mod tests {
     use crate::calib::bundle::DeviceKind;
     use crate::calib::solve::DeviceInfo;
 
+    /// A state of one device, nothing seen yet.
+    fn one_device(name: &str, kind: DeviceKind, size: [u32; 2]) -> State {
+        let info = DeviceInfo {
+            name: name.into(),
+            kind,
+            width: size[0],
+            height: size[1],
+        };
+        State {
+            devices: vec![DeviceStats::new(&info)],
+            ..State::default()
+        }
+    }
+
     #[test]
     fn first_pose_advice_shows_until_the_first_interim_calibration() {
-        let info = DeviceInfo {
-            name: "cam1".into(),
-            kind: DeviceKind::Camera,
-            width: 960,
-            height: 600,
-        };
         let mut s = State {
-            devices: vec![DeviceStats::new(&info)],
             pose: Some([1, 6]),
-            ..State::default()
+            ..one_device("cam1", DeviceKind::Camera, [960, 600])
         };
         s.judge();
         let advice = s
@@ -195,16 +202,7 @@ mod tests {
 
     #[test]
     fn done_needs_every_device_covered_and_certain() {
-        let info = DeviceInfo {
-            name: "proj0".into(),
-            kind: DeviceKind::Projector,
-            width: 1280,
-            height: 800,
-        };
-        let mut s = State {
-            devices: vec![DeviceStats::new(&info)],
-            ..State::default()
-        };
+        let mut s = one_device("proj0", DeviceKind::Projector, [1280, 800]);
         s.judge();
         assert!(!s.done);
         assert_eq!(
