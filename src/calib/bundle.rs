@@ -501,7 +501,7 @@ impl RayCache {
 
 /// Derivative of the ray–plane intersection P = λ·r, λ = (N·Q)/(N·r), with respect to a left
 /// increment (ω′, τ′) of the plane's pose expressed through M (the increment acts in the
-/// frame M maps from): ω′ = R_M·ω, τ′ = [t_M]×·R_M·ω + R_M·τ.
+/// frame M maps from): ω′ = R_M·ω, τ′ = \[t_M\]×·R_M·ω + R_M·τ.
 pub fn plane_increment(
     r: &Vector3<f64>,
     n: &Vector3<f64>,
