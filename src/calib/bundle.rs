@@ -1065,6 +1065,13 @@ fn norms(res: &[Vector2<f64>]) -> Vec<f32> {
 /// docs/design.md §8).
 const LAMBDA0: f64 = 1e-5;
 
+/// The robust phase ends, at its threshold floor, after a step that lowers its cost by less
+/// than this fraction of it: converging linearly, what is left is about one such step, a
+/// residual change of √10⁻³ ≈ 0.03σ̂ RMS, and the plain phase's undamped steps and outlier
+/// re-decisions finish it (60/4/100: 16 floor iterations with the plain tolerance;
+/// docs/design.md §8).
+const ROBUST_END: f64 = 1e-3;
+
 /// Damped trials at most per LM iteration.
 const MAX_TRIALS: usize = 30;
 
@@ -1093,10 +1100,12 @@ type LinearSystem = (Scaled, f64, Residuals);
 /// ratio ρ (actual over predicted decrease), λ ← λ·max(1/3, 1 − (2ρ − 1)³); after a
 /// rejected one λ ← λ·ν, ν ← 2ν. Stops when the undamped step would lower the cost by less
 /// than 0.1·σ̂²: then the state is within ~0.3 standard deviations of the minimum in the
-/// parameters' own metric. A plain phase (no `huber`) tests that from its first iteration
-/// (it starts where the last phase stopped at a minimum, or a small step from one); the
-/// biases are computed afresh only after a step that lowered the cost by at least 0.1·σ̂²,
-/// else held from the last point (`held_anchors`: those of the start, when given).
+/// parameters' own metric. A robust phase stops instead, once at its threshold floor, after
+/// a step that lowered its cost by less than [`ROBUST_END`] of it (or than 0.1·σ̂²). A
+/// plain phase (no `huber`) applies the undamped test from its first iteration (it starts
+/// where the last phase stopped, at or near a minimum); the biases are computed afresh only
+/// after a step that lowered the cost by at least 0.1·σ̂², else held from the last point
+/// (`held_anchors`: those of the start, when given).
 #[allow(clippy::too_many_arguments)]
 fn levenberg_marquardt(
     p: &Problem,
@@ -1187,16 +1196,17 @@ fn levenberg_marquardt(
         };
         s = trial;
         small_drop = drop < tol;
-        if small_drop && huber.is_some() && frozen.is_some() {
+        if huber.is_some() && frozen.is_some() && drop < tol.max(ROBUST_END * c0) {
             // The robust phase ends here, without the undamped test (its linear system
             // would be built at the very state where the plain phase builds its first).
+            // The biases are handed on only after a step within tolerance.
             return Phase {
                 state: s,
                 iterations: iteration,
                 converged: true,
                 system: None,
                 lambda,
-                anchors: Some(an),
+                anchors: small_drop.then_some(an),
                 norms: last,
             };
         }
