@@ -977,16 +977,9 @@ fn linear_system(
 /// in share order: the same sums as one thread's, for any thread count.
 fn add_in_order(u: &mut DMatrix<f64>, shares: &[(Vec<usize>, PoseAcc)]) {
     let m = u.nrows();
-    // Each share's local index of every device column (u32::MAX: not one of its columns).
     let local: Vec<Vec<u32>> = shares
         .iter()
-        .map(|(cols, _)| {
-            let mut at = vec![u32::MAX; m];
-            for (i, &c) in cols.iter().enumerate() {
-                at[c] = i as u32;
-            }
-            at
-        })
+        .map(|(cols, _)| super::schur::local_index(cols, m))
         .collect();
     u.as_mut_slice()
         .par_chunks_mut(m)

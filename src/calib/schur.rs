@@ -106,6 +106,16 @@ impl BlockSystem {
     }
 }
 
+/// A block's local index of each of `m` device columns, given its columns `cols` in local
+/// order (`u32::MAX`: not one of its columns).
+pub(crate) fn local_index(cols: &[usize], m: usize) -> Vec<u32> {
+    let mut at = vec![u32::MAX; m];
+    for (i, &c) in cols.iter().enumerate() {
+        at[c] = i as u32;
+    }
+    at
+}
+
 /// S −= W_k·V_k⁻¹·W_kᵀ for the poses of `chunk` (their products `xw` at the pose's
 /// columns), each column of S by one thread and each entry in pose order: the same sums as
 /// one thread's, for any thread count.
@@ -115,17 +125,7 @@ fn subtract_in_order(
     products: &[(DMatrix<f64>, Vector6<f64>, DMatrix<f64>)],
 ) {
     let m = s.nrows();
-    // Each pose's local index of every device column (u32::MAX: not one of its columns).
-    let local: Vec<Vec<u32>> = chunk
-        .iter()
-        .map(|b| {
-            let mut at = vec![u32::MAX; m];
-            for (i, &c) in b.cols.iter().enumerate() {
-                at[c] = i as u32;
-            }
-            at
-        })
-        .collect();
+    let local: Vec<Vec<u32>> = chunk.iter().map(|b| local_index(&b.cols, m)).collect();
     s.as_mut_slice()
         .par_chunks_mut(m)
         .enumerate()
