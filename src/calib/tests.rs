@@ -648,7 +648,7 @@ mod convergence {
         let r = run_case(&case).expect("adjustment runs");
         eprintln!(
             "{}/{}/{} seed {} {:?}: σ̂ {:.4} ({:+.2} %), worst {:.2}σ ({}), bound {:.2}, \
-             {} iterations{}, {} excluded, {:.1} s: {}",
+             {} iterations (+ {} coarse){}, {} excluded, {:.1} s: {}",
             case.cameras,
             case.projectors,
             case.poses,
@@ -660,6 +660,7 @@ mod convergence {
             r.worst_z.1,
             r.z_bound,
             r.iterations,
+            r.coarse_iterations,
             if r.converged { "" } else { " (not converged)" },
             r.excluded,
             r.seconds,
