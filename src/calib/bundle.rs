@@ -1380,10 +1380,9 @@ fn plain_phase(
 const COARSE_STRIDE: i32 = 3;
 
 /// The robust phase (30) on a sub-lattice of the circles (`COARSE_STRIDE`): from a far
-/// start most iterations are descent, where a quarter of each view's circles point the way
-/// as well as all of them at a quarter of the cost. Gives the state where it stopped and
-/// its damping; the robust phase over every observation goes on from there (docs/design.md
-/// §8, issue 17).
+/// start most iterations are descent, where a ninth of each view's circles points the way
+/// as well as all of them at a ninth of the cost. The robust phase over every observation
+/// goes on from where it stopped (docs/design.md §8, phase 0).
 fn coarse_descent(p: &Problem, l: &Layout, o: &Options) -> Phase {
     let coarse = |h: Hex| h.q.rem_euclid(COARSE_STRIDE) == 0 && h.r.rem_euclid(COARSE_STRIDE) == 0;
     let sub = Problem {
@@ -1410,7 +1409,8 @@ fn coarse_descent(p: &Problem, l: &Layout, o: &Options) -> Phase {
     )
 }
 
-/// Run the adjustment: robust phase, outlier rejection per device, plain phase, covariance.
+/// Run the adjustment: coarse descent, robust phase, outlier rejection per device, plain
+/// phase, covariance.
 pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     check_problem(p, o)?;
     let l = Layout::new(p, o);
@@ -1425,7 +1425,12 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         &all,
         Some(o.huber),
         &by_pose,
-        coarse.lambda,
+        // Its damping, unless it stalled (λ raised by failed trials: no sub-lattice left).
+        if coarse.converged {
+            coarse.lambda
+        } else {
+            LAMBDA0
+        },
     );
     let (plain, active, iterations) = plain_phase(p, &l, o, &by_pose, robust);
     let s = plain.state;
