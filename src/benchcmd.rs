@@ -205,7 +205,7 @@ fn bench_calib(
         case.start,
     );
     println!(
-        "{:.3} s wall, {} CPU, peak memory {}, {} LM iterations{}; posterior σ {:.4} px \
+        "{:.3} s wall, {} CPU, peak memory {}, {} LM iterations (+ {} coarse){}; posterior σ {:.4} px \
          (simulated {sigma}), worst focal error {:.4} %, worst parameter {:.2} σ ({}; bound \
          {:.2}): {}",
         b.seconds,
@@ -215,6 +215,7 @@ fn bench_calib(
             kb as f64 / 1024.0
         )),
         b.iterations,
+        b.coarse_iterations,
         if b.converged { "" } else { " (not converged)" },
         b.posterior_sigma,
         100.0 * b.worst_focal_error,

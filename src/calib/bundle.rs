@@ -206,8 +206,10 @@ pub struct Solution {
     pub board_index: Vec<usize>,
     /// Where the side transform's increment starts in `covariance`, when refined.
     pub side_index: Option<usize>,
-    /// LM iterations over all phases.
+    /// LM iterations over every observation, all phases.
     pub iterations: usize,
+    /// LM iterations of the coarse descent before them (on a ninth of the circles).
+    pub coarse_iterations: usize,
     /// Whether the final (plain) phase stopped at its minimum, not at the iteration limit.
     pub converged: bool,
 }
@@ -1095,9 +1097,10 @@ type LinearSystem = (Scaled, f64, Residuals);
 /// than 0.1·σ̂²: then the state is within ~0.3 standard deviations of the minimum in the
 /// parameters' own metric. A robust phase stops instead, once at its threshold floor, after
 /// a step that lowered its cost by less than [`ROBUST_END`] of it (or than 0.1·σ̂²). A
-/// plain phase (no `huber`) applies the undamped test from its first iteration (it starts
-/// where the last phase stopped, at or near a minimum); the biases are computed afresh only
-/// after a step that lowered the cost by at least 0.1·σ̂², else held from the last point
+/// plain phase (no `huber`) applies the undamped test at every iteration, from its first
+/// (it starts where the last phase stopped, at or near a minimum), and tries the undamped
+/// (Gauss–Newton) step before any damped one; the biases are computed afresh only after a
+/// step that lowered the cost by at least 0.1·σ̂², else held from the last point
 /// (`held_anchors`: those of the start, when given).
 #[allow(clippy::too_many_arguments)]
 fn levenberg_marquardt(
@@ -1141,7 +1144,12 @@ fn levenberg_marquardt(
         let (sys, c0, res) = linear_system(p, &s, l, &an, active, huber, by_pose);
         let sys = sys.scaled();
         let tol = 0.1 * c0 / n as f64;
-        if small_drop && sys.solve(0.0).is_some_and(|st| st.predicted < tol) {
+        // The undamped step: the convergence test's, and a plain phase's first trial. The
+        // test holds with the biases of this point (computed afresh after a large step) or
+        // of one within ~0.3σ of it; a robust phase tests only after a small step.
+        let testing = small_drop || huber.is_none();
+        let undamped = testing.then(|| sys.solve(0.0)).flatten();
+        if testing && undamped.as_ref().is_some_and(|st| st.predicted < tol) {
             return Phase {
                 state: s,
                 iterations: iteration,
@@ -1152,29 +1160,16 @@ fn levenberg_marquardt(
                 norms: None,
             };
         }
-        let fixed = held(&sys);
-        let mut accepted = None;
-        for _ in 0..MAX_TRIALS {
-            let Some(step) = sys.solve(lambda) else {
-                (lambda, nu) = (lambda * nu, 2.0 * nu);
-                continue;
-            };
-            let trial = s.update(l, &full_step(l, &step), &fixed);
-            // The anchors stay those of the linearisation point within a step.
-            // The robust phase's norms give its next set (30a) or the plain phase's first.
-            let (c, trial_norms) =
-                trial_cost(p, &trial, l, &an, &res, active, huber, huber.is_some());
-            if c < c0 {
-                let rho = (c0 - c) / step.predicted.max(1e-300);
-                lambda *= (1.0 / 3.0f64).max(1.0 - (2.0 * rho - 1.0).powi(3));
-                nu = 2.0;
-                accepted = Some((trial, c0 - c));
-                last = trial_norms;
-                break;
-            }
-            (lambda, nu) = (lambda * nu, 2.0 * nu);
-        }
-        let Some((trial, drop)) = accepted else {
+        let at = Linearisation {
+            state: &s,
+            anchors: &an,
+            residuals: &res,
+            active,
+            huber,
+            cost: c0,
+        };
+        let accepted = trial_step(p, l, &sys, &at, undamped, (&mut lambda, &mut nu));
+        let Some((trial, drop, trial_norms)) = accepted else {
             // No trial lowers the cost: at the minimum to rounding, or stalled.
             let at_minimum = sys.solve(0.0).is_some_and(|st| st.predicted < tol);
             return Phase {
@@ -1188,6 +1183,7 @@ fn levenberg_marquardt(
             };
         };
         s = trial;
+        last = trial_norms;
         small_drop = drop < tol;
         if huber.is_some() && frozen.is_some() && drop < tol.max(ROBUST_END * c0) {
             // The robust phase ends here, without the undamped test (its linear system
@@ -1213,6 +1209,62 @@ fn levenberg_marquardt(
         anchors: None,
         norms: None,
     }
+}
+
+/// A linearisation point of [`levenberg_marquardt`]: the state, the biases held there, its
+/// residuals, the observations taking part, the Huber threshold (robust phase) and the cost.
+struct Linearisation<'a> {
+    state: &'a State,
+    anchors: &'a [Bias],
+    residuals: &'a [Vector2<f64>],
+    active: &'a [bool],
+    huber: Option<f64>,
+    cost: f64,
+}
+
+/// One LM step from `at` with the scaled system `sys` (32): in a plain phase the undamped
+/// (Gauss–Newton) step first, since near a minimum damping only slows the weakest
+/// directions (λ falls by at most 3× per step); else damped trials with Nielsen's update of
+/// (λ, ν). Gives the accepted state, its cost decrease and, in a robust phase, its residual
+/// norms (the next set (30a) or the plain phase's first); `None` when no trial lowers the
+/// cost. The biases stay those of the linearisation point within a step.
+fn trial_step(
+    p: &Problem,
+    l: &Layout,
+    sys: &Scaled,
+    at: &Linearisation,
+    undamped: Option<Step>,
+    (lambda, nu): (&mut f64, &mut f64),
+) -> Option<(State, f64, Option<Vec<f32>>)> {
+    let fixed = held(sys);
+    let huber = at.huber;
+    let cost = |trial: &State| {
+        let (an, res) = (at.anchors, at.residuals);
+        trial_cost(p, trial, l, an, res, at.active, huber, huber.is_some())
+    };
+    if let (None, Some(step)) = (huber, undamped) {
+        let trial = at.state.update(l, &full_step(l, &step), &fixed);
+        let (c, norms) = cost(&trial);
+        if c < at.cost {
+            return Some((trial, at.cost - c, norms));
+        }
+    }
+    for _ in 0..MAX_TRIALS {
+        let Some(step) = sys.solve(*lambda) else {
+            (*lambda, *nu) = (*lambda * *nu, 2.0 * *nu);
+            continue;
+        };
+        let trial = at.state.update(l, &full_step(l, &step), &fixed);
+        let (c, norms) = cost(&trial);
+        if c < at.cost {
+            let rho = (at.cost - c) / step.predicted.max(1e-300);
+            *lambda *= (1.0 / 3.0f64).max(1.0 - (2.0 * rho - 1.0).powi(3));
+            *nu = 2.0;
+            return Some((trial, at.cost - c, norms));
+        }
+        (*lambda, *nu) = (*lambda * *nu, 2.0 * *nu);
+    }
+    None
 }
 
 /// Median absolute deviation scaled to a Gaussian σ per coordinate.
@@ -1323,22 +1375,62 @@ fn plain_phase(
     }
 }
 
-/// Run the adjustment: robust phase, outlier rejection per device, plain phase, covariance.
+/// Every `COARSE_STRIDE`-th circle along both lattice directions takes part in the coarse
+/// descent: 1/COARSE_STRIDE² of each view's circles, spread evenly over the view.
+const COARSE_STRIDE: i32 = 3;
+
+/// The robust phase (30) on a sub-lattice of the circles (`COARSE_STRIDE`): from a far
+/// start most iterations are descent, where a ninth of each view's circles points the way
+/// as well as all of them at a ninth of the cost. The robust phase over every observation
+/// goes on from where it stopped (docs/design.md §8, phase 0).
+fn coarse_descent(p: &Problem, l: &Layout, o: &Options) -> Phase {
+    let coarse = |h: Hex| h.q.rem_euclid(COARSE_STRIDE) == 0 && h.r.rem_euclid(COARSE_STRIDE) == 0;
+    let sub = Problem {
+        board: p.board.clone(),
+        devices: p.devices.clone(),
+        boards: p.boards.clone(),
+        observations: p
+            .observations
+            .iter()
+            .filter(|ob| coarse(ob.hex))
+            .copied()
+            .collect(),
+    };
+    let all = vec![true; sub.observations.len()];
+    levenberg_marquardt(
+        &sub,
+        (State::start(p), None),
+        l,
+        o,
+        &all,
+        Some(o.huber),
+        &group_by_pose(&sub),
+        LAMBDA0,
+    )
+}
+
+/// Run the adjustment: coarse descent, robust phase, outlier rejection per device, plain
+/// phase, covariance.
 pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     check_problem(p, o)?;
     let l = Layout::new(p, o);
     let by_pose = group_by_pose(p);
-    let start = State::start(p);
+    let coarse = coarse_descent(p, &l, o);
     let all = vec![true; p.observations.len()];
     let robust = levenberg_marquardt(
         p,
-        (start, None),
+        (coarse.state, None),
         &l,
         o,
         &all,
         Some(o.huber),
         &by_pose,
-        LAMBDA0,
+        // Its damping, unless it stalled (λ raised by failed trials: no sub-lattice left).
+        if coarse.converged {
+            coarse.lambda
+        } else {
+            LAMBDA0
+        },
     );
     let (plain, active, iterations) = plain_phase(p, &l, o, &by_pose, robust);
     let s = plain.state;
@@ -1405,6 +1497,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         side_index: l.side,
         covariance,
         iterations,
+        coarse_iterations: coarse.iterations,
         converged: plain.converged,
     })
 }

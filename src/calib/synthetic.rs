@@ -588,8 +588,10 @@ pub struct CaseResult {
     pub observations: usize,
     /// Scalar residuals n and free parameters p of the final solve.
     pub dof: (usize, usize),
-    /// LM iterations over all phases.
+    /// LM iterations over every observation, all phases.
     pub iterations: usize,
+    /// LM iterations of the coarse descent before them.
+    pub coarse_iterations: usize,
     /// Whether both phases stopped at their minimum.
     pub converged: bool,
     /// Wall time of the adjustment (the real start: of the whole calibration) (s).
@@ -732,6 +734,7 @@ pub fn run_case(case: &Case) -> Result<CaseResult, super::CalibError> {
         observations,
         dof: sol.dof,
         iterations: sol.iterations,
+        coarse_iterations: sol.coarse_iterations,
         converged: sol.converged,
         seconds,
         posterior_sigma: sol.sigma,

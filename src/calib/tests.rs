@@ -648,7 +648,7 @@ mod convergence {
         let r = run_case(&case).expect("adjustment runs");
         eprintln!(
             "{}/{}/{} seed {} {:?}: σ̂ {:.4} ({:+.2} %), worst {:.2}σ ({}), bound {:.2}, \
-             {} iterations{}, {} excluded, {:.1} s: {}",
+             {} iterations (+ {} coarse){}, {} excluded, {:.1} s: {}",
             case.cameras,
             case.projectors,
             case.poses,
@@ -660,6 +660,7 @@ mod convergence {
             r.worst_z.1,
             r.z_bound,
             r.iterations,
+            r.coarse_iterations,
             if r.converged { "" } else { " (not converged)" },
             r.excluded,
             r.seconds,
@@ -753,17 +754,15 @@ mod convergence {
     /// Issue 17's largest rig (10.5 million observations, p = 1560): before the trial-cost
     /// change it stalled at the first iterations with λ climbing to 10⁴ (a few of 10⁷
     /// observations lost by every useful step vetoed it) and stopped at the iteration limit
-    /// with σ̂ 114 px. Ten minutes and 1.8 GiB on two cores:
+    /// with σ̂ 114 px. A few minutes and 1.7 GiB on two cores, mostly making the rig:
     /// `cargo test --release --lib calib::tests::convergence::sixty_cameras -- --ignored
-    /// --nocapture`. It checks convergence and σ̂ only: the worst parameter is printed (8.1σ
-    /// against a bound of 5.0 for seed 1, open: docs/design.md §8).
+    /// --nocapture`.
     #[test]
     #[ignore]
     fn sixty_cameras_four_projectors_hundred_poses_converge() {
         let c = case(60, 4, 100, 1, Start::Perturbed);
         let r = check(c);
-        assert!(r.converged, "{r:?}");
-        assert!((r.posterior_sigma / c.sigma - 1.0).abs() <= 0.02, "{r:?}");
+        assert!(r.passes(c.sigma) && r.converged, "{r:?}");
     }
 
     /// Every cell of the grid over `cameras` × projectors {0, 3, 4} × `poses` × seeds 1–3 ×

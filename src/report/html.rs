@@ -184,7 +184,13 @@ fn summary(h: &mut String, cal: &Calibration) {
             format!("{:.4} px", crate::calib::diagnostics::expected_rms(cal)),
         ),
         ("n, p", format!("{}, {}", sol.dof.0, sol.dof.1)),
-        ("LM iterations", sol.iterations.to_string()),
+        (
+            "LM iterations",
+            format!(
+                "{} (after {} on a ninth of the circles)",
+                sol.iterations, sol.coarse_iterations
+            ),
+        ),
     ];
     h.push_str("<div class=\"stats\">");
     for (label, value) in stats {
