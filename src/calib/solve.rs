@@ -372,6 +372,8 @@ pub fn calibrate(
     check_reference(devices, options.bundle.reference)?;
     let (views, registration) = register(views, &options.register);
     let obs = observations(&views);
+    // Millions of circles on a dome: no copy is held longer than it is needed.
+    drop(views);
     let mut excluded = Vec::new();
     let mut models = vec![None; devices.len()];
     let mut pairs = Vec::new();
@@ -401,6 +403,7 @@ pub fn calibrate(
     let (device_index, kept, new_device) =
         kept_devices(devices, &models, &graph.devices, &mut excluded);
     let (pose_index, boards, observations) = kept_poses(&graph.boards, &obs, &new_device);
+    drop(obs);
     let bundle_options = Options {
         reference: new_device[reference].expect("the reference is kept"),
         ..options.bundle.clone()

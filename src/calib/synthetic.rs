@@ -698,11 +698,14 @@ pub fn run_case(case: &Case) -> Result<CaseResult, super::CalibError> {
             (sol, (0..n.0).collect(), (0..n.1).collect(), 0)
         }
         Start::Real => {
+            // The views replace the observations: never both beside the solver's own.
+            let views = rig.views();
+            rig.observations = Vec::new();
             let cal = super::solve::calibrate(
                 &rig.board,
                 &rig.device_infos(),
                 rig.boards.len(),
-                &rig.views(),
+                &views,
                 // The solver against the truth: the true model's every term estimated.
                 &super::solve::CalibrateOptions {
                     select_lens: false,
