@@ -529,66 +529,54 @@ impl<T: Sample> Decoder<T> {
         Ok(())
     }
 
-    /// Take the DFT of the completed group g, band by band of [`BAND_ROWS`] rows (each band's
-    /// rows on all cores): each projector's (ψ, B) pairs kept where it lights the pixel and
-    /// B added to its root sums where it does not (the first group chooses the lit pixels).
+    /// Take the DFT of the completed group g (its last frame `last`) on all cores: each
+    /// projector's (ψ, B) pairs kept where it lights the pixel and B added to its root sums
+    /// where it does not (the first group chooses the lit pixels).
     fn close_group(&mut self, g: usize, last: &[T]) {
+        if g == 0 {
+            self.close_first_group(last);
+        } else {
+            self.close_later_group(g, last);
+        }
+    }
+
+    /// The first group, band by band of [`BAND_ROWS`] rows (each band's rows on all cores):
+    /// its modulations choose each projector's lit pixels, where its pairs are kept; its B
+    /// starts the root sums elsewhere.
+    fn close_first_group(&mut self, last: &[T]) {
         let (w, h) = (self.width as usize, self.height as usize);
         let np = self.seq.projectors().len();
-        if g == 0 {
-            self.lit = (0..np).map(|_| LitPixels::new(w * h)).collect();
-            self.unlit_b = vec![Vec::new(); np];
-        }
-        // Per projector, the next unlit pixel's slot in its sums.
-        let mut unlit = vec![0usize; np];
-        let mut kept: Vec<Vec<u16>> = (self.lit.iter())
-            .map(|l| Vec::with_capacity(l.count() * 2))
-            .collect();
+        self.lit = (0..np).map(|_| LitPixels::new(w * h)).collect();
+        self.unlit_b = vec![Vec::new(); np];
+        let mut kept: Vec<Vec<u16>> = vec![Vec::new(); np];
         let mut band = vec![0u16; BAND_ROWS.min(h) * w * np * 2];
         for y0 in (0..h).step_by(BAND_ROWS) {
             let rows = BAND_ROWS.min(h - y0);
             let out = &mut band[..rows * w * np * 2];
-            self.band_dft(g, y0, last, out);
-            if g == 0 {
-                mark_lit(out, np, y0 * w, &mut self.lit);
-            }
-            self.keep_band(y0 * w, out, &mut kept, &mut unlit);
+            self.band_dft(y0, last, out);
+            mark_lit(out, np, y0 * w, &mut self.lit);
+            self.keep_first_band(y0 * w, out, &mut kept);
         }
-        if g == 0 {
-            kept.iter_mut().for_each(Vec::shrink_to_fit);
-            self.unlit_b.iter_mut().for_each(Vec::shrink_to_fit);
-            self.row_slots = row_slots(&self.lit, w, h);
-            self.lit.iter_mut().for_each(|l| l.count_rows(w, h));
-        }
+        kept.iter_mut().for_each(Vec::shrink_to_fit);
+        self.unlit_b.iter_mut().for_each(Vec::shrink_to_fit);
+        self.row_slots = row_slots(&self.lit, w, h);
+        self.lit.iter_mut().for_each(|l| l.count_rows(w, h));
         self.groups.push(kept);
     }
 
-    /// Group g's DFT (its `last` frame apart) of the rows from `y0` on (as many as `out`
-    /// holds), row by row on all cores: per pixel and projector the 16-bit (ψ, B) pair into
-    /// `out`; updates each pixel's level statistics and saturation flag.
-    fn band_dft(&mut self, g: usize, y0: usize, last: &[T], out: &mut [u16]) {
+    /// The first group's DFT (its `last` frame apart) of the rows from `y0` on (as many as
+    /// `out` holds), row by row on all cores: per pixel and projector the 16-bit (ψ, B) pair
+    /// into `out`; sets each pixel's level statistics and saturation flag.
+    fn band_dft(&mut self, y0: usize, last: &[T], out: &mut [u16]) {
         let w = self.width as usize;
-        let npx = w * self.height as usize;
-        let n = self.seq.steps() as usize;
         let np = self.seq.projectors().len();
-        let fs = self.full_scale;
-        let kernel = GroupKernel {
-            frames: &self.frames,
-            last,
-            twiddles: &self.twiddles,
-            w,
-            npx,
-            n,
-            np,
-            g,
-            fs,
-            b_scale: B_STEPS / fs,
-            inv_n: 1.0 / n as f32,
-        };
+        // The statistics are taken out while the kernel reads the frames.
+        let (mut levels, mut saturated) = self.take_statistics();
+        let kernel = GroupKernel::new(self, 0, last);
         let pixels = y0 * w..y0 * w + out.len() / (np * 2);
         out.par_chunks_mut(w * np * 2)
-            .zip(self.levels[pixels.clone()].par_chunks_mut(w))
-            .zip(self.saturated[pixels].par_chunks_mut(w))
+            .zip(levels[pixels.clone()].par_chunks_mut(w))
+            .zip(saturated[pixels].par_chunks_mut(w))
             .enumerate()
             .for_each_init(
                 || Strip::new(np),
@@ -596,44 +584,85 @@ impl<T: Sample> Decoder<T> {
                     kernel.row(y0 + i, strip, out_row, levels, saturated)
                 },
             );
+        (self.levels, self.saturated) = (levels, saturated);
     }
 
-    /// The band of pixels from `first` on (their (ψ, B) pairs `out`), projector by projector
-    /// in pixel order: the pair appended to `kept` where it lights the pixel, else its B
-    /// added in quadrature to (the first group: appended to) its unlit root sums, `unlit`
-    /// counting their slots.
-    fn keep_band(&mut self, first: usize, out: &[u16], kept: &mut [Vec<u16>], unlit: &mut [usize]) {
-        let first_group = self.groups.is_empty();
+    /// The level statistics and saturation flags, taken out of the decoder.
+    fn take_statistics(&mut self) -> (Vec<Level>, Vec<bool>) {
+        (
+            std::mem::take(&mut self.levels),
+            std::mem::take(&mut self.saturated),
+        )
+    }
+
+    /// The first group's band of pixels from `first` on (their (ψ, B) pairs `out`),
+    /// projector by projector in pixel order: the pair appended to `kept` where it lights
+    /// the pixel, else its B as the first term of its unlit root sums.
+    fn keep_first_band(&mut self, first: usize, out: &[u16], kept: &mut [Vec<u16>]) {
         let np = kept.len();
         // Each projector's lists are its own: the projectors run on all cores.
         kept.par_iter_mut()
             .zip(self.unlit_b.par_iter_mut())
             .zip(self.lit.par_iter())
-            .zip(unlit.par_iter_mut())
             .enumerate()
-            .for_each(|(p, (((kept, sums), lit), next))| {
+            .for_each(|(p, ((kept, sums), lit))| {
                 for (i, px) in out.chunks_exact(np * 2).enumerate() {
                     let pair = &px[p * 2..p * 2 + 2];
                     if lit.get(first + i) {
                         kept.extend_from_slice(pair);
-                        continue;
-                    }
-                    let b = f32::from(pair[1]);
-                    let r = if first_group {
-                        b
                     } else {
-                        let r = f32::from(sums[*next]) * UNLIT_STEP;
-                        (r * r + b * b).sqrt()
-                    };
-                    let r = (r / UNLIT_STEP).round().min(65535.0) as u16;
-                    if first_group {
-                        sums.push(r);
-                    } else {
-                        sums[*next] = r;
+                        sums.push(add_unlit(0, pair[1]));
                     }
-                    *next += 1;
                 }
             });
+    }
+
+    /// A later group g (the lit pixels known): every row on all cores, its DFT then its
+    /// pairs written straight to their slots in each projector's kept list and root sums
+    /// (no band is held: a worker holds one row's pairs).
+    fn close_later_group(&mut self, g: usize, last: &[T]) {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let np = self.seq.projectors().len();
+        let mut kept: Vec<Vec<u16>> = (self.lit.iter())
+            .map(|l| vec![0u16; l.count() * 2])
+            .collect();
+        let (mut levels, mut saturated) = self.take_statistics();
+        let mut unlit_b = std::mem::take(&mut self.unlit_b);
+        let mut targets: Vec<RowTargets<'_>> = (0..h)
+            .map(|_| RowTargets {
+                kept: Vec::with_capacity(np),
+                unlit: Vec::with_capacity(np),
+            })
+            .collect();
+        for ((kept, sums), lit) in kept.iter_mut().zip(&mut unlit_b).zip(&self.lit) {
+            let slots = &lit.row_slots;
+            let lit_lens = slots.windows(2).map(|s| 2 * (s[1] - s[0]) as usize);
+            let unlit_lens = slots.windows(2).map(|s| w - (s[1] - s[0]) as usize);
+            for ((t, k), u) in targets
+                .iter_mut()
+                .zip(cut(kept, lit_lens))
+                .zip(cut(sums, unlit_lens))
+            {
+                t.kept.push(k);
+                t.unlit.push(u);
+            }
+        }
+        let kernel = GroupKernel::new(self, g, last);
+        let lit = &self.lit;
+        targets
+            .into_par_iter()
+            .zip(levels.par_chunks_mut(w))
+            .zip(saturated.par_chunks_mut(w))
+            .enumerate()
+            .for_each_init(
+                || (Strip::new(np), vec![0u16; w * np * 2]),
+                |(strip, out_row), (y, ((mut t, levels), saturated))| {
+                    kernel.row(y, strip, out_row, levels, saturated);
+                    keep_row(out_row, y * w, lit, &mut t);
+                },
+            );
+        (self.levels, self.saturated, self.unlit_b) = (levels, saturated, unlit_b);
+        self.groups.push(kept);
     }
 
     /// Unwrap, fuse and judge every pixel; fails when frames are missing.
@@ -710,6 +739,58 @@ fn mark_lit(out: &[u16], np: usize, first: usize, lit: &mut [LitPixels]) {
             }
         }
     }
+}
+
+/// One image row's places in a later group's lists: per projector, the slots of the row's
+/// lit pixels in its kept (ψ, B) pairs and of its unlit pixels in its root sums.
+struct RowTargets<'a> {
+    kept: Vec<&'a mut [u16]>,
+    unlit: Vec<&'a mut [u16]>,
+}
+
+/// `data` cut into consecutive pieces of the lengths `lens`.
+fn cut<X>(mut data: &mut [X], lens: impl Iterator<Item = usize>) -> Vec<&mut [X]> {
+    lens.map(|len| {
+        let (head, tail) = std::mem::take(&mut data).split_at_mut(len);
+        data = tail;
+        head
+    })
+    .collect()
+}
+
+/// The (ψ, B) pairs `out` of a row of pixels from pixel `first` of the image on, projector
+/// by projector: a pair written to its projector's next kept slot in `t` where it lights
+/// the pixel (`lit`), else its B added to the next root sum.
+fn keep_row(out: &[u16], first: usize, lit: &[LitPixels], t: &mut RowTargets<'_>) {
+    let np = lit.len();
+    for (p, ((lit, kept), sums)) in lit.iter().zip(&mut t.kept).zip(&mut t.unlit).enumerate() {
+        let mut kept = kept.chunks_exact_mut(2);
+        let mut sums = sums.iter_mut();
+        for (i, px) in out.chunks_exact(np * 2).enumerate() {
+            let pair = &px[p * 2..p * 2 + 2];
+            if lit.get(first + i) {
+                if let Some(k) = kept.next() {
+                    k.copy_from_slice(pair);
+                }
+            } else if let Some(r) = sums.next() {
+                *r = add_unlit(*r, pair[1]);
+            }
+        }
+    }
+}
+
+/// A root sum of B (steps of [`UNLIT_STEP`] of B's step) with one more group's B (16-bit
+/// step) added in quadrature, rounded to the nearest step (half away from zero) and
+/// clamped to 16 bits.
+#[inline(always)]
+fn add_unlit(sum: u16, b: u16) -> u16 {
+    let r = f32::from(sum) * UNLIT_STEP;
+    let b = f32::from(b);
+    let x = (r * r + b * b).sqrt() / UNLIT_STEP;
+    // x < 2^23: its truncation and the remainder are exact (no libm round).
+    let whole = x as u32;
+    let whole = whole + u32::from(x - whole as f32 >= 0.5);
+    whole.min(65535) as u16
 }
 
 /// One projector's lit pixels: a bit per pixel, and per image row the slot of its first lit
@@ -833,6 +914,27 @@ struct GroupKernel<'a, T> {
     b_scale: f32,
     /// 1/N.
     inv_n: f32,
+}
+
+impl<'a, T: Sample> GroupKernel<'a, T> {
+    /// The kernel of group g of `dec`'s stack, whose last frame is `last`.
+    fn new(dec: &'a Decoder<T>, g: usize, last: &'a [T]) -> Self {
+        let w = dec.width as usize;
+        let n = dec.seq.steps() as usize;
+        GroupKernel {
+            frames: &dec.frames,
+            last,
+            twiddles: &dec.twiddles,
+            w,
+            npx: w * dec.height as usize,
+            n,
+            np: dec.seq.projectors().len(),
+            g,
+            fs: dec.full_scale,
+            b_scale: B_STEPS / dec.full_scale,
+            inv_n: 1.0 / n as f32,
+        }
+    }
 }
 
 impl<T: Sample> GroupKernel<'_, T> {
