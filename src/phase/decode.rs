@@ -20,7 +20,7 @@
 //! a pixel estimates σ_I²/N with G − 1 degrees of freedom (free of projector harmonics); a
 //! fit σ_I² = a + b·A over all unsaturated pixels gives the read + shot noise model.
 
-use super::compact::{CompactStack, RowSink, Sink};
+use super::compact::{CompactStack, RowSink, Sink, NO_SLOT};
 use super::unwrap::Constellation;
 use crate::pattern::MAX_COUNTS;
 use crate::pattern::{pattern_harmonic, Direction, ProjectorCode, Sequence};
@@ -949,6 +949,41 @@ impl<T: Sample> GroupKernel<'_, T> {
         levels: &mut [Level],
         saturated: &mut [bool],
     ) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU supports AVX2, checked just above.
+                return unsafe { self.row_avx2(y, strip, out_row, levels, saturated) };
+            }
+        }
+        self.row_generic(y, strip, out_row, levels, saturated);
+    }
+
+    /// [`Self::row_generic`] compiled for AVX2 (8-wide strip loops; no FMA, so the sums are
+    /// the same to the bit as the generic code's).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn row_avx2(
+        &self,
+        y: usize,
+        strip: &mut Strip,
+        out_row: &mut [u16],
+        levels: &mut [Level],
+        saturated: &mut [bool],
+    ) {
+        self.row_generic(y, strip, out_row, levels, saturated);
+    }
+
+    /// [`Self::row`] for any CPU.
+    #[inline(always)]
+    fn row_generic(
+        &self,
+        y: usize,
+        strip: &mut Strip,
+        out_row: &mut [u16],
+        levels: &mut [Level],
+        saturated: &mut [bool],
+    ) {
         let np = self.np;
         for x0 in (0..self.w).step_by(CHUNK) {
             let len = CHUNK.min(self.w - x0);
@@ -975,6 +1010,7 @@ impl<T: Sample> GroupKernel<'_, T> {
 
     /// The DFT of the `len` pixels from pixel `at` over the N steps: X_0 into `dc`, Re and
     /// Im X_{f_p} into `reim`, the largest sample into `peak`.
+    #[inline(always)]
     fn dft(&self, at: usize, len: usize, strip: &mut Strip) {
         self.first_step(at, len, strip);
         for s in 1..self.n.div_ceil(2) {
@@ -986,6 +1022,7 @@ impl<T: Sample> GroupKernel<'_, T> {
     }
 
     /// Step 0 starts every sum (its twiddle is 1).
+    #[inline(always)]
     fn first_step(&self, at: usize, len: usize, strip: &mut Strip) {
         let Strip {
             sum,
@@ -1006,6 +1043,7 @@ impl<T: Sample> GroupKernel<'_, T> {
 
     /// Steps s and N − s share |twiddle|: e^{±i2πfs/N}, so
     /// X_f += (I_s + I_{N−s})·cos + i·(I_s − I_{N−s})·sin.
+    #[inline(always)]
     fn paired_steps(&self, s: usize, at: usize, len: usize, strip: &mut Strip) {
         let n = self.n;
         let Strip {
@@ -1038,6 +1076,7 @@ impl<T: Sample> GroupKernel<'_, T> {
     }
 
     /// The middle step of an even N: its twiddle is (−1)^f.
+    #[inline(always)]
     fn middle_step(&self, at: usize, len: usize, strip: &mut Strip) {
         let s = self.n / 2;
         let Strip {
@@ -1072,6 +1111,7 @@ impl<T: Sample> GroupKernel<'_, T> {
     }
 
     /// Adds the group's mean level of each pixel (from its X_0 in `dc`) to its statistics.
+    #[inline(always)]
     fn add_level(&self, dc: &[f32; CHUNK], stats: &mut [Level]) {
         for (st, &d) in stats.iter_mut().zip(dc.iter()) {
             // A = X_0/N (docs/design.md §6).
@@ -1087,6 +1127,7 @@ impl<T: Sample> GroupKernel<'_, T> {
     }
 
     /// The strip's sums as 16-bit (ψ, B) pairs per pixel and projector, into `out`.
+    #[inline(always)]
     fn quantise(&self, strip: &Strip, out: &mut [u16]) {
         let np = self.np;
         for (p, sums) in strip.reim.chunks_exact(2 * CHUNK).enumerate() {
@@ -1179,6 +1220,14 @@ impl PhaseNoise {
     }
 }
 
+/// One worker's per-row scratch in the final pass: each pixel's per-frame noise σ_I (DN)
+/// and its slot among the row's candidates ([`NO_SLOT`] where it is not one).
+#[derive(Default)]
+struct RowScratch {
+    sigma: Vec<f32>,
+    slot: Vec<u32>,
+}
+
 /// Projector p's position at one pixel, per direction (columns, rows).
 struct Position {
     /// Unwrapped and fused u, v (projector px).
@@ -1250,7 +1299,9 @@ impl<'a, T: Sample> Judge<'a, T> {
         let np = self.mean_ratio.len();
         rows.into_par_iter()
             .enumerate()
-            .map(|(y, mut row)| self.row(y, &mut row))
+            .map_init(RowScratch::default, |scratch, (y, mut row)| {
+                self.row(y, &mut row, scratch)
+            })
             .reduce(
                 || vec![[0f64; 6]; np],
                 |a, b| {
@@ -1264,83 +1315,112 @@ impl<'a, T: Sample> Judge<'a, T> {
 
     /// Row y into `row`: each pixel's ambient and per projector modulation, and at its
     /// candidates u, v, reliability and validity; gives the row's sums as [`Self::rows`].
-    fn row(&self, y: usize, row: &mut RowSink<'_>) -> Vec<[f64; 6]> {
+    /// The pixels' noise first, then projector by projector (each reads only its own
+    /// groups' phases: few memory streams at a time).
+    fn row(&self, y: usize, row: &mut RowSink<'_>, scratch: &mut RowScratch) -> Vec<[f64; 6]> {
         let dec = self.dec;
-        let (w, np) = (dec.width as usize, self.mean_ratio.len());
-        let mut acc = vec![[0f64; 6]; np];
-        // The row's candidates are slots row_slots[y].. in pixel order; `k` counts them; the
-        // pixels projector p lights are its slots from lit[p].row_slots[y] on, counted in
-        // `next[p]`.
-        let mut k = 0usize;
-        let mut next: Vec<u32> = dec.lit.iter().map(|l| l.row_slots[y]).collect();
-        for x in 0..w {
+        let w = dec.width as usize;
+        scratch.sigma.clear();
+        scratch.slot.clear();
+        // The row's candidates are its slots in the maps at the candidates, in pixel order.
+        let mut k = 0u32;
+        for (x, amb) in row.ambient.iter_mut().enumerate().take(w) {
             let px = y * w + x;
             let (mean, _) = dec.levels[px].mean_and_var(self.steps, self.groups);
-            let sigma = self.noise.sigma(mean) as f32;
+            scratch.sigma.push(self.noise.sigma(mean) as f32);
+            *amb = mean as f32;
+            let candidate = dec.is_candidate(px);
+            scratch.slot.push(if candidate { k } else { NO_SLOT });
+            k += u32::from(candidate);
+        }
+        (0..self.mean_ratio.len())
+            .map(|p| self.projector_row(p, y, row, scratch))
+            .collect()
+    }
+
+    /// Projector p's part of row y (the pixels' noise and candidate slots in `scratch`):
+    /// its modulation subtracted from the ambient, its maps at the candidates; gives its
+    /// sums as [`Self::rows`].
+    fn projector_row(
+        &self,
+        p: usize,
+        y: usize,
+        row: &mut RowSink<'_>,
+        scratch: &RowScratch,
+    ) -> [f64; 6] {
+        let dec = self.dec;
+        let w = dec.width as usize;
+        let lit = &dec.lit[p];
+        let groups: Vec<&[u16]> = dec.groups.iter().map(|g| &g[p][..]).collect();
+        let unlit = &dec.unlit_b[p];
+        let mut acc = [0f64; 6];
+        // The pixels p lights are its slots from lit.row_slots[y] on, counted in `next`.
+        let mut next = lit.row_slots[y] as usize;
+        for x in 0..w {
+            let px = y * w + x;
+            let sigma = scratch.sigma[x];
             let var4 = 4.0 * sigma * sigma / self.n32;
-            let (saturated, candidate) = (dec.saturated[px], dec.is_candidate(px));
-            let mut amb = mean as f32;
-            for (p, acc) in acc.iter_mut().enumerate() {
-                let lit = dec.lit[p].get(px);
-                let slot = next[p];
-                next[p] += u32::from(lit);
-                // Σ_g B² from the kept modulations where p lights the pixel, else from p's
-                // unlit root sum.
-                let (psi_g, bsq_g) = if lit {
-                    self.group_phases(slot, p)
-                } else {
-                    Default::default()
-                };
-                let bsq = if lit {
-                    bsq_g[..self.groups].iter().fold(0.0, |s, &b2| s + b2)
-                } else {
-                    let r = f32::from(dec.unlit_b[p][px - slot as usize])
-                        * (UNLIT_STEP * self.inv_b_scale);
-                    r * r
-                };
-                let bmod = (bsq / self.groups as f32 - var4).max(0.0).sqrt();
-                amb -= self.mean_ratio[p] * bmod;
-                if let Some(m) = row.modulation.get_mut(p) {
-                    m[x] = bmod;
-                }
-                if !candidate {
-                    continue;
-                }
-                let c = &mut row.candidates[p];
-                c.modulation[k] = bmod;
-                if !lit || saturated || bmod < self.min_b.max(5.0 * sigma) {
-                    // Invalid whatever the phases say: not unwrapped.
-                    c.u[k] = f32::NAN;
-                    c.v[k] = f32::NAN;
-                    c.reliability[k] = f32::NAN;
-                    c.valid[k] = false;
-                    continue;
-                }
-                let pos = self.position(&psi_g, &bsq_g, p, sigma);
-                let ok = pos.distance[0] < self.half_spacing[0]
-                    && pos.distance[1] < self.half_spacing[1]
-                    && pos.clear_of_wrap;
-                c.u[k] = pos.fused[0];
-                c.v[k] = pos.fused[1];
-                c.reliability[k] = pos.distance[0].max(pos.distance[1]);
-                c.valid[k] = ok;
-                if ok {
-                    self.add_valid(acc, bmod, sigma, pos.sigma);
-                }
+            let is_lit = lit.get(px);
+            // Σ_g B² from the kept modulations where p lights the pixel, else from p's
+            // unlit root sum.
+            let (psi_g, bsq_g) = if is_lit {
+                self.group_phases(&groups, next)
+            } else {
+                Default::default()
+            };
+            let bsq = if is_lit {
+                bsq_g[..self.groups].iter().fold(0.0, |s, &b2| s + b2)
+            } else {
+                let r = f32::from(unlit[px - next]) * (UNLIT_STEP * self.inv_b_scale);
+                r * r
+            };
+            next += usize::from(is_lit);
+            let bmod = (bsq / self.groups as f32 - var4).max(0.0).sqrt();
+            row.ambient[x] -= self.mean_ratio[p] * bmod;
+            if let Some(m) = row.modulation.get_mut(p) {
+                m[x] = bmod;
             }
-            k += usize::from(candidate);
-            row.ambient[x] = amb;
+            let k = scratch.slot[x];
+            if k == NO_SLOT {
+                continue;
+            }
+            let (k, c) = (k as usize, &mut row.candidates[p]);
+            c.modulation[k] = bmod;
+            if !is_lit || dec.saturated[px] || bmod < self.min_b.max(5.0 * sigma) {
+                // Invalid whatever the phases say: not unwrapped.
+                c.u[k] = f32::NAN;
+                c.v[k] = f32::NAN;
+                c.reliability[k] = f32::NAN;
+                c.valid[k] = false;
+                continue;
+            }
+            let pos = self.position(&psi_g, &bsq_g, p, sigma);
+            let ok = pos.distance[0] < self.half_spacing[0]
+                && pos.distance[1] < self.half_spacing[1]
+                && pos.clear_of_wrap;
+            c.u[k] = pos.fused[0];
+            c.v[k] = pos.fused[1];
+            c.reliability[k] = pos.distance[0].max(pos.distance[1]);
+            c.valid[k] = ok;
+            if ok {
+                self.add_valid(&mut acc, bmod, sigma, pos.sigma);
+            }
         }
         acc
     }
 
-    /// Projector p's wrapped phase ψ (cycles) and B² (DN²) in every group at its lit pixel
-    /// `slot`.
-    fn group_phases(&self, slot: u32, p: usize) -> ([f32; 2 * MAX_COUNTS], [f32; 2 * MAX_COUNTS]) {
+    /// The wrapped phase ψ (cycles) and B² (DN²) in every group (one projector's kept pairs
+    /// of each group in `groups`) at lit pixel `slot`.
+    #[inline(always)]
+    fn group_phases(
+        &self,
+        groups: &[&[u16]],
+        slot: usize,
+    ) -> ([f32; 2 * MAX_COUNTS], [f32; 2 * MAX_COUNTS]) {
         let mut psi_g = [0f32; 2 * MAX_COUNTS];
         let mut bsq_g = [0f32; 2 * MAX_COUNTS];
-        for (g, data) in self.dec.groups.iter().enumerate() {
-            let o = &data[p][slot as usize * 2..][..2];
+        for (g, data) in groups.iter().enumerate() {
+            let o = &data[slot * 2..][..2];
             psi_g[g] = f32::from(o[0]) * (1.0 / 65536.0);
             let b = f32::from(o[1]) * self.inv_b_scale;
             bsq_g[g] = b * b;
