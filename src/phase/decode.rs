@@ -27,6 +27,7 @@ use crate::pattern::{pattern_harmonic, Direction, ProjectorCode, Sequence};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
+use std::sync::Arc;
 
 /// A single-channel image of linear floating-point values (the same type as
 /// `detect::GrayImage`).
@@ -355,8 +356,8 @@ pub struct Decoder<T: Sample> {
     levels: Vec<Level>,
     /// Pixels with a sample at full scale in some frame.
     saturated: Vec<bool>,
-    columns: Constellation,
-    rows: Constellation,
+    columns: Arc<Constellation>,
+    rows: Arc<Constellation>,
 }
 
 /// Modulation quantisation: 2^15 steps per full scale (B ≤ 2·full scale).
@@ -437,8 +438,9 @@ impl<T: Sample> Decoder<T> {
                 })
             })
             .collect();
-        let cons =
-            |d| Constellation::new(seq.counts(d)).expect("a validated sequence has valid counts");
+        let cons = |d| {
+            Constellation::shared(seq.counts(d)).expect("a validated sequence has valid counts")
+        };
         Ok(Decoder {
             seq: seq.clone(),
             camera,
@@ -1440,8 +1442,8 @@ impl<'a, T: Sample> Judge<'a, T> {
             clear_of_wrap: true,
         };
         for (d, (cons, counts, offset, size)) in [
-            (&self.dec.columns, self.counts[0], 0, code.width),
-            (&self.dec.rows, self.counts[1], mc, code.height),
+            (&*self.dec.columns, self.counts[0], 0, code.width),
+            (&*self.dec.rows, self.counts[1], mc, code.height),
         ]
         .into_iter()
         .enumerate()
