@@ -858,9 +858,9 @@ fn row_slots(lit: &[LitPixels], w: usize, h: usize) -> Vec<u32> {
 
 /// One worker's sums for a strip of [`CHUNK`] pixels over a group's N steps.
 struct Strip {
-    /// A step's samples (of the paired steps: I_s, then I_s + I_{N−s}).
+    /// A step's samples (of the paired steps: I_s + I_{N−s}).
     sum: [f32; CHUNK],
-    /// Of the paired steps: I_{N−s}, then I_s − I_{N−s}.
+    /// Of the paired steps: I_s − I_{N−s}.
     diff: [f32; CHUNK],
     /// Largest sample.
     peak: [f32; CHUNK],
@@ -890,6 +890,15 @@ fn load<T: Sample>(dst: &mut [f32; CHUNK], src: &[T]) {
     for (v, &x) in dst.iter_mut().zip(src) {
         *v = x.value();
     }
+}
+
+/// A step's samples `src` as a strip, zeros past their end (read as they are: the sums
+/// take them straight to f32).
+#[inline(always)]
+fn padded<T: Sample>(src: &[T]) -> [T; CHUNK] {
+    let mut strip = [T::default(); CHUNK];
+    strip[..src.len()].copy_from_slice(src);
+    strip
 }
 
 /// What every row of one group's DFT shares: the frames, the twiddles and the sizes.
@@ -1055,10 +1064,12 @@ impl<T: Sample> GroupKernel<'_, T> {
             dc,
             reim,
         } = strip;
-        load(diff, self.samples(n - s, at, len));
-        load(sum, self.samples(s, at, len));
+        let (upper, lower) = (
+            padded(self.samples(s, at, len)),
+            padded(self.samples(n - s, at, len)),
+        );
         for i in 0..CHUNK {
-            let (a, b) = (sum[i], diff[i]);
+            let (a, b) = (upper[i].value(), lower[i].value());
             peak[i] = if a > peak[i] { a } else { peak[i] };
             peak[i] = if b > peak[i] { b } else { peak[i] };
             sum[i] = a + b;
