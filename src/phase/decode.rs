@@ -712,7 +712,10 @@ impl<T: Sample> Decoder<T> {
             std::mem::take(&mut self.camera),
             noise,
             saturated,
-            (0..w * h).map(|i| self.is_candidate(i)).collect(),
+            (0..w * h)
+                .into_par_iter()
+                .map(|i| self.is_candidate(i))
+                .collect(),
             &stats,
             &fundamental,
         ))
