@@ -159,18 +159,38 @@ impl CompactStack {
             .into_par_iter()
             .map(|p| {
                 let c = &p.at_candidates;
-                let modulation = p
-                    .modulation
-                    .unwrap_or_else(|| spread(candidate, &c.modulation, 0.0));
+                // Each map its own task too: three projectors share two cores evenly.
+                let ((u, v), ((reliability, valid), modulation)) = rayon::join(
+                    || {
+                        rayon::join(
+                            || spread(candidate, &c.u, f32::NAN),
+                            || spread(candidate, &c.v, f32::NAN),
+                        )
+                    },
+                    || {
+                        rayon::join(
+                            || {
+                                rayon::join(
+                                    || spread(candidate, &c.reliability, f32::NAN),
+                                    || spread(candidate, &c.valid, false),
+                                )
+                            },
+                            || {
+                                p.modulation
+                                    .unwrap_or_else(|| spread(candidate, &c.modulation, 0.0))
+                            },
+                        )
+                    },
+                );
                 ProjectorMaps {
-                    u: to_image(spread(candidate, &c.u, f32::NAN)),
-                    v: to_image(spread(candidate, &c.v, f32::NAN)),
+                    u: to_image(u),
+                    v: to_image(v),
                     modulation: to_image(modulation),
-                    reliability: to_image(spread(candidate, &c.reliability, f32::NAN)),
+                    reliability: to_image(reliability),
                     valid: Mask {
                         width: w,
                         height: h,
-                        bits: spread(candidate, &c.valid, false),
+                        bits: valid,
                     },
                     noise: p.noise,
                     fundamental: p.fundamental,

@@ -20,13 +20,14 @@
 //! a pixel estimates σ_I²/N with G − 1 degrees of freedom (free of projector harmonics); a
 //! fit σ_I² = a + b·A over all unsaturated pixels gives the read + shot noise model.
 
-use super::compact::{CompactStack, RowSink, Sink};
+use super::compact::{CompactStack, RowSink, Sink, NO_SLOT};
 use super::unwrap::Constellation;
 use crate::pattern::MAX_COUNTS;
 use crate::pattern::{pattern_harmonic, Direction, ProjectorCode, Sequence};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
+use std::sync::Arc;
 
 /// A single-channel image of linear floating-point values (the same type as
 /// `detect::GrayImage`).
@@ -355,8 +356,8 @@ pub struct Decoder<T: Sample> {
     levels: Vec<Level>,
     /// Pixels with a sample at full scale in some frame.
     saturated: Vec<bool>,
-    columns: Constellation,
-    rows: Constellation,
+    columns: Arc<Constellation>,
+    rows: Arc<Constellation>,
 }
 
 /// Modulation quantisation: 2^15 steps per full scale (B ≤ 2·full scale).
@@ -437,8 +438,9 @@ impl<T: Sample> Decoder<T> {
                 })
             })
             .collect();
-        let cons =
-            |d| Constellation::new(seq.counts(d)).expect("a validated sequence has valid counts");
+        let cons = |d| {
+            Constellation::shared(seq.counts(d)).expect("a validated sequence has valid counts")
+        };
         Ok(Decoder {
             seq: seq.clone(),
             camera,
@@ -529,66 +531,54 @@ impl<T: Sample> Decoder<T> {
         Ok(())
     }
 
-    /// Take the DFT of the completed group g, band by band of [`BAND_ROWS`] rows (each band's
-    /// rows on all cores): each projector's (ψ, B) pairs kept where it lights the pixel and
-    /// B added to its root sums where it does not (the first group chooses the lit pixels).
+    /// Take the DFT of the completed group g (its last frame `last`) on all cores: each
+    /// projector's (ψ, B) pairs kept where it lights the pixel and B added to its root sums
+    /// where it does not (the first group chooses the lit pixels).
     fn close_group(&mut self, g: usize, last: &[T]) {
+        if g == 0 {
+            self.close_first_group(last);
+        } else {
+            self.close_later_group(g, last);
+        }
+    }
+
+    /// The first group, band by band of [`BAND_ROWS`] rows (each band's rows on all cores):
+    /// its modulations choose each projector's lit pixels, where its pairs are kept; its B
+    /// starts the root sums elsewhere.
+    fn close_first_group(&mut self, last: &[T]) {
         let (w, h) = (self.width as usize, self.height as usize);
         let np = self.seq.projectors().len();
-        if g == 0 {
-            self.lit = (0..np).map(|_| LitPixels::new(w * h)).collect();
-            self.unlit_b = vec![Vec::new(); np];
-        }
-        // Per projector, the next unlit pixel's slot in its sums.
-        let mut unlit = vec![0usize; np];
-        let mut kept: Vec<Vec<u16>> = (self.lit.iter())
-            .map(|l| Vec::with_capacity(l.count() * 2))
-            .collect();
+        self.lit = (0..np).map(|_| LitPixels::new(w * h)).collect();
+        self.unlit_b = vec![Vec::new(); np];
+        let mut kept: Vec<Vec<u16>> = vec![Vec::new(); np];
         let mut band = vec![0u16; BAND_ROWS.min(h) * w * np * 2];
         for y0 in (0..h).step_by(BAND_ROWS) {
             let rows = BAND_ROWS.min(h - y0);
             let out = &mut band[..rows * w * np * 2];
-            self.band_dft(g, y0, last, out);
-            if g == 0 {
-                mark_lit(out, np, y0 * w, &mut self.lit);
-            }
-            self.keep_band(y0 * w, out, &mut kept, &mut unlit);
+            self.band_dft(y0, last, out);
+            mark_lit(out, np, y0 * w, &mut self.lit);
+            self.keep_first_band(y0 * w, out, &mut kept);
         }
-        if g == 0 {
-            kept.iter_mut().for_each(Vec::shrink_to_fit);
-            self.unlit_b.iter_mut().for_each(Vec::shrink_to_fit);
-            self.row_slots = row_slots(&self.lit, w, h);
-            self.lit.iter_mut().for_each(|l| l.count_rows(w, h));
-        }
+        kept.iter_mut().for_each(Vec::shrink_to_fit);
+        self.unlit_b.iter_mut().for_each(Vec::shrink_to_fit);
+        self.row_slots = row_slots(&self.lit, w, h);
+        self.lit.iter_mut().for_each(|l| l.count_rows(w, h));
         self.groups.push(kept);
     }
 
-    /// Group g's DFT (its `last` frame apart) of the rows from `y0` on (as many as `out`
-    /// holds), row by row on all cores: per pixel and projector the 16-bit (ψ, B) pair into
-    /// `out`; updates each pixel's level statistics and saturation flag.
-    fn band_dft(&mut self, g: usize, y0: usize, last: &[T], out: &mut [u16]) {
+    /// The first group's DFT (its `last` frame apart) of the rows from `y0` on (as many as
+    /// `out` holds), row by row on all cores: per pixel and projector the 16-bit (ψ, B) pair
+    /// into `out`; sets each pixel's level statistics and saturation flag.
+    fn band_dft(&mut self, y0: usize, last: &[T], out: &mut [u16]) {
         let w = self.width as usize;
-        let npx = w * self.height as usize;
-        let n = self.seq.steps() as usize;
         let np = self.seq.projectors().len();
-        let fs = self.full_scale;
-        let kernel = GroupKernel {
-            frames: &self.frames,
-            last,
-            twiddles: &self.twiddles,
-            w,
-            npx,
-            n,
-            np,
-            g,
-            fs,
-            b_scale: B_STEPS / fs,
-            inv_n: 1.0 / n as f32,
-        };
+        // The statistics are taken out while the kernel reads the frames.
+        let (mut levels, mut saturated) = self.take_statistics();
+        let kernel = GroupKernel::new(self, 0, last);
         let pixels = y0 * w..y0 * w + out.len() / (np * 2);
         out.par_chunks_mut(w * np * 2)
-            .zip(self.levels[pixels.clone()].par_chunks_mut(w))
-            .zip(self.saturated[pixels].par_chunks_mut(w))
+            .zip(levels[pixels.clone()].par_chunks_mut(w))
+            .zip(saturated[pixels].par_chunks_mut(w))
             .enumerate()
             .for_each_init(
                 || Strip::new(np),
@@ -596,44 +586,85 @@ impl<T: Sample> Decoder<T> {
                     kernel.row(y0 + i, strip, out_row, levels, saturated)
                 },
             );
+        (self.levels, self.saturated) = (levels, saturated);
     }
 
-    /// The band of pixels from `first` on (their (ψ, B) pairs `out`), projector by projector
-    /// in pixel order: the pair appended to `kept` where it lights the pixel, else its B
-    /// added in quadrature to (the first group: appended to) its unlit root sums, `unlit`
-    /// counting their slots.
-    fn keep_band(&mut self, first: usize, out: &[u16], kept: &mut [Vec<u16>], unlit: &mut [usize]) {
-        let first_group = self.groups.is_empty();
+    /// The level statistics and saturation flags, taken out of the decoder.
+    fn take_statistics(&mut self) -> (Vec<Level>, Vec<bool>) {
+        (
+            std::mem::take(&mut self.levels),
+            std::mem::take(&mut self.saturated),
+        )
+    }
+
+    /// The first group's band of pixels from `first` on (their (ψ, B) pairs `out`),
+    /// projector by projector in pixel order: the pair appended to `kept` where it lights
+    /// the pixel, else its B as the first term of its unlit root sums.
+    fn keep_first_band(&mut self, first: usize, out: &[u16], kept: &mut [Vec<u16>]) {
         let np = kept.len();
         // Each projector's lists are its own: the projectors run on all cores.
         kept.par_iter_mut()
             .zip(self.unlit_b.par_iter_mut())
             .zip(self.lit.par_iter())
-            .zip(unlit.par_iter_mut())
             .enumerate()
-            .for_each(|(p, (((kept, sums), lit), next))| {
+            .for_each(|(p, ((kept, sums), lit))| {
                 for (i, px) in out.chunks_exact(np * 2).enumerate() {
                     let pair = &px[p * 2..p * 2 + 2];
                     if lit.get(first + i) {
                         kept.extend_from_slice(pair);
-                        continue;
-                    }
-                    let b = f32::from(pair[1]);
-                    let r = if first_group {
-                        b
                     } else {
-                        let r = f32::from(sums[*next]) * UNLIT_STEP;
-                        (r * r + b * b).sqrt()
-                    };
-                    let r = (r / UNLIT_STEP).round().min(65535.0) as u16;
-                    if first_group {
-                        sums.push(r);
-                    } else {
-                        sums[*next] = r;
+                        sums.push(add_unlit(0, pair[1]));
                     }
-                    *next += 1;
                 }
             });
+    }
+
+    /// A later group g (the lit pixels known): every row on all cores, its DFT then its
+    /// pairs written straight to their slots in each projector's kept list and root sums
+    /// (no band is held: a worker holds one row's pairs).
+    fn close_later_group(&mut self, g: usize, last: &[T]) {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let np = self.seq.projectors().len();
+        let mut kept: Vec<Vec<u16>> = (self.lit.iter())
+            .map(|l| vec![0u16; l.count() * 2])
+            .collect();
+        let (mut levels, mut saturated) = self.take_statistics();
+        let mut unlit_b = std::mem::take(&mut self.unlit_b);
+        let mut targets: Vec<RowTargets<'_>> = (0..h)
+            .map(|_| RowTargets {
+                kept: Vec::with_capacity(np),
+                unlit: Vec::with_capacity(np),
+            })
+            .collect();
+        for ((kept, sums), lit) in kept.iter_mut().zip(&mut unlit_b).zip(&self.lit) {
+            let slots = &lit.row_slots;
+            let lit_lens = slots.windows(2).map(|s| 2 * (s[1] - s[0]) as usize);
+            let unlit_lens = slots.windows(2).map(|s| w - (s[1] - s[0]) as usize);
+            for ((t, k), u) in targets
+                .iter_mut()
+                .zip(cut(kept, lit_lens))
+                .zip(cut(sums, unlit_lens))
+            {
+                t.kept.push(k);
+                t.unlit.push(u);
+            }
+        }
+        let kernel = GroupKernel::new(self, g, last);
+        let lit = &self.lit;
+        targets
+            .into_par_iter()
+            .zip(levels.par_chunks_mut(w))
+            .zip(saturated.par_chunks_mut(w))
+            .enumerate()
+            .for_each_init(
+                || (Strip::new(np), vec![0u16; w * np * 2]),
+                |(strip, out_row), (y, ((mut t, levels), saturated))| {
+                    kernel.row(y, strip, out_row, levels, saturated);
+                    keep_row(out_row, y * w, lit, &mut t);
+                },
+            );
+        (self.levels, self.saturated, self.unlit_b) = (levels, saturated, unlit_b);
+        self.groups.push(kept);
     }
 
     /// Unwrap, fuse and judge every pixel; fails when frames are missing.
@@ -681,7 +712,10 @@ impl<T: Sample> Decoder<T> {
             std::mem::take(&mut self.camera),
             noise,
             saturated,
-            (0..w * h).map(|i| self.is_candidate(i)).collect(),
+            (0..w * h)
+                .into_par_iter()
+                .map(|i| self.is_candidate(i))
+                .collect(),
             &stats,
             &fundamental,
         ))
@@ -710,6 +744,58 @@ fn mark_lit(out: &[u16], np: usize, first: usize, lit: &mut [LitPixels]) {
             }
         }
     }
+}
+
+/// One image row's places in a later group's lists: per projector, the slots of the row's
+/// lit pixels in its kept (ψ, B) pairs and of its unlit pixels in its root sums.
+struct RowTargets<'a> {
+    kept: Vec<&'a mut [u16]>,
+    unlit: Vec<&'a mut [u16]>,
+}
+
+/// `data` cut into consecutive pieces of the lengths `lens`.
+fn cut<X>(mut data: &mut [X], lens: impl Iterator<Item = usize>) -> Vec<&mut [X]> {
+    lens.map(|len| {
+        let (head, tail) = std::mem::take(&mut data).split_at_mut(len);
+        data = tail;
+        head
+    })
+    .collect()
+}
+
+/// The (ψ, B) pairs `out` of a row of pixels from pixel `first` of the image on, projector
+/// by projector: a pair written to its projector's next kept slot in `t` where it lights
+/// the pixel (`lit`), else its B added to the next root sum.
+fn keep_row(out: &[u16], first: usize, lit: &[LitPixels], t: &mut RowTargets<'_>) {
+    let np = lit.len();
+    for (p, ((lit, kept), sums)) in lit.iter().zip(&mut t.kept).zip(&mut t.unlit).enumerate() {
+        let mut kept = kept.chunks_exact_mut(2);
+        let mut sums = sums.iter_mut();
+        for (i, px) in out.chunks_exact(np * 2).enumerate() {
+            let pair = &px[p * 2..p * 2 + 2];
+            if lit.get(first + i) {
+                if let Some(k) = kept.next() {
+                    k.copy_from_slice(pair);
+                }
+            } else if let Some(r) = sums.next() {
+                *r = add_unlit(*r, pair[1]);
+            }
+        }
+    }
+}
+
+/// A root sum of B (steps of [`UNLIT_STEP`] of B's step) with one more group's B (16-bit
+/// step) added in quadrature, rounded to the nearest step (half away from zero) and
+/// clamped to 16 bits.
+#[inline(always)]
+fn add_unlit(sum: u16, b: u16) -> u16 {
+    let r = f32::from(sum) * UNLIT_STEP;
+    let b = f32::from(b);
+    let x = (r * r + b * b).sqrt() / UNLIT_STEP;
+    // x < 2^23: its truncation and the remainder are exact (no libm round).
+    let whole = x as u32;
+    let whole = whole + u32::from(x - whole as f32 >= 0.5);
+    whole.min(65535) as u16
 }
 
 /// One projector's lit pixels: a bit per pixel, and per image row the slot of its first lit
@@ -775,9 +861,9 @@ fn row_slots(lit: &[LitPixels], w: usize, h: usize) -> Vec<u32> {
 
 /// One worker's sums for a strip of [`CHUNK`] pixels over a group's N steps.
 struct Strip {
-    /// A step's samples (of the paired steps: I_s, then I_s + I_{N−s}).
+    /// A step's samples (of the paired steps: I_s + I_{N−s}).
     sum: [f32; CHUNK],
-    /// Of the paired steps: I_{N−s}, then I_s − I_{N−s}.
+    /// Of the paired steps: I_s − I_{N−s}.
     diff: [f32; CHUNK],
     /// Largest sample.
     peak: [f32; CHUNK],
@@ -809,6 +895,15 @@ fn load<T: Sample>(dst: &mut [f32; CHUNK], src: &[T]) {
     }
 }
 
+/// A step's samples `src` as a strip, zeros past their end (read as they are: the sums
+/// take them straight to f32).
+#[inline(always)]
+fn padded<T: Sample>(src: &[T]) -> [T; CHUNK] {
+    let mut strip = [T::default(); CHUNK];
+    strip[..src.len()].copy_from_slice(src);
+    strip
+}
+
 /// What every row of one group's DFT shares: the frames, the twiddles and the sizes.
 struct GroupKernel<'a, T> {
     /// The group's frames but its last, (N − 1) × pixels.
@@ -835,11 +930,67 @@ struct GroupKernel<'a, T> {
     inv_n: f32,
 }
 
+impl<'a, T: Sample> GroupKernel<'a, T> {
+    /// The kernel of group g of `dec`'s stack, whose last frame is `last`.
+    fn new(dec: &'a Decoder<T>, g: usize, last: &'a [T]) -> Self {
+        let w = dec.width as usize;
+        let n = dec.seq.steps() as usize;
+        GroupKernel {
+            frames: &dec.frames,
+            last,
+            twiddles: &dec.twiddles,
+            w,
+            npx: w * dec.height as usize,
+            n,
+            np: dec.seq.projectors().len(),
+            g,
+            fs: dec.full_scale,
+            b_scale: B_STEPS / dec.full_scale,
+            inv_n: 1.0 / n as f32,
+        }
+    }
+}
+
 impl<T: Sample> GroupKernel<'_, T> {
     /// Row y, strip by strip of [`CHUNK`] pixels (the sums stay in L1 over the N frames):
     /// the DFT into `strip`, then the pixels' level statistics (`levels`), saturation flags
     /// (`saturated`) and their 16-bit (ψ, B) pairs (`out_row`).
     fn row(
+        &self,
+        y: usize,
+        strip: &mut Strip,
+        out_row: &mut [u16],
+        levels: &mut [Level],
+        saturated: &mut [bool],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU supports AVX2, checked just above.
+                return unsafe { self.row_avx2(y, strip, out_row, levels, saturated) };
+            }
+        }
+        self.row_generic(y, strip, out_row, levels, saturated);
+    }
+
+    /// [`Self::row_generic`] compiled for AVX2 (8-wide strip loops; no FMA, so the sums are
+    /// the same to the bit as the generic code's).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn row_avx2(
+        &self,
+        y: usize,
+        strip: &mut Strip,
+        out_row: &mut [u16],
+        levels: &mut [Level],
+        saturated: &mut [bool],
+    ) {
+        self.row_generic(y, strip, out_row, levels, saturated);
+    }
+
+    /// [`Self::row`] for any CPU.
+    #[inline(always)]
+    fn row_generic(
         &self,
         y: usize,
         strip: &mut Strip,
@@ -873,6 +1024,7 @@ impl<T: Sample> GroupKernel<'_, T> {
 
     /// The DFT of the `len` pixels from pixel `at` over the N steps: X_0 into `dc`, Re and
     /// Im X_{f_p} into `reim`, the largest sample into `peak`.
+    #[inline(always)]
     fn dft(&self, at: usize, len: usize, strip: &mut Strip) {
         self.first_step(at, len, strip);
         for s in 1..self.n.div_ceil(2) {
@@ -884,6 +1036,7 @@ impl<T: Sample> GroupKernel<'_, T> {
     }
 
     /// Step 0 starts every sum (its twiddle is 1).
+    #[inline(always)]
     fn first_step(&self, at: usize, len: usize, strip: &mut Strip) {
         let Strip {
             sum,
@@ -904,6 +1057,7 @@ impl<T: Sample> GroupKernel<'_, T> {
 
     /// Steps s and N − s share |twiddle|: e^{±i2πfs/N}, so
     /// X_f += (I_s + I_{N−s})·cos + i·(I_s − I_{N−s})·sin.
+    #[inline(always)]
     fn paired_steps(&self, s: usize, at: usize, len: usize, strip: &mut Strip) {
         let n = self.n;
         let Strip {
@@ -913,10 +1067,12 @@ impl<T: Sample> GroupKernel<'_, T> {
             dc,
             reim,
         } = strip;
-        load(diff, self.samples(n - s, at, len));
-        load(sum, self.samples(s, at, len));
+        let (upper, lower) = (
+            padded(self.samples(s, at, len)),
+            padded(self.samples(n - s, at, len)),
+        );
         for i in 0..CHUNK {
-            let (a, b) = (sum[i], diff[i]);
+            let (a, b) = (upper[i].value(), lower[i].value());
             peak[i] = if a > peak[i] { a } else { peak[i] };
             peak[i] = if b > peak[i] { b } else { peak[i] };
             sum[i] = a + b;
@@ -936,6 +1092,7 @@ impl<T: Sample> GroupKernel<'_, T> {
     }
 
     /// The middle step of an even N: its twiddle is (−1)^f.
+    #[inline(always)]
     fn middle_step(&self, at: usize, len: usize, strip: &mut Strip) {
         let s = self.n / 2;
         let Strip {
@@ -970,6 +1127,7 @@ impl<T: Sample> GroupKernel<'_, T> {
     }
 
     /// Adds the group's mean level of each pixel (from its X_0 in `dc`) to its statistics.
+    #[inline(always)]
     fn add_level(&self, dc: &[f32; CHUNK], stats: &mut [Level]) {
         for (st, &d) in stats.iter_mut().zip(dc.iter()) {
             // A = X_0/N (docs/design.md §6).
@@ -985,6 +1143,7 @@ impl<T: Sample> GroupKernel<'_, T> {
     }
 
     /// The strip's sums as 16-bit (ψ, B) pairs per pixel and projector, into `out`.
+    #[inline(always)]
     fn quantise(&self, strip: &Strip, out: &mut [u16]) {
         let np = self.np;
         for (p, sums) in strip.reim.chunks_exact(2 * CHUNK).enumerate() {
@@ -1077,6 +1236,14 @@ impl PhaseNoise {
     }
 }
 
+/// One worker's per-row scratch in the final pass: each pixel's per-frame noise σ_I (DN)
+/// and its slot among the row's candidates ([`NO_SLOT`] where it is not one).
+#[derive(Default)]
+struct RowScratch {
+    sigma: Vec<f32>,
+    slot: Vec<u32>,
+}
+
 /// Projector p's position at one pixel, per direction (columns, rows).
 struct Position {
     /// Unwrapped and fused u, v (projector px).
@@ -1148,7 +1315,9 @@ impl<'a, T: Sample> Judge<'a, T> {
         let np = self.mean_ratio.len();
         rows.into_par_iter()
             .enumerate()
-            .map(|(y, mut row)| self.row(y, &mut row))
+            .map_init(RowScratch::default, |scratch, (y, mut row)| {
+                self.row(y, &mut row, scratch)
+            })
             .reduce(
                 || vec![[0f64; 6]; np],
                 |a, b| {
@@ -1162,83 +1331,112 @@ impl<'a, T: Sample> Judge<'a, T> {
 
     /// Row y into `row`: each pixel's ambient and per projector modulation, and at its
     /// candidates u, v, reliability and validity; gives the row's sums as [`Self::rows`].
-    fn row(&self, y: usize, row: &mut RowSink<'_>) -> Vec<[f64; 6]> {
+    /// The pixels' noise first, then projector by projector (each reads only its own
+    /// groups' phases: few memory streams at a time).
+    fn row(&self, y: usize, row: &mut RowSink<'_>, scratch: &mut RowScratch) -> Vec<[f64; 6]> {
         let dec = self.dec;
-        let (w, np) = (dec.width as usize, self.mean_ratio.len());
-        let mut acc = vec![[0f64; 6]; np];
-        // The row's candidates are slots row_slots[y].. in pixel order; `k` counts them; the
-        // pixels projector p lights are its slots from lit[p].row_slots[y] on, counted in
-        // `next[p]`.
-        let mut k = 0usize;
-        let mut next: Vec<u32> = dec.lit.iter().map(|l| l.row_slots[y]).collect();
-        for x in 0..w {
+        let w = dec.width as usize;
+        scratch.sigma.clear();
+        scratch.slot.clear();
+        // The row's candidates are its slots in the maps at the candidates, in pixel order.
+        let mut k = 0u32;
+        for (x, amb) in row.ambient.iter_mut().enumerate().take(w) {
             let px = y * w + x;
             let (mean, _) = dec.levels[px].mean_and_var(self.steps, self.groups);
-            let sigma = self.noise.sigma(mean) as f32;
+            scratch.sigma.push(self.noise.sigma(mean) as f32);
+            *amb = mean as f32;
+            let candidate = dec.is_candidate(px);
+            scratch.slot.push(if candidate { k } else { NO_SLOT });
+            k += u32::from(candidate);
+        }
+        (0..self.mean_ratio.len())
+            .map(|p| self.projector_row(p, y, row, scratch))
+            .collect()
+    }
+
+    /// Projector p's part of row y (the pixels' noise and candidate slots in `scratch`):
+    /// its modulation subtracted from the ambient, its maps at the candidates; gives its
+    /// sums as [`Self::rows`].
+    fn projector_row(
+        &self,
+        p: usize,
+        y: usize,
+        row: &mut RowSink<'_>,
+        scratch: &RowScratch,
+    ) -> [f64; 6] {
+        let dec = self.dec;
+        let w = dec.width as usize;
+        let lit = &dec.lit[p];
+        let groups: Vec<&[u16]> = dec.groups.iter().map(|g| &g[p][..]).collect();
+        let unlit = &dec.unlit_b[p];
+        let mut acc = [0f64; 6];
+        // The pixels p lights are its slots from lit.row_slots[y] on, counted in `next`.
+        let mut next = lit.row_slots[y] as usize;
+        for x in 0..w {
+            let px = y * w + x;
+            let sigma = scratch.sigma[x];
             let var4 = 4.0 * sigma * sigma / self.n32;
-            let (saturated, candidate) = (dec.saturated[px], dec.is_candidate(px));
-            let mut amb = mean as f32;
-            for (p, acc) in acc.iter_mut().enumerate() {
-                let lit = dec.lit[p].get(px);
-                let slot = next[p];
-                next[p] += u32::from(lit);
-                // Σ_g B² from the kept modulations where p lights the pixel, else from p's
-                // unlit root sum.
-                let (psi_g, bsq_g) = if lit {
-                    self.group_phases(slot, p)
-                } else {
-                    Default::default()
-                };
-                let bsq = if lit {
-                    bsq_g[..self.groups].iter().fold(0.0, |s, &b2| s + b2)
-                } else {
-                    let r = f32::from(dec.unlit_b[p][px - slot as usize])
-                        * (UNLIT_STEP * self.inv_b_scale);
-                    r * r
-                };
-                let bmod = (bsq / self.groups as f32 - var4).max(0.0).sqrt();
-                amb -= self.mean_ratio[p] * bmod;
-                if let Some(m) = row.modulation.get_mut(p) {
-                    m[x] = bmod;
-                }
-                if !candidate {
-                    continue;
-                }
-                let c = &mut row.candidates[p];
-                c.modulation[k] = bmod;
-                if !lit || saturated || bmod < self.min_b.max(5.0 * sigma) {
-                    // Invalid whatever the phases say: not unwrapped.
-                    c.u[k] = f32::NAN;
-                    c.v[k] = f32::NAN;
-                    c.reliability[k] = f32::NAN;
-                    c.valid[k] = false;
-                    continue;
-                }
-                let pos = self.position(&psi_g, &bsq_g, p, sigma);
-                let ok = pos.distance[0] < self.half_spacing[0]
-                    && pos.distance[1] < self.half_spacing[1]
-                    && pos.clear_of_wrap;
-                c.u[k] = pos.fused[0];
-                c.v[k] = pos.fused[1];
-                c.reliability[k] = pos.distance[0].max(pos.distance[1]);
-                c.valid[k] = ok;
-                if ok {
-                    self.add_valid(acc, bmod, sigma, pos.sigma);
-                }
+            let is_lit = lit.get(px);
+            // Σ_g B² from the kept modulations where p lights the pixel, else from p's
+            // unlit root sum.
+            let (psi_g, bsq_g) = if is_lit {
+                self.group_phases(&groups, next)
+            } else {
+                Default::default()
+            };
+            let bsq = if is_lit {
+                bsq_g[..self.groups].iter().fold(0.0, |s, &b2| s + b2)
+            } else {
+                let r = f32::from(unlit[px - next]) * (UNLIT_STEP * self.inv_b_scale);
+                r * r
+            };
+            next += usize::from(is_lit);
+            let bmod = (bsq / self.groups as f32 - var4).max(0.0).sqrt();
+            row.ambient[x] -= self.mean_ratio[p] * bmod;
+            if let Some(m) = row.modulation.get_mut(p) {
+                m[x] = bmod;
             }
-            k += usize::from(candidate);
-            row.ambient[x] = amb;
+            let k = scratch.slot[x];
+            if k == NO_SLOT {
+                continue;
+            }
+            let (k, c) = (k as usize, &mut row.candidates[p]);
+            c.modulation[k] = bmod;
+            if !is_lit || dec.saturated[px] || bmod < self.min_b.max(5.0 * sigma) {
+                // Invalid whatever the phases say: not unwrapped.
+                c.u[k] = f32::NAN;
+                c.v[k] = f32::NAN;
+                c.reliability[k] = f32::NAN;
+                c.valid[k] = false;
+                continue;
+            }
+            let pos = self.position(&psi_g, &bsq_g, p, sigma);
+            let ok = pos.distance[0] < self.half_spacing[0]
+                && pos.distance[1] < self.half_spacing[1]
+                && pos.clear_of_wrap;
+            c.u[k] = pos.fused[0];
+            c.v[k] = pos.fused[1];
+            c.reliability[k] = pos.distance[0].max(pos.distance[1]);
+            c.valid[k] = ok;
+            if ok {
+                self.add_valid(&mut acc, bmod, sigma, pos.sigma);
+            }
         }
         acc
     }
 
-    /// Projector p's wrapped phase ψ (cycles) and B² (DN²) in every group at its lit pixel
-    /// `slot`.
-    fn group_phases(&self, slot: u32, p: usize) -> ([f32; 2 * MAX_COUNTS], [f32; 2 * MAX_COUNTS]) {
+    /// The wrapped phase ψ (cycles) and B² (DN²) in every group (one projector's kept pairs
+    /// of each group in `groups`) at lit pixel `slot`.
+    #[inline(always)]
+    fn group_phases(
+        &self,
+        groups: &[&[u16]],
+        slot: usize,
+    ) -> ([f32; 2 * MAX_COUNTS], [f32; 2 * MAX_COUNTS]) {
         let mut psi_g = [0f32; 2 * MAX_COUNTS];
         let mut bsq_g = [0f32; 2 * MAX_COUNTS];
-        for (g, data) in self.dec.groups.iter().enumerate() {
-            let o = &data[p][slot as usize * 2..][..2];
+        for (g, data) in groups.iter().enumerate() {
+            let o = &data[slot * 2..][..2];
             psi_g[g] = f32::from(o[0]) * (1.0 / 65536.0);
             let b = f32::from(o[1]) * self.inv_b_scale;
             bsq_g[g] = b * b;
@@ -1258,8 +1456,8 @@ impl<'a, T: Sample> Judge<'a, T> {
             clear_of_wrap: true,
         };
         for (d, (cons, counts, offset, size)) in [
-            (&self.dec.columns, self.counts[0], 0, code.width),
-            (&self.dec.rows, self.counts[1], mc, code.height),
+            (&*self.dec.columns, self.counts[0], 0, code.width),
+            (&*self.dec.rows, self.counts[1], mc, code.height),
         ]
         .into_iter()
         .enumerate()

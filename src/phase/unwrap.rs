@@ -12,6 +12,10 @@
 
 use crate::pattern::MAX_COUNTS;
 use std::collections::BTreeSet;
+use std::sync::{Arc, Mutex, PoisonError};
+
+/// How many count sets [`Constellation::shared`] keeps built.
+pub const SHARED_CONSTELLATIONS: usize = 8;
 
 /// Why a constellation cannot be built.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -190,6 +194,25 @@ impl Constellation {
             spacing,
             grid,
         })
+    }
+
+    /// The constellation of `counts`, built once per process and then shared: building one
+    /// takes tens of milliseconds of CPU, and every decoder of a run uses the same few
+    /// (the last [`SHARED_CONSTELLATIONS`] count sets are kept).
+    pub fn shared(counts: &[u32]) -> Result<Arc<Constellation>, ConstellationError> {
+        static BUILT: Mutex<Vec<Arc<Constellation>>> = Mutex::new(Vec::new());
+        // A panic elsewhere while the list was held leaves it whole: its entries are
+        // immutable once pushed.
+        let mut built = BUILT.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(c) = built.iter().find(|c| c.counts == counts) {
+            return Ok(Arc::clone(c));
+        }
+        let c = Arc::new(Constellation::new(counts)?);
+        if built.len() == SHARED_CONSTELLATIONS {
+            built.remove(0);
+        }
+        built.push(Arc::clone(&c));
+        Ok(c)
     }
 
     /// The fringe counts.
@@ -425,6 +448,23 @@ mod tests {
         assert!((c.spacing() - 1.05).abs() < 0.01, "spacing {}", c.spacing());
         let c = Constellation::new(&[15, 19]).unwrap();
         assert!((c.spacing() - 0.26).abs() < 0.01, "spacing {}", c.spacing());
+    }
+
+    #[test]
+    fn shared_constellations_are_built_once_per_count_set() {
+        let a = Constellation::shared(&[20, 21, 25]).unwrap();
+        let b = Constellation::shared(&[15, 19]).unwrap();
+        assert!(Arc::ptr_eq(
+            &a,
+            &Constellation::shared(&[20, 21, 25]).unwrap()
+        ));
+        assert_eq!(a.counts(), &[20, 21, 25]);
+        assert_eq!(b.counts(), &[15, 19]);
+        assert_eq!(a.len(), Constellation::new(&[20, 21, 25]).unwrap().len());
+        assert!(matches!(
+            Constellation::shared(&[20, 25]),
+            Err(ConstellationError::Counts(_))
+        ));
     }
 
     #[test]
