@@ -210,13 +210,11 @@ impl CompactStack {
 /// One value per pixel: the candidates' `values` in order, `fill` at the other pixels.
 fn spread<X: Copy>(candidate: &[bool], values: &[X], fill: X) -> Vec<X> {
     let mut next = values.iter();
-    candidate
-        .iter()
-        .map(|&c| match c {
-            true => next.next().copied().unwrap_or(fill),
-            false => fill,
-        })
-        .collect()
+    let values = candidate.iter().map(|&c| match c {
+        true => next.next().copied().unwrap_or(fill),
+        false => fill,
+    });
+    super::pages::collected(candidate.len(), values)
 }
 
 /// What the decoder's final pass writes: the ambient of every pixel, the modulation of every

@@ -8,6 +8,7 @@ pub mod accuracy;
 mod compact;
 mod decode;
 pub mod files;
+mod pages;
 mod unwrap;
 
 pub use compact::*;
