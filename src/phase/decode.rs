@@ -583,7 +583,12 @@ impl<T: Sample> Decoder<T> {
             .for_each_init(
                 || Strip::new(np),
                 |strip, (i, ((out_row, levels), saturated))| {
-                    kernel.row(y0 + i, strip, out_row, levels, saturated)
+                    let out = RowOut {
+                        pairs: out_row,
+                        levels,
+                        saturated,
+                    };
+                    kernel.row(y0 + i, strip, out)
                 },
             );
         (self.levels, self.saturated) = (levels, saturated);
@@ -659,7 +664,12 @@ impl<T: Sample> Decoder<T> {
             .for_each_init(
                 || (Strip::new(np), vec![0u16; w * np * 2]),
                 |(strip, out_row), (y, ((mut t, levels), saturated))| {
-                    kernel.row(y, strip, out_row, levels, saturated);
+                    let out = RowOut {
+                        pairs: out_row,
+                        levels,
+                        saturated,
+                    };
+                    kernel.row(y, strip, out);
                     keep_row(out_row, y * w, lit, &mut t);
                 },
             );
@@ -951,53 +961,40 @@ impl<'a, T: Sample> GroupKernel<'a, T> {
     }
 }
 
+/// What one row of a group's DFT writes: its pixels' 16-bit (ψ, B) pairs, level statistics
+/// and saturation flags.
+struct RowOut<'a> {
+    pairs: &'a mut [u16],
+    levels: &'a mut [Level],
+    saturated: &'a mut [bool],
+}
+
 impl<T: Sample> GroupKernel<'_, T> {
     /// Row y, strip by strip of [`CHUNK`] pixels (the sums stay in L1 over the N frames):
     /// the DFT into `strip`, then the pixels' level statistics (`levels`), saturation flags
     /// (`saturated`) and their 16-bit (ψ, B) pairs (`out_row`).
-    fn row(
-        &self,
-        y: usize,
-        strip: &mut Strip,
-        out_row: &mut [u16],
-        levels: &mut [Level],
-        saturated: &mut [bool],
-    ) {
+    fn row(&self, y: usize, strip: &mut Strip, out: RowOut) {
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: the CPU supports AVX2, checked just above.
-                return unsafe { self.row_avx2(y, strip, out_row, levels, saturated) };
+                return unsafe { self.row_avx2(y, strip, out) };
             }
         }
-        self.row_generic(y, strip, out_row, levels, saturated);
+        self.row_generic(y, strip, out);
     }
 
     /// [`Self::row_generic`] compiled for AVX2 (8-wide strip loops; no FMA, so the sums are
     /// the same to the bit as the generic code's).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn row_avx2(
-        &self,
-        y: usize,
-        strip: &mut Strip,
-        out_row: &mut [u16],
-        levels: &mut [Level],
-        saturated: &mut [bool],
-    ) {
-        self.row_generic(y, strip, out_row, levels, saturated);
+    unsafe fn row_avx2(&self, y: usize, strip: &mut Strip, out: RowOut) {
+        self.row_generic(y, strip, out);
     }
 
     /// [`Self::row`] for any CPU.
     #[inline(always)]
-    fn row_generic(
-        &self,
-        y: usize,
-        strip: &mut Strip,
-        out_row: &mut [u16],
-        levels: &mut [Level],
-        saturated: &mut [bool],
-    ) {
+    fn row_generic(&self, y: usize, strip: &mut Strip, out: RowOut) {
         let np = self.np;
         for x0 in (0..self.w).step_by(CHUNK) {
             let len = CHUNK.min(self.w - x0);
@@ -1005,10 +1002,10 @@ impl<T: Sample> GroupKernel<'_, T> {
             self.dft(at, len, strip);
             // Saturation is rare: look per pixel only when the strip reached it.
             if strip.peak.iter().any(|&m| m >= self.fs) {
-                self.mark_saturated(at, &mut saturated[x0..x0 + len]);
+                self.mark_saturated(at, &mut out.saturated[x0..x0 + len]);
             }
-            self.add_level(&strip.dc, &mut levels[x0..x0 + len]);
-            self.quantise(strip, &mut out_row[x0 * np * 2..(x0 + len) * np * 2]);
+            self.add_level(&strip.dc, &mut out.levels[x0..x0 + len]);
+            self.quantise(strip, &mut out.pairs[x0 * np * 2..(x0 + len) * np * 2]);
         }
     }
 
