@@ -1381,9 +1381,10 @@ const COARSE_STRIDE: i32 = 3;
 
 /// The robust phase (30) on a sub-lattice of the circles (`COARSE_STRIDE`): from a far
 /// start most iterations are descent, where a ninth of each view's circles points the way
-/// as well as all of them at a ninth of the cost. The robust phase over every observation
-/// goes on from where it stopped (docs/design.md §8, phase 0).
-fn coarse_descent(p: &Problem, l: &Layout, o: &Options) -> Phase {
+/// as well as all of them at a ninth of the cost. Gives where it stopped, the damping for
+/// the robust phase over every observation to go on with, and its iterations; nothing else
+/// of it is kept (docs/design.md §8, phase 0).
+fn coarse_descent(p: &Problem, l: &Layout, o: &Options) -> (State, f64, usize) {
     let coarse = |h: Hex| h.q.rem_euclid(COARSE_STRIDE) == 0 && h.r.rem_euclid(COARSE_STRIDE) == 0;
     let sub = Problem {
         board: p.board.clone(),
@@ -1397,7 +1398,7 @@ fn coarse_descent(p: &Problem, l: &Layout, o: &Options) -> Phase {
             .collect(),
     };
     let all = vec![true; sub.observations.len()];
-    levenberg_marquardt(
+    let phase = levenberg_marquardt(
         &sub,
         (State::start(p), None),
         l,
@@ -1406,7 +1407,14 @@ fn coarse_descent(p: &Problem, l: &Layout, o: &Options) -> Phase {
         Some(o.huber),
         &group_by_pose(&sub),
         LAMBDA0,
-    )
+    );
+    // Its damping, unless it stalled (λ raised by failed trials: no sub-lattice left).
+    let lambda = if phase.converged {
+        phase.lambda
+    } else {
+        LAMBDA0
+    };
+    (phase.state, lambda, phase.iterations)
 }
 
 /// Run the adjustment: coarse descent, robust phase, outlier rejection per device, plain
@@ -1415,22 +1423,17 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     check_problem(p, o)?;
     let l = Layout::new(p, o);
     let by_pose = group_by_pose(p);
-    let coarse = coarse_descent(p, &l, o);
+    let (start, lambda, coarse_iterations) = coarse_descent(p, &l, o);
     let all = vec![true; p.observations.len()];
     let robust = levenberg_marquardt(
         p,
-        (coarse.state, None),
+        (start, None),
         &l,
         o,
         &all,
         Some(o.huber),
         &by_pose,
-        // Its damping, unless it stalled (λ raised by failed trials: no sub-lattice left).
-        if coarse.converged {
-            coarse.lambda
-        } else {
-            LAMBDA0
-        },
+        lambda,
     );
     let (plain, active, iterations) = plain_phase(p, &l, o, &by_pose, robust);
     let s = plain.state;
@@ -1497,7 +1500,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         side_index: l.side,
         covariance,
         iterations,
-        coarse_iterations: coarse.iterations,
+        coarse_iterations,
         converged: plain.converged,
     })
 }
