@@ -8,10 +8,7 @@
 /// first write. Only a hint: where it is not taken (another system, THP off, a small buffer)
 /// the vector is the same.
 pub(super) fn filled<T: Clone>(value: T, len: usize) -> Vec<T> {
-    let mut v: Vec<T> = Vec::with_capacity(len);
-    advise_huge(v.as_mut_ptr().cast::<u8>(), len * std::mem::size_of::<T>());
-    v.resize(len, value);
-    v
+    collected(len, std::iter::repeat_n(value, len))
 }
 
 /// A vector of the items of `iter` (exactly `len` of them, as from a per-pixel map), backed
