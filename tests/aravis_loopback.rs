@@ -381,9 +381,7 @@ fn no_camera_at_the_address_is_an_error_naming_it() {
 #[test]
 fn lists_cameras_and_opens_one_by_device_id() {
     let _one = exclusive();
-    // Aravis' in-process "Fake" interface (no network).
-    // SAFETY: a NUL-terminated interface name.
-    unsafe { aravis_sys::arv_enable_interface(c"Fake".as_ptr()) };
+    hexcal::rig::aravis::loopback::enable_fake_interface();
     let cameras = list_cameras();
     let fake = cameras
         .iter()

@@ -3,8 +3,8 @@
 //! YAML with the same numbers, the Kalibr camchain is valid YAML with one entry per device,
 //! and bad input names the file.
 
-use hexcal::calib::solve::Correspondences;
 use hexcal::calib::synthetic::SyntheticRig;
+use hexcal::observations::Correspondences;
 use hexcal::report::CalibrationFile;
 use std::path::Path;
 use std::process::Command;

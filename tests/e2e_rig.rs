@@ -11,12 +11,12 @@
 //! held-out length error ≤ 0.1 mm RMS.
 
 use hexcal::board::Side;
-use hexcal::calib::bundle::DeviceKind;
 use hexcal::calib::solve::{calibrate, CalibrateOptions};
 use hexcal::calib::synthetic::SyntheticRig;
-use hexcal::calib::views::CameraView;
 use hexcal::correspond::{camera_view, FitParams, ProjectorMap};
 use hexcal::grid::{build, GridParams};
+use hexcal::observations::CameraView;
+use hexcal::observations::DeviceKind;
 use hexcal::sim::scene::{Imaging, PoseSpec, Scene};
 use nalgebra::{Point2, Point3};
 use rand::{rngs::StdRng, SeedableRng};

@@ -5,8 +5,8 @@
 //! it. Each compares the tool's projections with hexcal's own
 //! (`tests/exports/check_exports.py`).
 
-use hexcal::calib::solve::Correspondences;
 use hexcal::calib::synthetic::SyntheticRig;
+use hexcal::observations::Correspondences;
 use hexcal::report::CalibrationFile;
 use nalgebra::{Point2, Point3};
 use std::path::{Path, PathBuf};

@@ -4,8 +4,8 @@
 //! naming the file, the line or JSON path, and what is wrong; a calibration that leaves a
 //! device out exits 2 naming it; a closed stdout or stderr never makes it panic (101).
 
-use hexcal::calib::solve::Correspondences;
 use hexcal::calib::synthetic::SyntheticRig;
+use hexcal::observations::Correspondences;
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};

@@ -120,7 +120,7 @@ fn run_calibrates_a_simulated_rig_to_its_ground_truth() {
     assert!(cal.excluded.is_empty(), "{:?}", cal.excluded);
     assert_eq!(cal.devices.len(), 5);
     for row in hexcal::calib::diagnostics::residual_table(cal) {
-        let limit = if row.kind == hexcal::calib::bundle::DeviceKind::Camera {
+        let limit = if row.kind == hexcal::observations::DeviceKind::Camera {
             0.1
         } else {
             0.15

@@ -2,9 +2,10 @@
 //! every JSON file hexcal reads, protocol frames, images. The TOML seeds are copies of the
 //! repository's rig, board and scene files (`rigs/`) and `corpus/rig/small.toml`.
 
-use hexcal::calib::solve::{calibrate, CalibrateOptions, Correspondences};
+use hexcal::calib::solve::{calibrate, CalibrateOptions};
 use hexcal::calib::synthetic::SyntheticRig;
-use hexcal::correspond::CameraView;
+use hexcal::observations::CameraView;
+use hexcal::observations::Correspondences;
 use std::io;
 use std::path::Path;
 

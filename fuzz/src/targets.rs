@@ -4,8 +4,9 @@
 //! an allocation beyond the cap is a bug.
 
 use hexcal::board::{Board, Side};
-use hexcal::calib::solve::{calibrate, CalibrateOptions, Correspondences};
+use hexcal::calib::solve::{calibrate, CalibrateOptions};
 use hexcal::dataset::{DatasetInfo, PoseFile, PoseInfo, StackInfo, StackReader};
+use hexcal::observations::Correspondences;
 use std::path::Path;
 use std::sync::OnceLock;
 

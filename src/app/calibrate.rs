@@ -5,12 +5,14 @@ use super::process::{process_stored, PoseViews};
 use super::progress::{Event, Outcome};
 use super::AppError;
 use crate::board::Board;
-use crate::calib::bundle::{Device, DeviceKind};
+use crate::calib::bundle::Device;
 use crate::calib::geometric::{calibrate_registering, GeometricParams};
-use crate::calib::solve::{CalibrateOptions, Calibration, Correspondences, DeviceInfo};
+use crate::calib::solve::{CalibrateOptions, Calibration};
 use crate::calib::verify::{verify, PairCheck};
-use crate::correspond::CameraView;
 use crate::dataset::{Dataset, DatasetInfo};
+use crate::observations::CameraView;
+use crate::observations::DeviceKind;
+use crate::observations::{Correspondences, DeviceInfo};
 use std::path::{Path, PathBuf};
 
 /// Board poses a calibration needs: a device sees one side of the board per pose, and

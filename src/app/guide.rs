@@ -11,10 +11,12 @@
 pub mod operator;
 
 use crate::board::{Board, Hex, Side};
-use crate::calib::bundle::{Device, DeviceKind};
+use crate::calib::bundle::Device;
 use crate::calib::diagnostics::lens_covariance;
-use crate::calib::solve::{Calibration, DeviceInfo};
+use crate::calib::solve::Calibration;
 use crate::camera::{CameraModel, LensParam};
+use crate::observations::DeviceInfo;
+use crate::observations::DeviceKind;
 use nalgebra::{
     DMatrix, Isometry3, Matrix2x6, Matrix3, Matrix6, Point2, Point3, Translation3, UnitQuaternion,
     Vector2, Vector3,

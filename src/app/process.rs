@@ -6,12 +6,13 @@
 //! result of a pose.
 
 use crate::board::Board;
-use crate::correspond::{camera_view, CameraView, FitParams, ProjectorMap};
+use crate::correspond::{camera_view, FitParams, ProjectorMap};
 use crate::dataset::StackReader;
 use crate::dataset::{CameraEntry, Dataset, DatasetInfo};
 use crate::detect::{detect, DetectParams};
 use crate::grid::{build, GridParams};
 use crate::images::{CameraFrame, GrayImage, Pixels};
+use crate::observations::CameraView;
 use crate::pattern::Sequence;
 use crate::phase::files::decode_dir;
 use crate::phase::{CompactStack, DecodedStack, Decoder, FrameRef};

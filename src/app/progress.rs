@@ -2,9 +2,10 @@
 //! lines, for scripts) and the outcome of a run or a calibration.
 
 use super::truth::TruthCheck;
-use crate::calib::solve::{Calibration, DeviceInfo};
+use crate::calib::solve::Calibration;
 use crate::calib::verify::PairCheck;
 use crate::dataset::Timeline;
+use crate::observations::DeviceInfo;
 use serde::Serialize;
 
 /// Progress of a run, for people (`Display`) and scripts (JSON lines).

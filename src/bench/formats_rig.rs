@@ -314,14 +314,13 @@ fn compare(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::capture::tests::RIG;
 
     #[test]
     fn every_format_decodes_at_its_predicted_noise_and_detects_the_circles() {
         let dir = std::env::temp_dir().join(format!("hexcal-formats-rig-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("tiny.toml");
-        std::fs::write(&path, RIG).unwrap();
+        std::fs::write(&path, crate::rig::fixture::tiny().toml()).unwrap();
         let report = bench_formats_rig(&path, 1).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
         eprintln!("{report}");

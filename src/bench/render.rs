@@ -1,7 +1,7 @@
 //! `hexcal bench render`: the simulator's stages (ray grid, geometry, one frame) timed on a
 //! scene.
 
-use crate::sim::{geometry_with, ground_truth, sensor, Scene, SimError};
+use crate::sim::{geometry_with, ground_truth, sensor, CameraLens, Scene, SimError};
 use hexcal_simulator::{ImageSize, Lens, RayGrid};
 
 /// Wall-clock and CPU (all threads) seconds of one stage, medians over the repeats.
@@ -101,7 +101,8 @@ pub fn bench_render(scene: &Scene, repeats: usize) -> Result<RenderTimings, SimE
     let sensor = sensor(&scene.imaging);
     for k in 0..repeats {
         let mut rays = None;
-        tr.push(time(&mut || rays = Some(RayGrid::new(&scene.camera))));
+        let lens = CameraLens(&scene.camera);
+        tr.push(time(&mut || rays = Some(RayGrid::new(&lens))));
         let rays = rays.expect("built");
         let mut geo = None;
         tg.push(time(&mut || geo = Some(geometry_with(&rays, scene))));
@@ -122,7 +123,7 @@ pub fn bench_render(scene: &Scene, repeats: usize) -> Result<RenderTimings, SimE
         truth: median(tt),
         edge_pixels: edges,
         outline_pixels: outlines,
-        size: scene.camera.size(),
+        size: CameraLens(&scene.camera).size(),
         threads: rayon::current_num_threads(),
         repeats,
     })

@@ -7,8 +7,9 @@
 use crate::app::guide::{guide, Guidance};
 use crate::board::Board;
 use crate::calib::geometric::{calibrate_registering, GeometricParams};
-use crate::calib::solve::{CalibrateOptions, DeviceInfo};
-use crate::correspond::CameraView;
+use crate::calib::solve::CalibrateOptions;
+use crate::observations::CameraView;
+use crate::observations::DeviceInfo;
 use crossbeam_channel::{unbounded, Sender};
 use std::thread::JoinHandle;
 

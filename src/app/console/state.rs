@@ -153,8 +153,8 @@ impl State {
 mod tests {
     use super::*;
     use crate::app::guide::DeviceUncertainty;
-    use crate::calib::bundle::DeviceKind;
-    use crate::calib::solve::DeviceInfo;
+    use crate::observations::DeviceInfo;
+    use crate::observations::DeviceKind;
 
     /// A state of one device, nothing seen yet.
     fn one_device(name: &str, kind: DeviceKind, size: [u32; 2]) -> State {

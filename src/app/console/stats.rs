@@ -6,9 +6,9 @@
 //! [`DeviceStats`] per device and [`Overlay`] per camera.
 
 use crate::board::{Board, Hex};
-use crate::calib::bundle::DeviceKind;
-use crate::calib::solve::DeviceInfo;
-use crate::correspond::CameraView;
+use crate::observations::CameraView;
+use crate::observations::DeviceInfo;
+use crate::observations::DeviceKind;
 use nalgebra::{Matrix2, Point2};
 use serde::Serialize;
 use std::collections::HashMap;
@@ -135,7 +135,7 @@ impl Overlay {
         };
         let points: Vec<(Hex, Point2<f64>)> =
             view.points.iter().map(|p| (p.hex, p.image)).collect();
-        let anchored = matches!(view.frame, crate::correspond::Frame::Anchored(_));
+        let anchored = matches!(view.frame, crate::observations::Frame::Anchored(_));
         Overlay::labelled(pose, circles, anchored, &points)
     }
 

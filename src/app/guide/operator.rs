@@ -12,7 +12,8 @@
 
 use super::{candidates, sightings, Guidance, MIN_SEEN};
 use crate::board::{Board, Side};
-use crate::calib::bundle::{Device, DeviceKind};
+use crate::calib::bundle::Device;
+use crate::observations::DeviceKind;
 use crate::rig::sim::SimWorld;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand::{rngs::StdRng, SeedableRng};

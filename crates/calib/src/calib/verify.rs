@@ -1,0 +1,240 @@
+//! Gauge-free verification of a calibration (docs/design.md §10): triangulate a board pose the
+//! calibration did not use from device pairs and compare with the board's geometry.
+//!
+//! Takes calibrated devices and labelled views of held-out poses; gives per device pair
+//! (camera–camera and camera–projector) the triangulated circles' length errors (distances
+//! between board points against the nominal ones, VDI/VDE 2634 style) and their flatness.
+//! Camera observations are ellipse centres: each pair first triangulates them, fits the
+//! board pose to the points, predicts every observation's perspective bias (§8) from it,
+//! and triangulates again with the bias removed.
+
+use super::bundle::Device;
+use super::circle::ellipse_center;
+use hexcal_core::board::{Board, Hex, Side};
+use hexcal_core::observations::{CameraView, Frame};
+use nalgebra::{
+    Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
+};
+use std::collections::BTreeMap;
+
+/// Verification figures of one device pair on one held-out pose.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct PairCheck {
+    /// First device (a camera).
+    pub first: String,
+    /// Second device (a camera or a projector).
+    pub second: String,
+    /// Board pose index.
+    pub pose: usize,
+    /// Circles triangulated.
+    pub points: usize,
+    /// RMS of (measured − nominal) over all point-pair distances (mm).
+    pub length_rms: f64,
+    /// Largest |measured − nominal| (mm).
+    pub length_max: f64,
+    /// RMS distance of the points from their best-fit plane (mm).
+    pub flatness_rms: f64,
+}
+
+/// One device's ray through a pixel, in the reference frame: origin and unit direction.
+fn ray(device: &Device, pixel: Point2<f64>) -> Option<(Point3<f64>, Vector3<f64>)> {
+    let d = device.model.ray(pixel)?;
+    let inv = device.pose.inverse();
+    Some((inv * Point3::origin(), (inv.rotation * d).normalize()))
+}
+
+/// Midpoint of the shortest segment between two rays.
+fn midpoint(a: (Point3<f64>, Vector3<f64>), b: (Point3<f64>, Vector3<f64>)) -> Option<Point3<f64>> {
+    let w = a.0 - b.0;
+    let (p, q, r) = (a.1.dot(&b.1), a.1.dot(&w), b.1.dot(&w));
+    let den = 1.0 - p * p;
+    if den < 1e-12 {
+        return None;
+    }
+    let s = (p * r - q) / den;
+    let t = (r - p * q) / den;
+    Some(Point3::from(
+        ((a.0 + a.1 * s).coords + (b.0 + b.1 * t).coords) / 2.0,
+    ))
+}
+
+/// Iterations an SVD or eigen-decomposition may take (they converge in tens; points gone
+/// non-finite never converge, and the pair is left out instead).
+const MAX_ITERATIONS: usize = 10_000;
+
+/// Rigid transform taking `from` onto `to` in the least-squares sense (Kabsch); `None`
+/// when the decomposition does not converge.
+fn fit_rigid(from: &[Point3<f64>], to: &[Point3<f64>]) -> Option<Isometry3<f64>> {
+    let n = from.len() as f64;
+    let cf = from.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
+    let ct = to.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
+    let h = from.iter().zip(to).fold(Matrix3::zeros(), |h, (f, t)| {
+        h + (f.coords - cf) * (t.coords - ct).transpose()
+    });
+    let svd = h.try_svd(true, true, f64::EPSILON, MAX_ITERATIONS)?;
+    let (u, vt) = (svd.u?, svd.v_t?);
+    let mut d = Matrix3::identity();
+    d[(2, 2)] = (vt.transpose() * u.transpose()).determinant().signum();
+    let r = vt.transpose() * d * u.transpose();
+    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    Some(Isometry3::from_parts(
+        Translation3::from(ct - rot * cf),
+        rot,
+    ))
+}
+
+/// RMS distance from the least-squares plane (NaN when the decomposition does not converge).
+fn flatness(points: &[Point3<f64>]) -> f64 {
+    let n = points.len() as f64;
+    let c = points.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
+    let cov = points.iter().fold(Matrix3::zeros(), |m, p| {
+        m + (p.coords - c) * (p.coords - c).transpose()
+    });
+    match cov.try_symmetric_eigen(f64::EPSILON, MAX_ITERATIONS) {
+        Some(eig) => (eig.eigenvalues.min() / n).max(0.0).sqrt(),
+        None => f64::NAN,
+    }
+}
+
+/// Observations of one circle by the two devices of a pair.
+struct Pairing {
+    hex: Hex,
+    first: Point2<f64>,
+    /// The second device's pixel and, for a camera, its ellipse centre to de-bias.
+    second: Point2<f64>,
+}
+
+fn check_pair(
+    board: &Board,
+    devices: &[Device],
+    (i, j): (usize, usize),
+    second_is_camera: bool,
+    side: Side,
+    pose: usize,
+    pairs: &[Pairing],
+) -> Option<PairCheck> {
+    if pairs.len() < 10 {
+        return None;
+    }
+    let nominal: Vec<Point3<f64>> = pairs.iter().map(|p| board.point(side, p.hex)).collect();
+    let triangulate = |bias_i: &dyn Fn(&Pairing) -> Point2<f64>,
+                       bias_j: &dyn Fn(&Pairing) -> Point2<f64>| {
+        pairs
+            .iter()
+            .map(|p| midpoint(ray(&devices[i], bias_i(p))?, ray(&devices[j], bias_j(p))?))
+            .collect::<Option<Vec<_>>>()
+    };
+    let first = triangulate(&|p| p.first, &|p| p.second)?;
+    let (points, nominal) = if second_is_camera {
+        // Fit the pose to the points, remove each camera's ellipse-centre bias predicted
+        // from it (§8), triangulate again.
+        let ref_from_board = fit_rigid(&nominal, &first)?;
+        let debias = |d: usize, p: &Pairing, pixel: Point2<f64>| {
+            let dev = &devices[d];
+            let face = dev.pose * ref_from_board * board.side_transform(side);
+            let c = board.position(p.hex);
+            let centre = dev.model.project(&(face * Point3::new(c.x, c.y, 0.0)));
+            match (centre, ellipse_center(&dev.model, &face, c, board.radius)) {
+                (Some(centre), Some(e)) => pixel - (e - centre),
+                _ => pixel,
+            }
+        };
+        let points = triangulate(&|p| debias(i, p, p.first), &|p| debias(j, p, p.second))?;
+        (points, nominal)
+    } else {
+        // A projector pixel belongs to the board point behind the camera's observed ellipse
+        // centre (§7), so the raw rays meet there: compare with that point's nominal
+        // position, the circle centre moved by its offset on the board (found with the
+        // fitted pose; the ~0.1 mm offset barely depends on the pose's small error).
+        let ref_from_side = fit_rigid(&nominal, &first)? * board.side_transform(side);
+        let normal = ref_from_side.rotation * Vector3::z();
+        let q = ref_from_side.translation.vector;
+        let moved = pairs
+            .iter()
+            .map(|p| {
+                let (o, d) = ray(&devices[i], p.first)?;
+                let x = o + d * (normal.dot(&(q - o.coords)) / normal.dot(&d));
+                let on_side = ref_from_side.inverse() * x;
+                Some(board.side_transform(side) * Point3::new(on_side.x, on_side.y, 0.0))
+            })
+            .collect::<Option<Vec<_>>>()?;
+        (first, moved)
+    };
+    let (mut sq, mut max, mut n) = (0.0, 0.0f64, 0usize);
+    for a in 0..points.len() {
+        for b in a + 1..points.len() {
+            let e = (points[a] - points[b]).norm() - (nominal[a] - nominal[b]).norm();
+            sq += e * e;
+            max = max.max(e.abs());
+            n += 1;
+        }
+    }
+    Some(PairCheck {
+        first: devices[i].name.clone(),
+        second: devices[j].name.clone(),
+        pose,
+        points: points.len(),
+        length_rms: (sq / n as f64).sqrt(),
+        length_max: max,
+        flatness_rms: flatness(&points),
+    })
+}
+
+/// Check every camera–camera pair that sees a common side of a held-out pose, and every
+/// camera–projector pair; `views` index `devices` (anchored views only are used).
+pub fn verify(board: &Board, devices: &[Device], views: &[CameraView]) -> Vec<PairCheck> {
+    // Per (pose, side): camera d → hex → ellipse centre; projector p → (camera, hex) → pixel.
+    type PerSide = BTreeMap<usize, BTreeMap<Hex, Point2<f64>>>;
+    let mut cams: BTreeMap<(usize, Side), PerSide> = BTreeMap::new();
+    let mut out = Vec::new();
+    for v in views {
+        let Frame::Anchored(side) = v.frame else {
+            continue;
+        };
+        let per = cams.entry((v.pose, side)).or_default();
+        for pt in &v.points {
+            per.entry(v.camera).or_default().insert(pt.hex, pt.image);
+        }
+        // Camera–projector pairs of this view.
+        let mut by_proj: BTreeMap<usize, Vec<Pairing>> = BTreeMap::new();
+        for pt in &v.points {
+            for pp in &pt.projectors {
+                by_proj.entry(pp.projector).or_default().push(Pairing {
+                    hex: pt.hex,
+                    first: pt.image,
+                    second: pp.pixel,
+                });
+            }
+        }
+        for (p, pairs) in by_proj {
+            out.extend(check_pair(
+                board,
+                devices,
+                (v.camera, p),
+                false,
+                side,
+                v.pose,
+                &pairs,
+            ));
+        }
+    }
+    for (&(pose, side), per) in &cams {
+        let ids: Vec<usize> = per.keys().copied().collect();
+        for (a, &i) in ids.iter().enumerate() {
+            for &j in &ids[a + 1..] {
+                let pairs: Vec<Pairing> = per[&i]
+                    .iter()
+                    .filter_map(|(h, e)| {
+                        per[&j].get(h).map(|f| Pairing {
+                            hex: *h,
+                            first: *e,
+                            second: *f,
+                        })
+                    })
+                    .collect();
+                out.extend(check_pair(board, devices, (i, j), true, side, pose, &pairs));
+            }
+        }
+    }
+    out
+}

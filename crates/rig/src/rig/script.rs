@@ -1,0 +1,903 @@
+//! Capture scripts and positioners of a rig file (docs/rig-file.md, "Scripts and
+//! positioners").
+//!
+//! Takes the `[[positioner]]` and `[[script]]` tables of a [`RigFile`]; gives them checked —
+//! every refusal a (dotted key, message) pair that the rig-file loader turns into
+//! `file:line: key: message` — and the script unrolled into a flat [`Plan`]: one
+//! [`PlannedStep`] per capture, wait, prompt and move, with `repeat` blocks expanded (their
+//! stepping variables substituted) and `every` blocks turned into timed captures, each with
+//! its planned start and duration.
+
+use super::file::RigFile;
+use hexcal_core::limits;
+use regex::Regex;
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, HashSet};
+
+mod exposure;
+pub use exposure::{Exposure, PoseExposures};
+
+/// Steps an unrolled script may have.
+pub const MAX_SCRIPT_STEPS: usize = 100_000;
+/// Nesting of `repeat` blocks.
+pub const MAX_SCRIPT_DEPTH: usize = 8;
+/// Bytes of a prompt, label, command or pattern.
+const MAX_SCRIPT_TEXT: usize = 4096;
+
+/// Positioner drivers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PositionerDriver {
+    /// A device on a serial line speaking a text protocol.
+    Serial,
+    /// The simulator's turntable and tilt stage on an in-process pty; it moves the
+    /// simulated board.
+    Sim,
+}
+
+/// How command lines to a positioner end.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LineEnding {
+    /// `\n`.
+    #[default]
+    Lf,
+    /// `\r\n`.
+    Crlf,
+    /// `\r`.
+    Cr,
+}
+
+impl LineEnding {
+    /// The bytes that end a line.
+    pub fn text(self) -> &'static str {
+        match self {
+            LineEnding::Lf => "\n",
+            LineEnding::Crlf => "\r\n",
+            LineEnding::Cr => "\r",
+        }
+    }
+}
+
+/// A fault the simulated stage shows, for testing how a run reports it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SimFaultKind {
+    /// Replies nothing.
+    Silent,
+    /// Replies line noise.
+    Garbage,
+    /// Replies `ERR motor stalled`.
+    Error,
+}
+
+/// `sim.fault` of a simulated stage: what goes wrong after how many moves.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimFaultSpec {
+    /// The fault.
+    pub kind: SimFaultKind,
+    /// Moves completed before it starts.
+    #[serde(default)]
+    pub after_moves: u32,
+}
+
+/// The simulated stage: a turntable (axis `angle`, about the rig's vertical) carrying a tilt
+/// axis (`tilt`, about the table's horizontal), the board mounted on it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimStageSpec {
+    /// Where the stage's axes cross, in the rig frame (mm).
+    #[serde(default)]
+    pub centre: [f64; 3],
+    /// Where the board's centre is on the mount, from the axes' crossing (mm, board frame):
+    /// an off-axis board sweeps across the views as the table turns.
+    #[serde(default)]
+    pub offset: [f64; 3],
+    /// How the board is turned in its own plane on the mount (deg).
+    #[serde(default)]
+    pub roll_deg: f64,
+    /// Axis speed (deg/s).
+    #[serde(default = "default_speed")]
+    pub speed_deg_s: f64,
+    /// Largest tilt either way (deg).
+    #[serde(default = "default_tilt_limit")]
+    pub tilt_limit_deg: f64,
+    /// A fault to show (testing).
+    #[serde(default)]
+    pub fault: Option<SimFaultSpec>,
+}
+
+fn default_speed() -> f64 {
+    90.0
+}
+
+fn default_tilt_limit() -> f64 {
+    60.0
+}
+
+/// A positioner: a device that moves the board on command.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PositionerSpec {
+    /// Unique name (steps name it).
+    pub name: String,
+    /// Driver.
+    pub driver: PositionerDriver,
+    /// Serial port (`serial` only).
+    #[serde(default)]
+    pub port: Option<String>,
+    /// Baud rate.
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// Line ending of commands.
+    #[serde(default)]
+    pub line_ending: LineEnding,
+    /// Command template: `{name}` is replaced by the move step's `to.name`.
+    pub command: String,
+    /// Pattern (regular expression) of the reply that says the move is done.
+    #[serde(default = "default_reply")]
+    pub reply: String,
+    /// Pattern of a reply that reports a fault.
+    #[serde(default = "default_fault")]
+    pub fault: String,
+    /// Command sent when a move is interrupted (Ctrl-C), if the device has one.
+    #[serde(default)]
+    pub stop: Option<String>,
+    /// Longest wait for a move's reply (s).
+    #[serde(default = "default_timeout")]
+    pub timeout_s: f64,
+    /// Expected duration of a move, for the planned timeline (s); a `sim` stage's moves are
+    /// planned from its speed.
+    #[serde(default)]
+    pub move_s: f64,
+    /// The simulated stage (`sim` only).
+    #[serde(default)]
+    pub sim: Option<SimStageSpec>,
+}
+
+fn default_baud() -> u32 {
+    115_200
+}
+
+fn default_reply() -> String {
+    "^OK".into()
+}
+
+fn default_fault() -> String {
+    "^(ERR|FAULT)".into()
+}
+
+fn default_timeout() -> f64 {
+    30.0
+}
+
+/// A value a move step gives a command template: a number, or text that may use the
+/// script's variables (`"{angle}"`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum ValueSpec {
+    /// A number.
+    Number(f64),
+    /// Text, variables substituted.
+    Text(String),
+}
+
+/// A `repeat` block's stepping variable: `from + i·step` in round i, or `values[i]` (cycled).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VarSpec {
+    /// Value in round 0.
+    #[serde(default)]
+    pub from: Option<f64>,
+    /// Added every round.
+    #[serde(default)]
+    pub step: Option<f64>,
+    /// The values, round by round (cycled).
+    #[serde(default)]
+    pub values: Option<Vec<f64>>,
+}
+
+/// One `[[script]]` step as written: exactly one of `capture`, `wait`, `prompt`, `move`,
+/// `repeat`, `every`, with the keys that step takes.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StepSpec {
+    /// Capture one pose; the text labels it (variables substituted).
+    #[serde(default)]
+    pub capture: Option<String>,
+    /// Wait this many seconds.
+    #[serde(default)]
+    pub wait: Option<f64>,
+    /// Show this text and wait for the operator (Enter), or `timeout_s`.
+    #[serde(default)]
+    pub prompt: Option<String>,
+    /// Move this positioner.
+    #[serde(default, rename = "move")]
+    pub move_to: Option<String>,
+    /// `move`: the template's values.
+    #[serde(default)]
+    pub to: Option<BTreeMap<String, ValueSpec>>,
+    /// `move`: pattern of the reply that says done (default: the positioner's `reply`).
+    #[serde(default)]
+    pub expect: Option<String>,
+    /// `move`, `prompt`: longest wait (s).
+    #[serde(default)]
+    pub timeout_s: Option<f64>,
+    /// Repeat `steps` this many times.
+    #[serde(default)]
+    pub repeat: Option<u32>,
+    /// `repeat`: stepping variables.
+    #[serde(default)]
+    pub vars: Option<BTreeMap<String, VarSpec>>,
+    /// `repeat`: the block.
+    #[serde(default)]
+    pub steps: Option<Vec<StepSpec>>,
+    /// Capture every this many seconds (hand-held board), `count` times.
+    #[serde(default)]
+    pub every: Option<f64>,
+    /// `every`: captures.
+    #[serde(default)]
+    pub count: Option<u32>,
+    /// `every`: countdown before each capture (s, default 3).
+    #[serde(default)]
+    pub countdown_s: Option<f64>,
+    /// `every`: label of each capture (`{i}` is its number in the block).
+    #[serde(default)]
+    pub label: Option<String>,
+    /// `capture`, `every`: exposure of these captures (µs) instead of the cameras' own.
+    #[serde(default)]
+    pub exposure_us: Option<f64>,
+    /// `capture`, `every`: gain of these captures (dB) instead of the cameras' own.
+    #[serde(default)]
+    pub gain_db: Option<f64>,
+    /// `capture`, `every`: the cameras `exposure_us` and `gain_db` apply to (default all).
+    #[serde(default)]
+    pub cameras: Option<Vec<String>>,
+}
+
+/// What one unrolled step does.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Action {
+    /// Capture pose `pose`.
+    Capture {
+        /// Pose index (captures in script order).
+        pose: usize,
+        /// Label.
+        label: String,
+        /// Its tick when the capture belongs to an `every` block.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        tick: Option<Tick>,
+        /// Its own exposure and gain, when the step sets them.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        exposure: Option<Exposure>,
+    },
+    /// Wait.
+    Wait {
+        /// Seconds.
+        seconds: f64,
+    },
+    /// Wait for the operator.
+    Prompt {
+        /// What to tell the operator.
+        text: String,
+        /// Longest wait (s); none waits for ever.
+        timeout_s: Option<f64>,
+    },
+    /// Move a positioner.
+    Move {
+        /// Positioner name.
+        positioner: String,
+        /// The command line (template filled in).
+        command: String,
+        /// Pattern of the reply that says done.
+        expect: String,
+        /// Longest wait for it (s).
+        timeout_s: f64,
+        /// The template's values.
+        to: BTreeMap<String, String>,
+    },
+}
+
+/// A capture's place in an `every` block: due `index · period_s` after the block began.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Tick {
+    /// Which `every` block (0, 1, … in script order).
+    pub group: usize,
+    /// Capture number in the block.
+    pub index: u32,
+    /// Seconds between captures.
+    pub period_s: f64,
+    /// Countdown before each capture (s).
+    pub countdown_s: f64,
+}
+
+/// One unrolled step with its planned times.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PlannedStep {
+    /// Where it is written, e.g. `script[2].steps[0]`, and its round in repeats.
+    pub step: String,
+    /// What it does.
+    #[serde(flatten)]
+    pub action: Action,
+    /// Planned start after the script began (s).
+    pub planned_start_s: f64,
+    /// Planned duration (s); an operator's prompt without timeout is planned at 0.
+    pub planned_s: f64,
+}
+
+/// A script unrolled.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Plan {
+    /// Steps in order.
+    pub steps: Vec<PlannedStep>,
+    /// Captures (poses) in all.
+    pub captures: usize,
+    /// Planned duration (s).
+    pub duration_s: f64,
+}
+
+/// A refusal: (dotted key, message).
+pub type Refusal = (String, String);
+
+/// Unrolls scripts: variables in scope, planned clock, poses and blocks so far.
+struct Unroller<'a> {
+    rig: &'a RigFile,
+    capture_s: f64,
+    clock: f64,
+    poses: usize,
+    groups: usize,
+    /// Planned axes of each simulated stage (angle, tilt), for its move times.
+    axes: BTreeMap<String, (f64, f64)>,
+    out: Vec<PlannedStep>,
+}
+
+impl RigFile {
+    /// The script unrolled, a capture planned at `capture_s` seconds (its frames and the
+    /// pose pause). `None` when the rig file has no script.
+    pub fn script_plan(&self, capture_s: f64) -> Result<Option<Plan>, Refusal> {
+        if self.script.is_empty() {
+            return Ok(None);
+        }
+        let mut u = Unroller {
+            rig: self,
+            capture_s,
+            clock: 0.0,
+            poses: 0,
+            groups: 0,
+            axes: BTreeMap::new(),
+            out: Vec::new(),
+        };
+        u.block(&self.script, "script", &BTreeMap::new(), "", 0)?;
+        Ok(Some(Plan {
+            captures: u.poses,
+            duration_s: u.clock,
+            steps: u.out,
+        }))
+    }
+
+    /// The positioner named `name`.
+    pub fn positioner(&self, name: &str) -> Option<&PositionerSpec> {
+        self.positioners.iter().find(|p| p.name == name)
+    }
+
+    /// `[[positioner]]` and `[[script]]`: positioners well formed with unique names, the
+    /// script unrolls, and a simulated rig without a simulated stage has a board pose for
+    /// every capture.
+    pub(super) fn check_script(&self, simulated: bool) -> Result<(), Refusal> {
+        let mut names = HashSet::new();
+        for (i, p) in self.positioners.iter().enumerate() {
+            let at = |k: &str| format!("positioner[{i}].{k}");
+            limits::device_name(&p.name).map_err(|m| (at("name"), m))?;
+            if !names.insert(p.name.as_str()) {
+                return Err((at("name"), format!("{:?} names two positioners", p.name)));
+            }
+            check_positioner(p, &at)?;
+        }
+        let Some(plan) = self.script_plan(0.0)? else {
+            return Ok(());
+        };
+        if plan.captures == 0 {
+            return Err((
+                "script".into(),
+                "a script needs at least one capture".into(),
+            ));
+        }
+        limits::count(plan.captures, limits::MAX_POSES, "captures")
+            .map_err(|m| ("script".to_string(), m))?;
+        let staged = self
+            .positioners
+            .iter()
+            .any(|p| p.driver == PositionerDriver::Sim);
+        let poses = self.poses.as_ref().map_or(0, |p| p.count);
+        if simulated && !staged && poses < plan.captures {
+            return Err((
+                "poses.count".into(),
+                format!(
+                    "the script captures {} poses but the simulated rig has {poses} board \
+                     poses and no sim positioner to move the board",
+                    plan.captures
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Whether a simulated stage places the board (then `[poses]` is not needed).
+    pub fn has_sim_stage(&self) -> bool {
+        self.positioners
+            .iter()
+            .any(|p| p.driver == PositionerDriver::Sim)
+    }
+}
+
+/// One positioner: its driver's keys, durations, patterns and template.
+fn check_positioner(p: &PositionerSpec, at: &dyn Fn(&str) -> String) -> Result<(), Refusal> {
+    match (p.driver, &p.port, &p.sim) {
+        (PositionerDriver::Serial, None, _) => {
+            return Err((at("port"), "a serial positioner needs a port".into()))
+        }
+        (PositionerDriver::Serial, _, Some(_)) => {
+            return Err((at("sim"), "only sim positioners have a sim stage".into()))
+        }
+        (PositionerDriver::Sim, Some(_), _) => {
+            return Err((at("port"), "a sim positioner has no port".into()))
+        }
+        _ => {}
+    }
+    if p.baud == 0 {
+        return Err((at("baud"), "0 baud".into()));
+    }
+    if !(p.timeout_s > 0.0 && p.timeout_s <= limits::MAX_DURATION_MS / 1e3) {
+        return Err((at("timeout_s"), duration_message(p.timeout_s)));
+    }
+    limits::non_negative(p.move_s, limits::MAX_DURATION_MS / 1e3)
+        .map_err(|m| (at("move_s"), format!("{m} s")))?;
+    for (key, text) in [
+        ("command", &p.command),
+        ("reply", &p.reply),
+        ("fault", &p.fault),
+    ] {
+        check_text(text).map_err(|m| (at(key), m))?;
+    }
+    for (key, pattern) in [("reply", &p.reply), ("fault", &p.fault)] {
+        Regex::new(pattern).map_err(|e| (at(key), pattern_message(&e)))?;
+    }
+    if p.command.trim().is_empty() {
+        return Err((at("command"), "an empty command".into()));
+    }
+    placeholders(&p.command).map_err(|m| (at("command"), m))?;
+    if let Some(s) = &p.sim {
+        check_stage(s, at)?;
+    }
+    Ok(())
+}
+
+fn check_stage(s: &SimStageSpec, at: &dyn Fn(&str) -> String) -> Result<(), Refusal> {
+    limits::finite(&s.centre).map_err(|m| (at("sim.centre"), m))?;
+    limits::finite(&s.offset).map_err(|m| (at("sim.offset"), m))?;
+    limits::finite(&[s.roll_deg]).map_err(|m| (at("sim.roll_deg"), m))?;
+    if !(s.speed_deg_s > 0.0 && s.speed_deg_s <= 1e4) {
+        return Err((
+            at("sim.speed_deg_s"),
+            format!("{} is not a speed in (0, 10000] deg/s", s.speed_deg_s),
+        ));
+    }
+    if !(s.tilt_limit_deg > 0.0 && s.tilt_limit_deg <= 90.0) {
+        return Err((
+            at("sim.tilt_limit_deg"),
+            format!("{} is not in (0, 90] deg", s.tilt_limit_deg),
+        ));
+    }
+    Ok(())
+}
+
+fn duration_message(v: f64) -> String {
+    format!(
+        "{v} is not a duration in (0, {}] s",
+        limits::MAX_DURATION_MS / 1e3
+    )
+}
+
+fn pattern_message(e: &regex::Error) -> String {
+    let text = e.to_string();
+    let last = text.lines().last().unwrap_or("").trim().to_string();
+    format!("not a regular expression: {last}")
+}
+
+fn check_text(text: &str) -> Result<(), String> {
+    if text.len() > MAX_SCRIPT_TEXT {
+        return Err(format!(
+            "{} bytes of text: at most {MAX_SCRIPT_TEXT}",
+            text.len()
+        ));
+    }
+    Ok(())
+}
+
+/// The `{name}` placeholders of a template, in order; `{{` and `}}` are literal braces.
+pub fn placeholders(template: &str) -> Result<Vec<String>, String> {
+    let mut names = Vec::new();
+    fill(template, &mut |name| {
+        names.push(name.to_string());
+        Some(String::new())
+    })?;
+    Ok(names)
+}
+
+/// `template` with every `{name}` replaced by `value(name)`; `Err` names an unknown
+/// placeholder or an unclosed brace.
+pub fn fill(
+    template: &str,
+    value: &mut dyn FnMut(&str) -> Option<String>,
+) -> Result<String, String> {
+    let mut out = String::new();
+    let mut rest = template;
+    while let Some(i) = rest.find(['{', '}']) {
+        out.push_str(&rest[..i]);
+        let (c, after) = (rest.as_bytes()[i], &rest[i + 1..]);
+        if after.as_bytes().first() == Some(&c) {
+            out.push(c as char);
+            rest = &after[1..];
+            continue;
+        }
+        if c == b'}' {
+            return Err(format!("a lone }} in {template:?}"));
+        }
+        let end = after
+            .find('}')
+            .ok_or_else(|| format!("an unclosed {{ in {template:?}"))?;
+        let name = after[..end].trim();
+        out.push_str(&value(name).ok_or_else(|| format!("{{{name}}} is not defined"))?);
+        rest = &after[end + 1..];
+    }
+    out.push_str(rest);
+    Ok(out)
+}
+
+/// A number as a command or label shows it: integers without decimals, others with up to
+/// six.
+pub fn format_number(v: f64) -> String {
+    if v == v.trunc() && v.abs() < 1e15 {
+        return format!("{v:.0}");
+    }
+    let s = format!("{v:.6}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
+type Vars = BTreeMap<String, f64>;
+
+impl Unroller<'_> {
+    /// The steps of one block at `path` (e.g. `script` or `script[2].steps`) under `vars`;
+    /// `round` names the repeat rounds around it.
+    fn block(
+        &mut self,
+        steps: &[StepSpec],
+        path: &str,
+        vars: &Vars,
+        round: &str,
+        depth: usize,
+    ) -> Result<(), Refusal> {
+        if depth > MAX_SCRIPT_DEPTH {
+            return Err((
+                path.into(),
+                format!("repeats nested deeper than {MAX_SCRIPT_DEPTH}"),
+            ));
+        }
+        for (i, s) in steps.iter().enumerate() {
+            let at = format!("{path}[{i}]");
+            self.step(s, &at, vars, round, depth)?;
+            if self.out.len() > MAX_SCRIPT_STEPS {
+                return Err((
+                    at,
+                    format!("the script unrolls to more than {MAX_SCRIPT_STEPS} steps"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn step(
+        &mut self,
+        s: &StepSpec,
+        at: &str,
+        vars: &Vars,
+        round: &str,
+        depth: usize,
+    ) -> Result<(), Refusal> {
+        let key = |k: &str| format!("{at}.{k}");
+        let kind = step_kind(s).map_err(|m| (at.to_string(), m))?;
+        check_keys(s, kind).map_err(|(k, m)| (key(k), m))?;
+        let name = format!("{at}{round}");
+        let text = |k: &str, t: &str| -> Result<String, Refusal> {
+            check_text(t).map_err(|m| (key(k), m))?;
+            fill(t, &mut |n| vars.get(n).map(|&v| format_number(v))).map_err(|m| (key(k), m))
+        };
+        match kind {
+            "capture" => {
+                let label = text("capture", s.capture.as_deref().unwrap_or(""))?;
+                let exposure = self.exposure(s, at)?;
+                self.capture(name, label, None, exposure);
+            }
+            "wait" => {
+                let seconds = s.wait.unwrap_or(0.0);
+                limits::non_negative(seconds, limits::MAX_DURATION_MS / 1e3)
+                    .map_err(|m| (key("wait"), format!("{m} s")))?;
+                self.push(name, Action::Wait { seconds }, seconds);
+            }
+            "prompt" => {
+                let text = text("prompt", s.prompt.as_deref().unwrap_or(""))?;
+                let timeout_s = s.timeout_s;
+                if let Some(t) = timeout_s.filter(|&t| !(t > 0.0 && t <= 3.6e3)) {
+                    return Err((key("timeout_s"), duration_message(t)));
+                }
+                let planned = timeout_s.unwrap_or(0.0);
+                self.push(name, Action::Prompt { text, timeout_s }, planned);
+            }
+            "move" => self.move_step(s, at, &name, vars)?,
+            "repeat" => self.repeat(s, at, vars, round, depth)?,
+            _ => self.every(s, at, &name, vars)?,
+        }
+        Ok(())
+    }
+
+    fn push(&mut self, step: String, action: Action, planned_s: f64) {
+        self.out.push(PlannedStep {
+            step,
+            action,
+            planned_start_s: self.clock,
+            planned_s,
+        });
+        self.clock += planned_s;
+    }
+
+    fn capture(
+        &mut self,
+        step: String,
+        label: String,
+        tick: Option<Tick>,
+        exposure: Option<Exposure>,
+    ) {
+        let pose = self.poses;
+        self.poses += 1;
+        let planned = match tick {
+            Some(t) => t.period_s.max(self.capture_s),
+            None => self.capture_s,
+        };
+        let action = Action::Capture {
+            pose,
+            label,
+            tick,
+            exposure,
+        };
+        self.push(step, action, planned);
+    }
+
+    fn move_step(
+        &mut self,
+        s: &StepSpec,
+        at: &str,
+        name: &str,
+        vars: &Vars,
+    ) -> Result<(), Refusal> {
+        let key = |k: &str| format!("{at}.{k}");
+        let positioner = s.move_to.clone().unwrap_or_default();
+        let p = self.rig.positioner(&positioner).ok_or_else(|| {
+            (
+                key("move"),
+                format!("no positioner is named {positioner:?}"),
+            )
+        })?;
+        let given = s.to.clone().unwrap_or_default();
+        let mut to = BTreeMap::new();
+        for (k, v) in &given {
+            let value = match v {
+                ValueSpec::Number(x) if x.is_finite() => format_number(*x),
+                ValueSpec::Number(x) => return Err((key(&format!("to.{k}")), format!("{x}"))),
+                ValueSpec::Text(t) => {
+                    check_text(t).map_err(|m| (key(&format!("to.{k}")), m))?;
+                    fill(t, &mut |n| vars.get(n).map(|&v| format_number(v)))
+                        .map_err(|m| (key(&format!("to.{k}")), m))?
+                }
+            };
+            to.insert(k.clone(), value);
+        }
+        let needed = placeholders(&p.command).map_err(|m| (key("move"), m))?;
+        if let Some(extra) = to.keys().find(|k| !needed.contains(k)) {
+            return Err((
+                key(&format!("to.{extra}")),
+                format!("{positioner}'s command {:?} has no {{{extra}}}", p.command),
+            ));
+        }
+        let command = fill(&p.command, &mut |n| to.get(n).cloned())
+            .map_err(|m| (key("to"), format!("{positioner}'s command needs it: {m}")))?;
+        let expect = s.expect.clone().unwrap_or_else(|| p.reply.clone());
+        check_text(&expect).map_err(|m| (key("expect"), m))?;
+        Regex::new(&expect).map_err(|e| (key("expect"), pattern_message(&e)))?;
+        let timeout_s = s.timeout_s.unwrap_or(p.timeout_s);
+        if !(timeout_s > 0.0 && timeout_s <= limits::MAX_DURATION_MS / 1e3) {
+            return Err((key("timeout_s"), duration_message(timeout_s)));
+        }
+        let planned = self.move_time(p, &to);
+        let action = Action::Move {
+            positioner,
+            command,
+            expect,
+            timeout_s,
+            to,
+        };
+        self.push(name.to_string(), action, planned);
+        Ok(())
+    }
+
+    /// A move's planned duration: a simulated stage's travel at its speed (its `angle` and
+    /// `tilt` values), else the positioner's `move_s`.
+    fn move_time(&mut self, p: &PositionerSpec, to: &BTreeMap<String, String>) -> f64 {
+        let Some(stage) = &p.sim else {
+            return p.move_s;
+        };
+        let here = self.axes.get(&p.name).copied().unwrap_or((0.0, 0.0));
+        let get = |k: &str, d: f64| to.get(k).and_then(|v| v.parse().ok()).unwrap_or(d);
+        let there = (get("angle", here.0), get("tilt", here.1));
+        self.axes.insert(p.name.clone(), there);
+        (there.0 - here.0).abs().max((there.1 - here.1).abs()) / stage.speed_deg_s
+    }
+
+    fn repeat(
+        &mut self,
+        s: &StepSpec,
+        at: &str,
+        vars: &Vars,
+        round: &str,
+        depth: usize,
+    ) -> Result<(), Refusal> {
+        let key = |k: &str| format!("{at}.{k}");
+        let n = s.repeat.unwrap_or(0);
+        if n == 0 {
+            return Err((key("repeat"), "repeat at least once".into()));
+        }
+        let steps = s.steps.as_deref().unwrap_or(&[]);
+        if steps.is_empty() {
+            return Err((key("steps"), "a repeat needs steps".into()));
+        }
+        let defined = s.vars.clone().unwrap_or_default();
+        for (name, v) in &defined {
+            check_var(name, v).map_err(|m| (key(&format!("vars.{name}")), m))?;
+        }
+        for i in 0..n {
+            let mut inner = vars.clone();
+            for (name, v) in &defined {
+                inner.insert(name.clone(), var_value(v, i));
+            }
+            let round = format!("{round} (round {} of {n})", i + 1);
+            self.block(steps, &key("steps"), &inner, &round, depth + 1)?;
+            if self.out.len() > MAX_SCRIPT_STEPS {
+                return Err((
+                    key("repeat"),
+                    format!("the script unrolls to more than {MAX_SCRIPT_STEPS} steps"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn every(&mut self, s: &StepSpec, at: &str, name: &str, vars: &Vars) -> Result<(), Refusal> {
+        let key = |k: &str| format!("{at}.{k}");
+        let period_s = s.every.unwrap_or(0.0);
+        if !(period_s > 0.0 && period_s <= limits::MAX_DURATION_MS / 1e3) {
+            return Err((key("every"), duration_message(period_s)));
+        }
+        let count = s
+            .count
+            .ok_or_else(|| (key("count"), "every needs a count".into()))?;
+        if count == 0 || count as usize > limits::MAX_POSES {
+            return Err((
+                key("count"),
+                format!("{count} captures: 1 to {}", limits::MAX_POSES),
+            ));
+        }
+        let countdown_s = s.countdown_s.unwrap_or(3.0_f64.min(period_s));
+        limits::non_negative(countdown_s, period_s).map_err(|m| (key("countdown_s"), m))?;
+        let label = s.label.clone().unwrap_or_else(|| "hand-held {i}".into());
+        check_text(&label).map_err(|m| (key("label"), m))?;
+        let exposure = self.exposure(s, at)?;
+        let group = self.groups;
+        self.groups += 1;
+        for index in 0..count {
+            let label = fill(&label, &mut |n| match n {
+                "i" => Some(index.to_string()),
+                _ => vars.get(n).map(|&v| format_number(v)),
+            })
+            .map_err(|m| (key("label"), m))?;
+            let tick = Tick {
+                group,
+                index,
+                period_s,
+                countdown_s,
+            };
+            let step = format!("{name} #{index}");
+            self.capture(step, label, Some(tick), exposure.clone());
+        }
+        Ok(())
+    }
+}
+
+/// Which kind of step `s` is: exactly one kind key.
+fn step_kind(s: &StepSpec) -> Result<&'static str, String> {
+    let kinds: Vec<&'static str> = [
+        ("capture", s.capture.is_some()),
+        ("wait", s.wait.is_some()),
+        ("prompt", s.prompt.is_some()),
+        ("move", s.move_to.is_some()),
+        ("repeat", s.repeat.is_some()),
+        ("every", s.every.is_some()),
+    ]
+    .into_iter()
+    .filter_map(|(k, set)| set.then_some(k))
+    .collect();
+    match kinds.as_slice() {
+        [one] => Ok(one),
+        [] => Err("a step needs one of capture, wait, prompt, move, repeat, every".into()),
+        many => Err(format!("one step, one kind: {} given", many.join(", "))),
+    }
+}
+
+/// Keys that belong to another kind of step: (key, message) of the first.
+fn check_keys(s: &StepSpec, kind: &str) -> Result<(), (&'static str, String)> {
+    let owners: [(&'static str, bool, &[&str]); 11] = [
+        ("to", s.to.is_some(), &["move"]),
+        ("expect", s.expect.is_some(), &["move"]),
+        ("timeout_s", s.timeout_s.is_some(), &["move", "prompt"]),
+        ("vars", s.vars.is_some(), &["repeat"]),
+        ("steps", s.steps.is_some(), &["repeat"]),
+        ("count", s.count.is_some(), &["every"]),
+        ("countdown_s", s.countdown_s.is_some(), &["every"]),
+        ("label", s.label.is_some(), &["every"]),
+        (
+            "exposure_us",
+            s.exposure_us.is_some(),
+            &["capture", "every"],
+        ),
+        ("gain_db", s.gain_db.is_some(), &["capture", "every"]),
+        ("cameras", s.cameras.is_some(), &["capture", "every"]),
+    ];
+    for (key, set, kinds) in owners {
+        if set && !kinds.contains(&kind) {
+            return Err((
+                key,
+                format!(
+                    "a {kind} step takes no {key} (it is for {})",
+                    kinds.join(", ")
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn check_var(name: &str, v: &VarSpec) -> Result<(), String> {
+    let valid = name
+        .chars()
+        .next()
+        .is_some_and(|c| c.is_alphabetic() || c == '_')
+        && name.chars().all(|c| c.is_alphanumeric() || c == '_');
+    if !valid || name == "i" {
+        return Err(format!("{name:?} cannot name a variable"));
+    }
+    match (&v.values, v.from, v.step) {
+        (Some(values), None, None) if !values.is_empty() => limits::finite(values),
+        (None, Some(from), step) => limits::finite(&[from, step.unwrap_or(0.0)]),
+        _ => Err("give from (and step), or values".into()),
+    }
+}
+
+fn var_value(v: &VarSpec, round: u32) -> f64 {
+    match &v.values {
+        Some(values) => values[round as usize % values.len()],
+        None => v.from.unwrap_or(0.0) + f64::from(round) * v.step.unwrap_or(0.0),
+    }
+}
+
+#[cfg(test)]
+mod tests;
