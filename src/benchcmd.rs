@@ -170,63 +170,6 @@ pub enum Bench {
     },
 }
 
-/// `hexcal bench calib`: one adjustment of a synthetic rig, its time, peak memory and
-/// accuracy.
-fn bench_calib(
-    cameras: usize,
-    projectors: usize,
-    poses: usize,
-    sigma: f64,
-    seed: u64,
-    real_start: bool,
-) -> anyhow::Result<()> {
-    use hexcal::calib::synthetic::{run_case, Case, Start};
-    let case = Case {
-        cameras,
-        projectors,
-        poses,
-        sigma,
-        seed,
-        start: if real_start {
-            Start::Real
-        } else {
-            Start::Perturbed
-        },
-    };
-    let b = run_case(&case)?;
-    println!(
-        "bundle adjustment: {} devices ({} excluded), {poses} poses, {} observations, n = {}, p = {}, {} threads, {:?} start",
-        b.devices,
-        b.excluded,
-        b.observations,
-        b.dof.0,
-        b.dof.1,
-        rayon::current_num_threads(),
-        case.start,
-    );
-    println!(
-        "{:.3} s wall, {} CPU, peak memory {}, {} LM iterations (+ {} coarse){}; posterior σ {:.4} px \
-         (simulated {sigma}), worst focal error {:.4} %, worst parameter {:.2} σ ({}; bound \
-         {:.2}): {}",
-        b.seconds,
-        cpu_seconds().map_or("unknown".into(), |s| format!("{s:.2} s")),
-        peak_memory().map_or("unknown".into(), |kb| format!(
-            "{:.1} MiB",
-            kb as f64 / 1024.0
-        )),
-        b.iterations,
-        b.coarse_iterations,
-        if b.converged { "" } else { " (not converged)" },
-        b.posterior_sigma,
-        100.0 * b.worst_focal_error,
-        b.worst_z.0,
-        b.worst_z.1,
-        b.z_bound,
-        if b.passes(sigma) { "pass" } else { "FAIL" },
-    );
-    Ok(())
-}
-
 /// The rig sizes of `hexcal bench calib --table` (cameras, projectors, poses).
 const TABLE_SIZES: [(usize, usize, usize); 5] = [
     (6, 3, 10),
@@ -272,28 +215,10 @@ fn bench_calib_table(sigma: f64, seed: u64, real_start: bool) -> anyhow::Result<
     Ok(())
 }
 
-/// CPU time of the process so far (user + system, s, from /proc/self/stat at 100 ticks per
-/// second): on a shared machine a steadier figure than the wall time.
-fn cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (in parentheses): utime and stime are the 12th and 13th.
-    let rest = stat.rsplit_once(')')?.1;
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
-    Some(ticks / 100.0)
-}
-
-/// The process's peak resident memory (kB, `VmHWM` of /proc/self/status), where known.
-fn peak_memory() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    line.split_whitespace().nth(1)?.parse().ok()
-}
-
 /// Run one benchmark and print its figures.
 pub fn run(what: Bench) -> anyhow::Result<()> {
     match what {
-        Bench::Capture { rig } => bench_capture(&rig)?,
+        Bench::Capture { rig } => print!("{}", hexcal::bench::capture::bench_capture(&rig)?),
         Bench::Script { rig } => bench_script(&rig)?,
         Bench::Preview { rig, pose, rounds } => bench_preview(&rig, pose, rounds)?,
         Bench::Guide {
@@ -307,8 +232,14 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
             height,
             bits,
             frames,
-        } => bench_aravis(width, height, bits, frames)?,
-        Bench::Window { monitor, slides } => bench_window(monitor.as_deref(), slides)?,
+        } => println!(
+            "{}",
+            hexcal::bench::capture::bench_aravis(width, height, bits, frames)?
+        ),
+        Bench::Window { monitor, slides } => println!(
+            "{}",
+            hexcal::bench::capture::bench_window(monitor.as_deref(), slides)?
+        ),
         Bench::Calib {
             sigma,
             seed,
@@ -324,12 +255,17 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
             seed,
             real_start,
             table: false,
-        } => bench_calib(cameras, projectors, poses, sigma, seed, real_start)?,
+        } => print!(
+            "{}",
+            hexcal::bench::calib::bench_calib(cameras, projectors, poses, sigma, seed, real_start)?
+        ),
         Bench::Render { scene, repeat } => {
-            let scene = crate::load_scene(scene.as_ref())?;
+            let scene = hexcal::app::jobs::scene(scene.as_deref())?;
             println!("{}", hexcal::bench::render::bench_render(&scene, repeat)?);
         }
-        Bench::Detect { images, runs } => bench_detect(&images, runs)?,
+        Bench::Detect { images, runs } => {
+            print!("{}", hexcal::bench::detect::bench_detect(&images, runs)?)
+        }
         Bench::Formats { seeds, rig, poses } => match rig {
             Some(rig) => print!(
                 "{}",
@@ -405,69 +341,6 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
                 );
             }
         }
-    }
-    Ok(())
-}
-
-/// `hexcal bench detect`: per image, the median and fastest time of `detect` and the
-/// throughput.
-fn bench_detect(images: &[PathBuf], runs: usize) -> anyhow::Result<()> {
-    use {
-        hexcal::detect::{detect, synth, DetectParams},
-        hexcal::images::GrayImage,
-    };
-    let inputs: Vec<(String, GrayImage)> = if images.is_empty() {
-        vec![
-            (
-                "synthetic board, r=10 px, tilt 40°".into(),
-                synth::lattice_image(1920, 1200, 10.0, 40.0, 1),
-            ),
-            (
-                "synthetic board, r=4 px, frontal".into(),
-                synth::lattice_image(1920, 1200, 4.0, 0.0, 2),
-            ),
-            (
-                "synthetic board, r=24 px, tilt 40°".into(),
-                synth::lattice_image(4096, 3000, 24.0, 40.0, 3),
-            ),
-            (
-                "synthetic board, r=10 px, frontal".into(),
-                synth::lattice_image(4096, 3000, 10.0, 0.0, 4),
-            ),
-        ]
-    } else {
-        images
-            .iter()
-            .map(|p| Ok((p.display().to_string(), hexcal::images::load_gray(p)?)))
-            .collect::<anyhow::Result<_>>()?
-    };
-    let params = DetectParams::default();
-    println!("threads: {}", rayon::current_num_threads());
-    println!(
-        "{:>11} {:>6} {:>8} {:>10} {:>10} {:>8}  image",
-        "size", "MP", "circles", "median ms", "min ms", "MP/s"
-    );
-    for (name, img) in &inputs {
-        let n = detect(img, &params).len();
-        let mut ms: Vec<f64> = (0..runs.max(1))
-            .map(|_| {
-                let t = std::time::Instant::now();
-                std::hint::black_box(detect(img, &params));
-                t.elapsed().as_secs_f64() * 1e3
-            })
-            .collect();
-        ms.sort_by(f64::total_cmp);
-        let mp = img.width() as f64 * img.height() as f64 / 1e6;
-        let med = ms[ms.len() / 2];
-        println!(
-            "{:>11} {:>6.2} {:>8} {:>10.1} {:>10.1} {:>8.1}  {name}",
-            format!("{}x{}", img.width(), img.height()),
-            mp,
-            n,
-            med,
-            ms[0],
-            mp / (med / 1e3)
-        );
     }
     Ok(())
 }
@@ -583,75 +456,4 @@ fn bench_script(rig_path: &Path) -> anyhow::Result<()> {
         );
     }
     Ok(())
-}
-
-pub fn bench_capture(rig_path: &Path) -> anyhow::Result<()> {
-    use hexcal::capture::Session;
-    let rig = hexcal::rig::file::RigFile::load(rig_path)?;
-    let opened = hexcal::rig::open(&rig)?;
-    let world = opened
-        .world
-        .clone()
-        .context("bench capture needs a simulated rig")?;
-    let cameras = opened.devices.cameras.len();
-    let mut session = Session::start(opened.devices, &opened.sequence)?;
-    println!(
-        "rig {}: {cameras} cameras, {} projectors, {} frames per pose, {} threads",
-        rig.name,
-        opened.sequence.projectors().len(),
-        opened.sequence.frame_count(),
-        rayon::current_num_threads()
-    );
-    world.place(0);
-    let timeline = session.capture_pose(0, &mut |f| {
-        std::hint::black_box(f);
-        Ok(())
-    })?;
-    session.finish()?;
-    println!("pose 0: {}", timeline.summary(cameras));
-    let frames: Vec<String> = timeline
-        .frames
-        .iter()
-        .take(3)
-        .map(|t| {
-            format!(
-                "frame {}: shown {:.1} ms, triggered {:.1} ms, collected {:.1} ms",
-                t.index,
-                1e3 * t.shown.as_secs_f64(),
-                1e3 * t.triggered.as_secs_f64(),
-                1e3 * t.collected.as_secs_f64()
-            )
-        })
-        .collect();
-    println!("timeline (first frames): {}", frames.join("; "));
-    Ok(())
-}
-
-/// `hexcal bench aravis`: the loopback GigE Vision camera's frame rate.
-pub fn bench_aravis(width: u32, height: u32, bits: u8, frames: usize) -> anyhow::Result<()> {
-    #[cfg(feature = "loopback")]
-    {
-        let b = hexcal::rig::aravis::loopback::bench_loopback(width, height, bits, frames)?;
-        println!("{b}");
-        Ok(())
-    }
-    #[cfg(not(feature = "loopback"))]
-    {
-        let _ = (width, height, bits, frames);
-        anyhow::bail!("built without the loopback feature: cargo run --release --features bench,loopback -- bench aravis")
-    }
-}
-
-/// `hexcal bench window`: time from `show` to the slide drawn, on a monitor of `$DISPLAY`.
-pub fn bench_window(monitor: Option<&str>, slides: usize) -> anyhow::Result<()> {
-    #[cfg(feature = "window")]
-    {
-        println!("{}", hexcal::rig::window::bench_show(monitor, slides)?);
-        Ok(())
-    }
-    #[cfg(not(feature = "window"))]
-    {
-        let _ = (monitor, slides);
-        anyhow::bail!("built without the window feature: cargo run --release --features window -- bench window")
-    }
 }

@@ -4,13 +4,14 @@
 //! has nothing to calibrate), 2 when a calibration finished but left a device uncalibrated,
 //! 1 when the command failed: refused input or any other error, told in one line.
 
-use anyhow::Context;
 use clap::{Parser, Subcommand};
+use hexcal::app::calibrate::CalibrateOptions;
+use hexcal::app::jobs::Side;
+use hexcal::app::progress::Event;
 use hexcal::app::AppError;
-use hexcal::board::{Board, Side};
-use hexcal::calib::solve::CalibrateOptions;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::Arc;
 
 // Printing never panics: std's print macros panic when stdout or stderr is a closed pipe
 // (`hexcal … | head`), so these replacements, in scope for this file and the modules
@@ -50,7 +51,6 @@ macro_rules! eprint {
 
 #[cfg(feature = "bench")]
 mod benchcmd;
-mod cli;
 
 /// Exit status of a command that failed (refused input or any other error).
 const EXIT_FAILED: u8 = 1;
@@ -239,156 +239,6 @@ enum Command {
     },
 }
 
-fn load_scene(path: Option<&PathBuf>) -> anyhow::Result<hexcal::sim::Scene> {
-    Ok(match path {
-        Some(p) => hexcal::sim::Scene::load(p)?,
-        None => hexcal::sim::Scene::default_scene(),
-    })
-}
-
-/// `hexcal calibrate`: calibrate a dataset folder or a correspondences file, print the
-/// residual table.
-fn calibrate(
-    input: &Path,
-    out: &Path,
-    reference: Option<&str>,
-    options: CalibrateOptions,
-    held_out: usize,
-    stereo: &[String],
-) -> anyhow::Result<Finished> {
-    use hexcal::app::calibrate::{calibrate_dataset, calibrate_file, device_index};
-    if input.is_dir() {
-        let mut options = options;
-        if let Some(name) = reference {
-            let data = hexcal::dataset::Dataset::open(input)?;
-            let (cameras, projectors) = (&data.info.cameras, &data.info.projectors);
-            let names = cameras.iter().map(|c| c.name.as_str());
-            let names = names.chain(projectors.iter().map(|p| p.name.as_str()));
-            options.bundle.reference = device_index(input, names, name)?;
-        }
-        let mut printer = cli::printer(cli::Progress::Human);
-        let outcome = calibrate_dataset(input, out, held_out, &options, stereo, &mut printer)?;
-        cli::summarise(&outcome, cli::Progress::Human);
-        return Ok(finished(&outcome.calibration));
-    }
-    let done = calibrate_file(input, out, reference, options, stereo)?;
-    let cal = &done.calibration;
-    print!(
-        "{}",
-        hexcal::report::format_table(&hexcal::calib::diagnostics::residual_table(cal))
-    );
-    print!("{}", hexcal::report::format_lens_models(cal));
-    println!(
-        "σ {:.4} px; {} of {} unanchored views registered",
-        cal.solution.sigma,
-        cal.registration.registered.len(),
-        cal.registration.unanchored
-    );
-    for u in &cal.registration.unregistered {
-        let camera = &done.input.devices[u.camera].name;
-        println!("unregistered: {camera} pose {}: {}", u.pose, u.reason);
-    }
-    for e in &cal.excluded {
-        println!("not calibrated: {}: {}", e.name, e.reason);
-    }
-    for (name, px) in done.radtan.iter().filter(|(_, px)| *px > 0.0) {
-        println!("camchain.yaml: {name} refitted to radtan, largest deviation {px:.4} px");
-    }
-    println!("wrote {} files to {}", done.files.len(), out.display());
-    cli::report_line(cal, &[], &done.files, 0);
-    Ok(finished(cal))
-}
-
-/// Whether `cal` calibrated every device.
-fn finished(cal: &hexcal::calib::solve::Calibration) -> Finished {
-    match cal.excluded.is_empty() {
-        true => Finished::Done,
-        false => Finished::Uncalibrated(cal.excluded.iter().map(|e| e.name.clone()).collect()),
-    }
-}
-
-/// `hexcal run`: refuses `--poses` beyond the limit and a `--held-out` that leaves too few
-/// poses to calibrate before anything is captured; after the run, the devices its
-/// calibration (`OUT/calibration/calibration.json`) lacks.
-fn run(
-    rig: &Path,
-    out: &Path,
-    options: &hexcal::app::run::RunOptions,
-    how: cli::How,
-    progress: cli::Progress,
-) -> anyhow::Result<Finished> {
-    let file = hexcal::rig::file::RigFile::load(rig)?;
-    if !file.script.is_empty() && options.poses.is_some() {
-        anyhow::bail!(
-            "{}: its script decides the poses: drop --poses",
-            rig.display()
-        );
-    }
-    let script = hexcal::app::script::plan_of(&file)?.map(|p| p.captures);
-    if let Some(poses) = script
-        .or(options.poses)
-        .or(file.poses.as_ref().map(|p| p.count))
-    {
-        check_poses(poses)?;
-        hexcal::app::calibrate::check_held_out(poses, options.held_out)?;
-    }
-    cli::run(rig, out, options, how, progress)?;
-    let missing = hexcal::app::calibrate::uncalibrated(out)?;
-    Ok(match missing.is_empty() {
-        true => Finished::Done,
-        false => Finished::Uncalibrated(missing),
-    })
-}
-
-/// Refuses a `--poses` beyond [`hexcal::limits::MAX_POSES`].
-fn check_poses(poses: usize) -> anyhow::Result<()> {
-    hexcal::limits::count(poses, hexcal::limits::MAX_POSES, "poses")
-        .map_err(|m| anyhow::anyhow!("--poses {m}"))
-}
-
-/// `hexcal detect`: every image in turn, the JSON written even when some fail; the failures
-/// are reported and make the command fail.
-fn detect_command(
-    board: &str,
-    json: &Path,
-    overlay: Option<&Path>,
-    images: &[PathBuf],
-) -> anyhow::Result<()> {
-    use hexcal::app::detect::{process_all, to_json, Settings};
-    let board = Board::resolve(board)?;
-    if let Some(dir) = overlay {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("cannot create overlay directory {}", dir.display()))?;
-    }
-    let results = process_all(images, &board, &Settings::default(), overlay);
-    hexcal::atomic::write(json, to_json(images, &results).as_bytes())
-        .with_context(|| format!("cannot write {}", json.display()))?;
-    let mut failed = 0;
-    for r in &results {
-        match r {
-            Ok(rec) => println!(
-                "{}: {} circles, {} labelled{}",
-                rec.image,
-                rec.circles.len(),
-                rec.points.len(),
-                if rec.points.iter().any(|p| p.anchored) {
-                    ", anchored"
-                } else {
-                    ""
-                }
-            ),
-            Err(e) => {
-                eprintln!("error: {e}");
-                failed += 1;
-            }
-        }
-    }
-    if failed > 0 {
-        anyhow::bail!("{failed} of {} images failed", images.len());
-    }
-    Ok(())
-}
-
 /// Keep freed image-sized blocks in the heap instead of returning them to the kernel: a
 /// capture allocates and frees frames of megabytes hundreds of times a second, and glibc's
 /// default (mmap and munmap for every block above 128 KiB, a dynamic threshold that adapts
@@ -454,22 +304,158 @@ fn main() -> ExitCode {
     }
 }
 
+/// `hexcal detect`: the JSON written even when some images fail; the failures are reported
+/// and make the command fail.
+fn detect(
+    board: &str,
+    json: &Path,
+    overlay: Option<&Path>,
+    images: &[PathBuf],
+) -> anyhow::Result<()> {
+    let results = hexcal::app::detect::detect_files(board, json, overlay, images)?;
+    let mut failed = 0;
+    for r in &results {
+        match r {
+            Ok(rec) => println!(
+                "{}: {} circles, {} labelled{}",
+                rec.image,
+                rec.circles.len(),
+                rec.points.len(),
+                if rec.points.iter().any(|p| p.anchored) {
+                    ", anchored"
+                } else {
+                    ""
+                }
+            ),
+            Err(e) => {
+                eprintln!("error: {e}");
+                failed += 1;
+            }
+        }
+    }
+    if failed > 0 {
+        anyhow::bail!("{failed} of {} images failed", images.len());
+    }
+    Ok(())
+}
+
+/// How `run` and `calibrate DATASET` report progress.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Progress {
+    /// Lines for people (frame counters redrawn in place on a terminal).
+    Human,
+    /// Nothing but errors and the final summary.
+    Quiet,
+    /// One JSON object per event on stdout.
+    Json,
+}
+
+/// The event printer of a progress mode.
+fn printer(mode: Progress) -> impl FnMut(&Event) {
+    use std::io::{IsTerminal, Write};
+    let tty = std::io::stderr().is_terminal();
+    move |e: &Event| match mode {
+        Progress::Json => {
+            println!("{}", serde_json::to_string(e).expect("events serialise"));
+        }
+        Progress::Quiet => {}
+        Progress::Human => match e {
+            Event::Frames { .. } if !tty => {}
+            Event::Frames { pose, done, of } => {
+                let filled = 30 * done / (*of).max(1);
+                eprint!(
+                    "\rpose {pose} [{}{}] {done}/{of} frames   ",
+                    "#".repeat(filled),
+                    " ".repeat(30 - filled)
+                );
+                let _ = std::io::stderr().flush();
+            }
+            _ if tty => eprintln!("\r{e}   "),
+            _ => eprintln!("{e}"),
+        },
+    }
+}
+
+/// Lines for the operator, on stderr.
+fn tell() -> hexcal::app::session::Tell {
+    Arc::new(|line: &str| eprintln!("{line}"))
+}
+
+/// Peak resident memory of this process (VmHWM of /proc/self/status), where Linux tells it.
+fn peak_memory_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}
+
+/// `hexcal run`: the session, its summary and timing printed.
+fn run(
+    rig: &Path,
+    out: &Path,
+    options: &hexcal::app::run::RunOptions,
+    how: hexcal::app::session::How,
+    progress: Progress,
+) -> anyhow::Result<Finished> {
+    let t = std::time::Instant::now();
+    let mut print = printer(progress);
+    let mut say = |line: &str| match progress {
+        Progress::Json => println!("{}", serde_json::json!({"event": "script", "say": line})),
+        _ => eprintln!("{line}"),
+    };
+    let voice = hexcal::app::session::Voice {
+        events: &mut print,
+        say: &mut say,
+        tell: tell(),
+    };
+    let ended = hexcal::app::session::run(rig, out, options, how, voice)?;
+    if progress != Progress::Json {
+        print!("{}", ended.summary);
+        if let Some(j) = &ended.jitter {
+            println!("{j}");
+        }
+        match peak_memory_mib() {
+            Some(mib) => println!(
+                "run took {:.1} s, peak memory {mib:.0} MiB",
+                t.elapsed().as_secs_f64()
+            ),
+            None => println!("run took {:.1} s", t.elapsed().as_secs_f64()),
+        }
+    }
+    Ok(finished(ended.uncalibrated))
+}
+
+/// `hexcal capture`: what was captured.
+fn capture(rig: &Path, out: &Path, poses: Option<usize>, auto: bool) -> anyhow::Result<()> {
+    let done = hexcal::app::session::capture(rig, out, poses, auto, tell())?;
+    if let Some(j) = done.jitter {
+        println!("{j}");
+    }
+    if !done.summary.skipped.is_empty() {
+        eprintln!(
+            "already complete, skipped: poses {:?}",
+            done.summary.skipped
+        );
+    }
+    println!(
+        "captured {} poses into {}",
+        done.summary.captured.len(),
+        out.display()
+    );
+    Ok(())
+}
+
+/// Whether every device was calibrated.
+fn finished(uncalibrated: Vec<String>) -> Finished {
+    match uncalibrated.is_empty() {
+        true => Finished::Done,
+        false => Finished::Uncalibrated(uncalibrated),
+    }
+}
+
 /// Run one command.
 fn execute(command: Command) -> anyhow::Result<Finished> {
     match command {
-        Command::Capture {
-            rig,
-            out,
-            poses,
-            auto,
-        } => {
-            if let Some(p) = poses {
-                check_poses(p)?;
-            }
-            cli::capture(&rig, &out, poses, auto)?
-        }
-        Command::Decode { stack, out } => cli::decode(&stack, &out)?,
-        Command::Devices => cli::devices()?,
         Command::Run {
             rig,
             out,
@@ -485,31 +471,28 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             stereo,
         } => {
             if dry_run {
-                let timeline = hexcal::app::script::timeline(&rig).map_err(anyhow::Error::msg)?;
-                print!("{timeline}");
+                print!("{}", hexcal::app::script::timeline(&rig)?);
                 return Ok(Finished::Done);
             }
             let options = hexcal::app::run::RunOptions {
                 poses,
                 held_out,
                 keep_stacks,
-                stop: Some(cli::stop_flag()?),
+                stop: Some(hexcal::app::session::stop_flag()?),
                 stereo,
                 ..Default::default()
             };
-            let progress = if json {
-                cli::Progress::Json
-            } else if quiet {
-                cli::Progress::Quiet
-            } else {
-                cli::Progress::Human
+            let progress = match (json, quiet) {
+                (true, _) => Progress::Json,
+                (_, true) => Progress::Quiet,
+                _ => Progress::Human,
             };
-            let how = cli::How {
+            let how = hexcal::app::session::How {
                 auto,
                 guided,
                 console: console.as_deref(),
             };
-            return run(&rig, &out, &options, how, progress);
+            run(&rig, &out, &options, how, progress)
         }
         Command::Calibrate {
             input,
@@ -523,74 +506,75 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             let mut options = CalibrateOptions::default();
             options.bundle.fix_k3 = fix_k3;
             options.bundle.refine_flatness = refine_flatness;
-            return calibrate(
+            let mut printer = printer(Progress::Human);
+            let done = hexcal::app::calibrate::calibrate_input(
                 &input,
                 &out,
                 reference.as_deref(),
                 options,
-                held_out,
-                &stereo,
-            );
+                (held_out, &stereo),
+                &mut printer,
+            )?;
+            print!("{}", done.summary);
+            Ok(finished(done.uncalibrated))
         }
-        other => execute_other(other)?,
+        other => {
+            execute_other(other)?;
+            Ok(Finished::Done)
+        }
     }
-    Ok(Finished::Done)
 }
 
-/// The commands that calibrate nothing and capture nothing.
+/// The commands that calibrate nothing.
 fn execute_other(command: Command) -> anyhow::Result<()> {
     match command {
-        Command::Info => {
-            let b = hexcal::board::Board::hex600();
-            println!("{}: {} circles per side", b.name, b.lattice().len());
-        }
+        Command::Info => println!("{}", hexcal::app::jobs::info()),
         Command::Board { board, side, out } => {
-            if out
-                .extension()
-                .is_none_or(|e| !e.eq_ignore_ascii_case("svg"))
-            {
-                anyhow::bail!("{}: only SVG is written (name it *.svg)", out.display());
-            }
-            let board = Board::resolve(&board)?;
-            hexcal::atomic::write(&out, board.svg(side).as_bytes())
-                .with_context(|| format!("cannot write {}", out.display()))?;
-            println!("{} {side} side written to {}", board.name, out.display());
+            let name = hexcal::app::jobs::board_svg(&board, side, &out)?;
+            println!("{name} {side} side written to {}", out.display());
         }
         Command::Verify { calibration, input } => {
-            let checks = hexcal::app::calibrate::verify_input(&input, calibration.as_deref())?;
-            print!("{}", hexcal::report::format_verification(&checks));
+            let table = hexcal::app::calibrate::verification_table(&input, calibration.as_deref())?;
+            print!("{table}");
         }
-        Command::Simulate { scene, out, seed } => simulate(scene.as_ref(), &out, seed)?,
+        Command::Simulate { scene, out, seed } => {
+            println!(
+                "{}",
+                hexcal::app::jobs::simulate(scene.as_deref(), &out, seed)?
+            );
+        }
         Command::Detect {
             board,
             json,
             overlay,
             images,
-        } => detect_command(&board, &json, overlay.as_deref(), &images)?,
+        } => detect(&board, &json, overlay.as_deref(), &images)?,
+        Command::Capture {
+            rig,
+            out,
+            poses,
+            auto,
+        } => capture(&rig, &out, poses, auto)?,
+        Command::Decode { stack, out } => {
+            let done = hexcal::app::jobs::decode(&stack, &out)?;
+            print!("{done}");
+            println!("wrote {} files to {}", done.files.len(), out.display());
+        }
+        Command::Devices => {
+            let (all, notes) = hexcal::app::jobs::devices();
+            if all.is_empty() {
+                println!("no cameras, monitors or serial ports found");
+            }
+            for f in &all {
+                println!("{:<8} {:<28} {}", f.kind, f.address, f.description);
+            }
+            for n in notes {
+                eprintln!("note: {n}");
+            }
+        }
         #[cfg(feature = "bench")]
         Command::Bench { what } => benchcmd::run(what)?,
-        Command::Capture { .. }
-        | Command::Decode { .. }
-        | Command::Devices
-        | Command::Run { .. }
-        | Command::Calibrate { .. } => unreachable!("handled by execute"),
+        Command::Run { .. } | Command::Calibrate { .. } => unreachable!("handled by execute"),
     }
-    Ok(())
-}
-
-/// `hexcal simulate`: render one view of a scene, write its PNG and ground truth.
-fn simulate(scene: Option<&PathBuf>, out: &Path, seed: Option<u64>) -> anyhow::Result<()> {
-    let mut scene = load_scene(scene)?;
-    scene.seed = seed.unwrap_or(scene.seed);
-    let view = hexcal::sim::render(&scene)?;
-    let [png, json] = hexcal::sim::write_view(&view, out)?;
-    let whole = view.truth.circles.iter().filter(|c| c.whole).count();
-    println!(
-        "{}: side {}, {} circles imaged ({whole} whole); truth in {}",
-        png.display(),
-        view.truth.side.map_or("none", |s| s.name()),
-        view.truth.circles.len(),
-        json.display()
-    );
     Ok(())
 }

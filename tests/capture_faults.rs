@@ -109,7 +109,7 @@ fn files(dir: &Path) -> Vec<PathBuf> {
 
 fn capture(rig: &Path, out: &Path) -> Result<hexcal::app::capture::CaptureSummary, String> {
     capture_dataset(
-        rig,
+        &hexcal::app::capture::LoadedRig::load(rig).map_err(|e| e.to_string())?,
         out,
         &hexcal::app::capture::CaptureOptions {
             poses: POSES,

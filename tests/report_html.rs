@@ -8,6 +8,7 @@
 mod cli;
 
 use cli::scratch;
+use hexcal::calib::diagnostics::Diagnosis;
 use hexcal::calib::solve::{calibrate, CalibrateOptions};
 use hexcal::calib::synthetic::SyntheticRig;
 use hexcal::calib::verify::verify;
@@ -86,7 +87,11 @@ fn report_renders_as_a_page_with_figures() {
             calibration: &cal,
             verification: &checks,
             title: "Paper rig (simulated)",
-            warnings: vec!["poses 8 and 9 held out for verification".into()],
+            diagnosis: &Diagnosis::of(
+                &cal,
+                &checks,
+                &["poses 8 and 9 held out for verification".into()],
+            ),
         },
         &page,
     )

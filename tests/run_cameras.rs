@@ -14,6 +14,7 @@
 mod cli;
 
 use cli::scratch;
+use hexcal::app::capture::LoadedRig;
 use hexcal::app::process::{process_stored, PoseViews};
 use hexcal::app::progress::Event;
 use hexcal::app::run::{run, RunOptions};
@@ -102,7 +103,7 @@ fn a_camera_only_rig_calibrates_to_its_ground_truth() {
     // Stopped (as by Ctrl-C) when pose 4 is placed: poses 0–3 are kept.
     let stop = Arc::new(AtomicBool::new(false));
     let stopped = run(
-        &rig,
+        &LoadedRig::load(&rig).unwrap(),
         &out,
         &RunOptions {
             held_out: 1,
@@ -125,7 +126,7 @@ fn a_camera_only_rig_calibrates_to_its_ground_truth() {
     // The same run resumes from the dataset and finishes.
     let mut log = Vec::new();
     let outcome = run(
-        &rig,
+        &LoadedRig::load(&rig).unwrap(),
         &out,
         &RunOptions {
             held_out: 1,

@@ -12,6 +12,7 @@
 mod cli;
 
 use cli::scratch;
+use hexcal::app::capture::LoadedRig;
 use hexcal::app::progress::Event;
 use hexcal::app::run::{run, RunOptions};
 use std::path::Path;
@@ -84,7 +85,7 @@ fn run_calibrates_a_simulated_rig_to_its_ground_truth() {
     let out = dir.join("data");
     let mut log: Vec<Event> = Vec::new();
     let outcome = run(
-        &rig,
+        &LoadedRig::load(&rig).unwrap(),
         &out,
         &RunOptions {
             held_out: 1,

@@ -6,8 +6,10 @@ use super::progress::{Event, Outcome};
 use super::AppError;
 use crate::board::Board;
 use crate::calib::bundle::Device;
+use crate::calib::diagnostics::Diagnosis;
 use crate::calib::geometric::{calibrate_registering, GeometricParams};
-use crate::calib::solve::{CalibrateOptions, Calibration};
+pub use crate::calib::solve::CalibrateOptions;
+use crate::calib::solve::Calibration;
 use crate::calib::verify::{verify, PairCheck};
 use crate::dataset::{Dataset, DatasetInfo};
 use crate::observations::CameraView;
@@ -79,8 +81,9 @@ pub(crate) fn finish(
     let poses = held_from.min(all.len());
     let cal = calibrate_registering(board, devices, poses, &used, options, &geometric)?;
     let verification = verify_held_out(board, &cal, &held, held_from);
+    let diagnosis = Diagnosis::of(&cal, &verification, warnings);
     std::fs::create_dir_all(dir).map_err(AppError::io(dir))?;
-    let mut files = crate::report::write_outputs(&cal, dir, stereo)?.files;
+    let mut files = crate::report::write_outputs(&cal, &diagnosis.rows, dir, stereo)?.files;
     if !held.is_empty() {
         let path = dir.join(HELD_OUT_FILE);
         let text = held_out_file(board, devices, &held, held_from, all.len());
@@ -97,7 +100,7 @@ pub(crate) fn finish(
             calibration: &cal,
             verification: &verification,
             title: &format!("hexcal calibration: {}", dir.display()),
-            warnings: warnings.to_vec(),
+            diagnosis: &diagnosis,
         },
         &path,
     )?;
@@ -114,7 +117,8 @@ pub(crate) fn finish(
         verification,
         files,
         timelines: Vec::new(),
-        warnings: Vec::new(),
+        warnings: warnings.to_vec(),
+        diagnosis,
         truth: Vec::new(),
         agreement: crate::correspond::agreement(&used),
     })
@@ -231,7 +235,7 @@ pub fn calibrate_dataset(
         all.push(Some(views));
     }
     let held_from = all.len().saturating_sub(held_out);
-    let mut outcome = finish(
+    finish(
         Collected {
             board: &board,
             devices: &devices,
@@ -243,9 +247,7 @@ pub fn calibrate_dataset(
         options,
         &warnings,
         events,
-    )?;
-    outcome.warnings = warnings;
-    Ok(outcome)
+    )
 }
 
 /// What calibrating a correspondences file gave.
@@ -254,6 +256,8 @@ pub struct FileOutcome {
     pub input: Correspondences,
     /// The calibration.
     pub calibration: Calibration,
+    /// Its residual table and warnings.
+    pub diagnosis: Diagnosis,
     /// Files written.
     pub files: Vec<PathBuf>,
     /// Per device, the Kalibr radtan refit's largest deviation from the full model (px).
@@ -315,7 +319,8 @@ pub fn calibrate_file(
     }
     let geometric = GeometricParams::default();
     let cal = calibrate_registering(&board, &c.devices, c.poses, &c.views, &options, &geometric)?;
-    let written = crate::report::write_outputs(&cal, out, stereo)?;
+    let diagnosis = Diagnosis::of(&cal, &[], &[]);
+    let written = crate::report::write_outputs(&cal, &diagnosis.rows, out, stereo)?;
     let mut files = written.files;
     let html = out.join("report.html");
     crate::report::html::write_html(
@@ -323,7 +328,7 @@ pub fn calibrate_file(
             calibration: &cal,
             verification: &[],
             title: &format!("hexcal calibration of {}", input.display()),
-            warnings: Vec::new(),
+            diagnosis: &diagnosis,
         },
         &html,
     )?;
@@ -331,6 +336,7 @@ pub fn calibrate_file(
     Ok(FileOutcome {
         input: c,
         calibration: cal,
+        diagnosis,
         files,
         radtan: written.radtan,
     })
@@ -420,4 +426,55 @@ pub fn uncalibrated(out: &Path) -> Result<Vec<String>, AppError> {
         .filter(|d| !cal.devices.iter().any(|c| c.name == d.name))
         .map(|d| d.name)
         .collect())
+}
+
+/// What `hexcal calibrate` gave: its printed summary and the devices left uncalibrated.
+#[derive(Debug)]
+pub struct Calibrated {
+    /// The summary ([`super::summary`]).
+    pub summary: String,
+    /// Devices the calibration left out.
+    pub uncalibrated: Vec<String>,
+}
+
+/// `hexcal calibrate`: a dataset folder (its last `held_out` poses held out; `events` hears
+/// the progress) or a correspondences file to a calibration in `out`; `reference` names the
+/// gauge device, `stereo` the pairs to export.
+pub fn calibrate_input(
+    input: &Path,
+    out: &Path,
+    reference: Option<&str>,
+    mut options: CalibrateOptions,
+    (held_out, stereo): (usize, &[String]),
+    events: &mut dyn FnMut(&Event),
+) -> Result<Calibrated, AppError> {
+    if !input.is_dir() {
+        let done = calibrate_file(input, out, reference, options, stereo)?;
+        return Ok(Calibrated {
+            summary: super::summary::of_file(&done, out),
+            uncalibrated: excluded(&done.calibration),
+        });
+    }
+    if let Some(name) = reference {
+        let data = Dataset::open(input)?;
+        let names = devices_of(&data.info).into_iter().map(|d| d.name);
+        let names: Vec<String> = names.collect();
+        options.bundle.reference = device_index(input, names.iter().map(String::as_str), name)?;
+    }
+    let outcome = calibrate_dataset(input, out, held_out, &options, stereo, events)?;
+    Ok(Calibrated {
+        summary: super::summary::of_run(&outcome),
+        uncalibrated: excluded(&outcome.calibration),
+    })
+}
+
+/// The names of the devices `cal` left out.
+fn excluded(cal: &Calibration) -> Vec<String> {
+    cal.excluded.iter().map(|e| e.name.clone()).collect()
+}
+
+/// `hexcal verify`: [`verify_input`]'s checks as the verification table.
+pub fn verification_table(input: &Path, calibration: Option<&Path>) -> Result<String, AppError> {
+    let checks = verify_input(input, calibration)?;
+    Ok(crate::report::format_verification(&checks))
 }

@@ -9,7 +9,31 @@ use crate::dataset::{Dataset, Leftover, Timeline};
 use crate::rig::file::RigFile;
 use crate::rig::script::PoseExposures;
 use crate::rig::OpenedRig;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// A rig file read once for a job: where it is, its text (copied into the dataset as read)
+/// and what it says.
+#[derive(Clone, Debug)]
+pub struct LoadedRig {
+    /// The rig file's path.
+    pub path: PathBuf,
+    /// Its text.
+    pub text: String,
+    /// What it says.
+    pub file: RigFile,
+}
+
+impl LoadedRig {
+    /// Read and check the rig file at `path`.
+    pub fn load(path: &Path) -> Result<LoadedRig, AppError> {
+        let (file, text) = RigFile::load_with_text(path)?;
+        Ok(LoadedRig {
+            path: path.to_path_buf(),
+            text,
+            file,
+        })
+    }
+}
 
 /// A rig file opened for a dataset: the file, its devices and the dataset folder (created,
 /// or resumed when it is there) with a copy of the rig file.
@@ -22,19 +46,21 @@ pub struct Prepared {
     pub data: Dataset,
 }
 
-/// Open the rig file at `rig_path` and create or resume the dataset folder `out` for it;
-/// the rig file is copied into the folder once.
-pub fn prepare(rig_path: &Path, out: &Path) -> Result<Prepared, AppError> {
-    let rig = RigFile::load(rig_path)?;
-    let opened = crate::rig::open(&rig)?;
-    let info = rig.dataset_info(&opened.sequence);
+/// Open the devices of `rig` and create or resume the dataset folder `out` for it; the rig
+/// file is copied into the folder once.
+pub fn prepare(rig: &LoadedRig, out: &Path) -> Result<Prepared, AppError> {
+    let opened = crate::rig::open(&rig.file)?;
+    let info = rig.file.dataset_info(&opened.sequence);
     let data = Dataset::create_or_resume(out, info)?;
     let rig_copy = out.join("rig.toml");
     if !rig_copy.exists() {
-        let text = std::fs::read(rig_path).map_err(AppError::io(rig_path))?;
-        crate::atomic::write(&rig_copy, &text).map_err(AppError::io(&rig_copy))?;
+        crate::atomic::write(&rig_copy, rig.text.as_bytes()).map_err(AppError::io(&rig_copy))?;
     }
-    Ok(Prepared { rig, opened, data })
+    Ok(Prepared {
+        rig: rig.file.clone(),
+        opened,
+        data,
+    })
 }
 
 /// Puts the board at pose k before it is captured: the simulated world's pose (given when
@@ -84,14 +110,14 @@ pub struct CaptureSummary {
     pub timelines: Vec<Timeline>,
 }
 
-/// Capture `options.poses` board poses of the rig file at `rig_path` into the dataset folder
+/// Capture `options.poses` board poses of `rig` into the dataset folder
 /// `out` (created, or resumed: complete poses are skipped), those in `options.exposures`
 /// with their own exposure and gain. `place(k)` puts the board at pose k (the simulated
 /// world's pose, the operator's or a script's) and may refuse to go on (`Ok(false)` stops
 /// the capture, keeping every complete pose); `log` hears what happens, a
 /// [`Note::Captured`] per pose.
 pub fn capture_dataset(
-    rig_path: &Path,
+    rig: &LoadedRig,
     out: &Path,
     options: &CaptureOptions,
     place: &mut PlaceBoard,
@@ -102,7 +128,7 @@ pub fn capture_dataset(
         rig,
         opened,
         mut data,
-    } = prepare(rig_path, out)?;
+    } = prepare(rig, out)?;
     let pause = std::time::Duration::from_secs_f64(rig.timing.pose_pause_s);
     data.remove_stale_temporaries()?;
     finish_leftovers(&data, poses, log)?;
@@ -187,7 +213,7 @@ fn finish_leftovers(
 
 #[cfg(test)]
 mod tests {
-    use super::{capture_dataset, CaptureOptions};
+    use super::{capture_dataset, CaptureOptions, LoadedRig};
     use crate::dataset::Dataset;
 
     /// Two simulated 64×48 cameras, one Bayer and one MJPEG, and no projector.
@@ -232,7 +258,8 @@ sim.pose = { eye = [100.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
             world.expect("a simulated rig").place(k);
             Ok(true)
         };
-        capture_dataset(rig, out, &options, &mut place, &mut |_| {})
+        LoadedRig::load(rig)
+            .and_then(|rig| capture_dataset(&rig, out, &options, &mut place, &mut |_| {}))
             .map(|_| ())
             .map_err(|e| e.to_string())
     }

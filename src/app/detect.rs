@@ -185,6 +185,25 @@ pub fn process_all(
         .collect()
 }
 
+/// `hexcal detect`: every image in turn with the board `board` (built-in name or board
+/// file), overlays into `overlay` (created), the JSON written to `json` even when some
+/// images fail; gives each image's result.
+pub fn detect_files(
+    board: &str,
+    json: &Path,
+    overlay: Option<&Path>,
+    images: &[PathBuf],
+) -> Result<Vec<Result<ImageRecord, DetectionError>>, super::AppError> {
+    let board = Board::resolve(board)?;
+    if let Some(dir) = overlay {
+        std::fs::create_dir_all(dir).map_err(super::AppError::io(dir))?;
+    }
+    let results = process_all(images, &board, &Settings::default(), overlay);
+    crate::atomic::write(json, to_json(images, &results).as_bytes())
+        .map_err(super::AppError::io(json))?;
+    Ok(results)
+}
+
 /// The command's JSON: an array with one object per input in order, an [`ImageRecord`] or,
 /// for a failed input, a [`FailedRecord`].
 pub fn to_json(paths: &[PathBuf], results: &[Result<ImageRecord, DetectionError>]) -> String {

@@ -9,6 +9,10 @@
 //!   [`guide`]: per-device projection uncertainty, the done rule and the next pose;
 //! - [`script`]: a rig file's capture script (positioner moves, waits, prompts, timed
 //!   captures) driving `run`, with its timeline and step timing;
+//! - [`session`]: a run or capture as the operator drives it — the rig file read once, the
+//!   board placed (Enter, the console's button, a guided simulated operator, a script), the
+//!   console wired to the run; [`summary`]: the printed summary of a calibration;
+//! - [`jobs`]: the small jobs (board, info, simulate, decode, devices);
 //! - [`process`]: one camera's stack through the stages; [`truth`]: a calibration against a
 //!   simulated rig's ground truth.
 
@@ -17,11 +21,14 @@ pub mod capture;
 pub mod console;
 pub mod detect;
 pub mod guide;
+pub mod jobs;
 mod overlay;
 pub mod process;
 pub mod progress;
 pub mod run;
 pub mod script;
+pub mod session;
+pub mod summary;
 pub mod truth;
 
 use std::path::PathBuf;
@@ -88,6 +95,18 @@ pub enum AppError {
     /// A worker thread could not be started.
     #[error("cannot start a thread: {0}")]
     Spawn(std::io::Error),
+    /// Ctrl-C and SIGTERM could not be taken over.
+    #[error("cannot handle Ctrl-C: {0}")]
+    Signals(std::io::Error),
+    /// The operator console.
+    #[error("{0}")]
+    Console(#[from] console::ConsoleError),
+    /// The scene file of a simulated view.
+    #[error("{0}")]
+    Sim(#[from] crate::sim::SimError),
+    /// Decoding a stack folder.
+    #[error("{0}")]
+    Decode(#[from] crate::phase::files::DecodeFilesError),
     /// A worker thread ended without its result.
     #[error("{0} panicked")]
     Thread(&'static str),

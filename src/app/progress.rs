@@ -202,8 +202,11 @@ pub struct Outcome {
     pub files: Vec<std::path::PathBuf>,
     /// Per captured pose, its capture timeline (empty for poses read from disk).
     pub timelines: Vec<(usize, Timeline)>,
-    /// Warnings for the report (skipped poses, failed stacks).
+    /// The run's own warnings (skipped poses, failed stacks).
     pub warnings: Vec<String>,
+    /// The residual table and every warning (the report's and the run's), as the report
+    /// shows them.
+    pub diagnosis: crate::calib::diagnostics::Diagnosis,
     /// Against the ground truth, when the rig is simulated.
     pub truth: Vec<TruthCheck>,
     /// How well the cameras agree on each projector's pixels.

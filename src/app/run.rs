@@ -9,7 +9,7 @@
 //! resumed run or `hexcal calibrate DATASET` completes it.
 
 use super::calibrate::{devices_of, finish, Collected};
-use super::capture::{prepare, PlaceBoard, Prepared};
+use super::capture::{prepare, LoadedRig, PlaceBoard, Prepared};
 use super::process::{process_stored, stack_worker, PoseViews, StackJob, StackResult, Turns};
 use super::progress::{Event, Outcome};
 use super::truth::{check_truth, format_truth};
@@ -148,19 +148,19 @@ struct Processed {
     info: PoseInfo,
 }
 
-/// `hexcal run`: capture every pose of the rig file at `rig_path` into the dataset `out`
+/// `hexcal run`: capture every pose of `rig` into the dataset `out`
 /// (resuming one that is there), process each pose while the next is captured, calibrate,
 /// verify on the held-out poses and write the outputs to `out/calibration`. `place(k, world)`
 /// puts the board at pose k (the simulated world's, or the operator's) and may stop the
 /// capture (`Ok(false)`); `events` hears the progress.
 pub fn run(
-    rig_path: &Path,
+    rig: &LoadedRig,
     out: &Path,
     options: &RunOptions,
     place: &mut PlaceBoard,
     events: &mut dyn FnMut(&Event),
 ) -> Result<Outcome, AppError> {
-    let Prepared { rig, opened, data } = prepare(rig_path, out)?;
+    let Prepared { rig, opened, data } = prepare(rig, out)?;
     let poses = options
         .poses
         .or(rig.poses.map(|p| p.count))
@@ -218,7 +218,6 @@ pub fn run(
         events,
     )?;
     outcome.timelines = captured.timelines;
-    outcome.warnings = warnings;
     if let Some(w) = &world {
         outcome.truth = check_truth(&outcome.calibration, w);
         let path = dir.join("truth.txt");

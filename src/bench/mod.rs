@@ -1,7 +1,10 @@
 //! Benchmark harnesses behind the `bench` feature (`hexcal bench …`): they render their own
 //! inputs, time the stages and print figures; nothing a calibration needs.
 
+pub mod calib;
+pub mod capture;
 pub mod decode;
+pub mod detect;
 pub mod detect_grid;
 pub mod formats;
 pub mod formats_rig;

@@ -19,6 +19,36 @@ pub const RMS_RATIO: f64 = 1.5;
 /// Image cells (columns, rows) of the coverage check.
 pub const COVERAGE_CELLS: (usize, usize) = (8, 5);
 
+/// What is said about a calibration, computed once and shown alike by the HTML page, the
+/// residual files and the printed summary: the residual table and every warning.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Diagnosis {
+    /// Per device (as in the calibration), the paper's Table I row.
+    pub rows: Vec<ResidualRow>,
+    /// The report's own warnings ([`warnings`]), then the verification pairs' out of family
+    /// ([`verification_warnings`]), then the caller's (skipped poses, refused stacks).
+    pub warnings: Vec<String>,
+}
+
+impl Diagnosis {
+    /// The diagnosis of `cal`, verified by `verification` (may be empty), with the caller's
+    /// own warnings `extra` last.
+    pub fn of(cal: &Calibration, verification: &[PairCheck], extra: &[String]) -> Diagnosis {
+        let rows = residual_table(cal);
+        let is_projector = |name: &str| {
+            cal.devices
+                .iter()
+                .any(|d| d.name == name && d.kind == DeviceKind::Projector)
+        };
+        let warnings = warnings(cal, &rows)
+            .into_iter()
+            .chain(verification_warnings(verification, is_projector))
+            .chain(extra.iter().cloned())
+            .collect();
+        Diagnosis { rows, warnings }
+    }
+}
+
 /// One row of the paper's Table I: a device's residual statistics.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ResidualRow {

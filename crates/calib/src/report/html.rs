@@ -9,7 +9,7 @@
 
 use super::ReportError;
 use crate::calib::bundle::Device;
-use crate::calib::diagnostics::{kind_name, residual_table, ResidualRow};
+use crate::calib::diagnostics::{kind_name, Diagnosis, ResidualRow};
 use crate::calib::solve::Calibration;
 use crate::calib::verify::PairCheck;
 use hexcal_core::camera::LensParam;
@@ -28,9 +28,8 @@ pub struct ReportInput<'a> {
     pub verification: &'a [PairCheck],
     /// Page title.
     pub title: &'a str,
-    /// The caller's warnings (e.g. unregistered views, poses where the board was not seen),
-    /// shown with the report's own.
-    pub warnings: Vec<String>,
+    /// The residual table and every warning, the report's own and the caller's.
+    pub diagnosis: &'a Diagnosis,
 }
 
 const CAMERA_COLOUR: &str = "#1f77b4";
@@ -64,7 +63,7 @@ svg text{font-family:system-ui,'DejaVu Sans',sans-serif}
 /// The report as one self-contained HTML page.
 pub fn html_report(input: &ReportInput) -> String {
     let cal = input.calibration;
-    let rows = residual_table(cal);
+    let rows = &input.diagnosis.rows;
     let mut h = String::with_capacity(1 << 20);
     let _ = write!(
         h,
@@ -75,30 +74,23 @@ pub fn html_report(input: &ReportInput) -> String {
     );
     summary(&mut h, cal);
     h.push_str("<h2 id=\"warnings\">Warnings</h2>\n");
-    let warnings: Vec<String> = crate::calib::diagnostics::warnings(cal, &rows)
-        .into_iter()
-        .chain(crate::calib::diagnostics::verification_warnings(
-            input.verification,
-            |name| is_projector(cal, name),
-        ))
-        .chain(input.warnings.iter().cloned())
-        .collect();
+    let warnings = &input.diagnosis.warnings;
     if warnings.is_empty() {
         h.push_str("<p class=\"ok\">None: every device is seen in enough poses and fits as well as the others.</p>\n");
     } else {
         h.push_str("<ul class=\"warn\">\n");
-        for w in &warnings {
+        for w in warnings {
             let _ = writeln!(h, "<li>{}</li>", esc(w));
         }
         h.push_str("</ul>\n");
     }
     h.push_str("<div class=\"row\">\n<div>\n");
-    residual_section(&mut h, &rows);
+    residual_section(&mut h, rows);
     h.push_str("</div>\n<div>\n");
     rig_section(&mut h, cal);
     h.push_str("</div>\n</div>\n");
     lens_section(&mut h, cal);
-    device_sections(&mut h, cal, &rows);
+    device_sections(&mut h, cal, rows);
     uncertainty_section(&mut h, cal);
     if !input.verification.is_empty() {
         verification_section(&mut h, cal, input.verification);
@@ -110,13 +102,6 @@ pub fn html_report(input: &ReportInput) -> String {
         env!("CARGO_PKG_VERSION")
     );
     h
-}
-
-/// Whether the device named `name` is a projector.
-pub fn is_projector(cal: &Calibration, name: &str) -> bool {
-    cal.devices
-        .iter()
-        .any(|d| d.name == name && d.kind == DeviceKind::Projector)
 }
 
 /// Write [`html_report`] to `path` atomically.
@@ -1413,6 +1398,7 @@ fn verification_section(h: &mut String, cal: &Calibration, checks: &[PairCheck])
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calib::diagnostics::residual_table;
     use crate::calib::solve::{calibrate, Excluded};
     use crate::calib::synthetic::SyntheticRig;
     use std::sync::OnceLock;
@@ -1438,7 +1424,7 @@ mod tests {
             calibration: cal,
             verification,
             title: "Rig <A> & \"B\"",
-            warnings,
+            diagnosis: &Diagnosis::of(cal, verification, &warnings),
         })
     }
 

@@ -10,9 +10,7 @@
 pub mod export;
 pub mod html;
 
-use crate::calib::diagnostics::{
-    lens_covariance, residual_table, valid_region, ResidualRow, VALID_UNCERTAINTY,
-};
+use crate::calib::diagnostics::{lens_covariance, valid_region, ResidualRow, VALID_UNCERTAINTY};
 use crate::calib::lens_model::TermChoice;
 use crate::calib::solve::Calibration;
 use hexcal_core::camera::{CameraModel, Distortion, Intrinsics};
@@ -467,11 +465,14 @@ pub fn format_table(rows: &[ResidualRow]) -> String {
 /// Write every output of a calibration into `dir`, each file atomically:
 /// `calibration.json`, `opencv/NAME.yml`, `mrcal/NAME.cameramodel` and `ros/NAME.yaml` per
 /// device, `colmap/{cameras,images,points3D}.txt`, `camchain.yaml` (Kalibr),
-/// `stereo/FIRST-SECOND.yml` per pair of `stereo` ("first,second"), `residuals.txt` and
-/// `residuals.json`. Returns the paths written and, per device, the Kalibr radtan refit's
-/// largest deviation (px). Pairs are checked before anything is written.
+/// `stereo/FIRST-SECOND.yml` per pair of `stereo` ("first,second"), and `residuals.txt` and
+/// `residuals.json` from `rows` (the calibration's
+/// [`Diagnosis`](crate::calib::diagnostics::Diagnosis)). Returns the paths written and, per
+/// device, the Kalibr radtan refit's largest deviation (px). Pairs are checked before
+/// anything is written.
 pub fn write_outputs(
     cal: &Calibration,
+    rows: &[ResidualRow],
     dir: &Path,
     stereo: &[String],
 ) -> Result<Written, ReportError> {
@@ -496,15 +497,14 @@ pub fn write_outputs(
             std::fs::create_dir_all(&d).map_err(io(&d))?;
         }
     }
-    let rows = residual_table(cal);
     let (camchain, fits) = export::kalibr_camchain(&file, &export::overlaps(cal));
     let mut outputs = vec![
         (dir.join("calibration.json"), file.to_json()),
         (dir.join("camchain.yaml"), camchain),
-        (dir.join("residuals.txt"), format_table(&rows)),
+        (dir.join("residuals.txt"), format_table(rows)),
         (
             dir.join("residuals.json"),
-            serde_json::to_string_pretty(&rows).expect("plain data serialises"),
+            serde_json::to_string_pretty(rows).expect("plain data serialises"),
         ),
     ];
     for (i, d) in file.devices.iter().enumerate() {

@@ -390,6 +390,12 @@ impl RigError {
 impl RigFile {
     /// Read and check a rig file.
     pub fn load(path: impl AsRef<Path>) -> Result<RigFile, RigError> {
+        RigFile::load_with_text(path).map(|(rig, _)| rig)
+    }
+
+    /// [`RigFile::load`], also giving the file's text as read (a run copies it into its
+    /// dataset without reading the file again).
+    pub fn load_with_text(path: impl AsRef<Path>) -> Result<(RigFile, String), RigError> {
         let path = path.as_ref();
         let origin = path.display().to_string();
         let text = hexcal_core::limits::read_text(path).map_err(|source| RigError::Io {
@@ -398,7 +404,7 @@ impl RigFile {
         })?;
         let mut rig = RigFile::parse(&text, &origin)?;
         rig.base = path.parent().unwrap_or(Path::new(".")).to_owned();
-        Ok(rig)
+        Ok((rig, text))
     }
 
     /// The board the rig file names: a built-in name or a board file relative to the rig
