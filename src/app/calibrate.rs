@@ -39,6 +39,25 @@ pub(crate) fn devices_of(info: &DatasetInfo) -> Vec<DeviceInfo> {
         .collect()
 }
 
+/// The devices of a rig file (cameras, then projectors), as its dataset will list them.
+pub fn devices_of_rig(rig: &crate::rig::file::RigFile) -> Vec<DeviceInfo> {
+    let camera = |name: &str, width, height| DeviceInfo {
+        name: name.into(),
+        kind: DeviceKind::Camera,
+        width,
+        height,
+    };
+    let cameras = rig
+        .cameras
+        .iter()
+        .map(|c| camera(&c.name, c.width, c.height));
+    let projectors = rig.projectors.iter().map(|p| DeviceInfo {
+        kind: DeviceKind::Projector,
+        ..camera(&p.name, p.width, p.height)
+    });
+    cameras.chain(projectors).collect()
+}
+
 /// Every pose's views, with what they refer to.
 pub(crate) struct Collected<'a> {
     pub(crate) board: &'a Board,

@@ -8,7 +8,10 @@
 //! the candidate's own board pose eliminated (the Schur complement of docs/design.md (37)),
 //! and the device covariance is that matrix's inverse (38).
 
+pub mod interim;
 pub mod operator;
+pub mod stats;
+pub mod verdict;
 
 use crate::board::{Board, Hex, Side};
 use crate::calib::bundle::Device;

@@ -53,6 +53,22 @@ pub struct RunOptions {
     /// thumbnails): the projectors show a flat field and every camera takes one frame after
     /// another until the placement ends; none of them is written to the dataset.
     pub preview: Option<PreviewTap>,
+    /// Sees every processed pose's views as the run makes them (the guidance loop and the
+    /// console), before [`Event::PoseProcessed`] tells of it.
+    pub views_tap: Option<ViewsTap>,
+}
+
+/// What a [`ViewsTap`] calls: a processed pose's views, and whether the pose is held out.
+pub type ViewsFn = dyn Fn(&PoseViews, bool) + Send + Sync;
+
+/// Called with every processed pose (resumed ones too), on the run's thread.
+#[derive(Clone)]
+pub struct ViewsTap(pub Arc<ViewsFn>);
+
+impl std::fmt::Debug for ViewsTap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("ViewsTap")
+    }
 }
 
 /// What a [`PreviewTap`] calls: one round of preview frames (camera order), or why the
@@ -171,6 +187,7 @@ pub fn run(
     let devices = devices_of(&data.info);
     let world = opened.world.clone();
     let mut stream = Stream::new(data, &opened, poses, held_from, events);
+    stream.views_tap = options.views_tap.clone();
     stream.resume()?;
     let mut session = Session::start(opened.devices, &opened.sequence)?;
     stream.data.record_formats(&session.pixel_formats())?;
@@ -355,12 +372,21 @@ struct Stream<'e> {
     all: Vec<Option<PoseViews>>,
     warnings: Vec<String>,
     events: &'e mut dyn FnMut(&Event),
+    views_tap: Option<ViewsTap>,
     done_tx: Sender<Result<Processed, AppError>>,
     done_rx: Receiver<Result<Processed, AppError>>,
     in_flight: Option<JoinHandle<()>>,
 }
 
 impl<'e> Stream<'e> {
+    /// A processed pose to the views tap, then told as an event.
+    fn processed(&mut self, views: &PoseViews, held_out: bool) {
+        if let Some(tap) = &self.views_tap {
+            (tap.0)(views, held_out);
+        }
+        (self.events)(&self.coverage.add(views, held_out));
+    }
+
     fn new(
         data: Dataset,
         opened: &OpenedRig,
@@ -384,6 +410,7 @@ impl<'e> Stream<'e> {
             all: vec![None; poses],
             warnings: Vec::new(),
             events,
+            views_tap: None,
             done_tx,
             done_rx,
             in_flight: None,
@@ -428,7 +455,7 @@ impl<'e> Stream<'e> {
         for &k in done.iter().filter(|&&k| k < poses) {
             let views = self.data.read_pose_file::<PoseViews>(k, "views.json")?;
             if let Some(v) = views {
-                (self.events)(&self.coverage.add(&v, k >= self.held_from));
+                self.processed(&v, k >= self.held_from);
                 self.all[k] = Some(v);
                 resumed.push(k);
             }
@@ -580,7 +607,7 @@ impl<'e> Stream<'e> {
                 });
             }
         }
-        (self.events)(&self.coverage.add(&p.views, k >= self.held_from));
+        self.processed(&p.views, k >= self.held_from);
         if p.views.stacks.iter().all(|s| s.view.is_none()) {
             let reason = "no camera found the board".to_string();
             self.warnings.push(format!("pose {k}: {reason}"));

@@ -7,10 +7,11 @@
 //! [`Outcome`] with its summary, or what a capture stored.
 
 use super::capture::{capture_dataset, CaptureOptions, CaptureSummary, LoadedRig, Note};
-use super::console::{Console, GuidanceWatch};
+use super::console::Console;
+use super::guide::interim::{GuidanceWatch, Guide};
 use super::guide::operator::SimOperator;
 use super::progress::{Event, Outcome};
-use super::run::RunOptions;
+use super::run::{RunOptions, ViewsTap};
 use super::script::{plan_of, Asking, Jitter, ScriptRun};
 use super::AppError;
 use crate::rig::file::CameraDriver;
@@ -21,7 +22,7 @@ use std::cell::RefCell;
 use std::io::BufRead;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// Lines for the operator (prompts, the console's address, a guided operator's moves),
@@ -317,31 +318,27 @@ pub fn run(
     let rig = LoadedRig::load(rig)?;
     let plan = plan_of(&rig.file)?;
     check_run(&rig, plan.as_ref(), options)?;
+    let mut options = options.clone();
     let mut console = how
         .console
-        .map(|addr| Console::start(addr, out, how.auto))
+        .map(|addr| Console::start(addr, &cameras(&rig), how.auto))
         .transpose()?;
-    let mut options = options.clone();
-    if let Some(c) = console.as_mut() {
-        (voice.tell)(&format!("console: {} (open it in a browser)", c.url()));
-        options.frame_tap = Some(c.frame_tap());
-        options.settle_each_pose = true;
-        c.set_threshold(rig.file.guidance.uncertainty_px);
-        // While the operator places the board (no script: it times its own steps), the
-        // page shows what each camera sees.
-        if !how.auto && rig.file.script.is_empty() {
-            options.preview = Some(c.preview_tap(rig.file.board()?));
-        }
-    }
+    let guide = match &console {
+        Some(c) => Some(watch_run(&rig, c, how, &mut options, &voice.tell)?),
+        None => None,
+    };
     let button = console.as_ref().map(Console::captures);
     let prompts = console.as_ref().map(Console::prompts);
-    let guided = guided(&rig, how, console.as_ref())?;
+    let guided = guided(&rig, how, guide.as_ref())?;
     let Voice {
         events: print,
         say,
         tell,
     } = voice;
     let mut events = |e: &Event| {
+        if let (Event::PoseStarted { pose, .. }, Some(g)) = (e, &guide) {
+            lock(g).placing(*pose);
+        }
         if let Some(c) = console.as_mut() {
             c.event(e);
         }
@@ -367,6 +364,50 @@ pub fn run(
     })
 }
 
+/// Each camera's name and image size.
+fn cameras(rig: &LoadedRig) -> Vec<(String, [u32; 2])> {
+    let cameras = rig.file.cameras.iter();
+    cameras
+        .map(|c| (c.name.clone(), [c.width, c.height]))
+        .collect()
+}
+
+/// A mutex that a panicked holder leaves usable.
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The run watched by the console (`c`): its frames make the thumbnails, its live preview
+/// (while the operator places the board, without a script) the live pictures, its processed
+/// poses the overlays and, through the guidance loop (started here), the verdict the page
+/// shows. Gives the guidance loop.
+fn watch_run(
+    rig: &LoadedRig,
+    c: &Console,
+    how: How,
+    options: &mut RunOptions,
+    tell: &Tell,
+) -> Result<Arc<Mutex<Guide>>, AppError> {
+    tell(&format!("console: {} (open it in a browser)", c.url()));
+    options.frame_tap = Some(c.frame_tap());
+    options.settle_each_pose = true;
+    let board = rig.file.board()?;
+    if !how.auto && rig.file.script.is_empty() {
+        options.preview = Some(c.preview_tap(board.clone()));
+    }
+    let devices = super::calibrate::devices_of_rig(&rig.file);
+    let threshold = rig.file.guidance.uncertainty_px;
+    let guide = Guide::start(board, devices, threshold, how.auto);
+    guide.listen(c.verdicts());
+    let guide = Arc::new(Mutex::new(guide));
+    let (g, overlays) = (Arc::clone(&guide), c.overlays());
+    options.views_tap = Some(ViewsTap(Arc::new(move |views, held_out| {
+        overlays(views);
+        lock(&g).processed(views, held_out);
+    })));
+    Ok(guide)
+}
+
 /// The command line's poses checked against the rig file: a script decides its own; the
 /// count within the limit, and enough left after `--held-out` to calibrate.
 fn check_run(rig: &LoadedRig, plan: Option<&Plan>, options: &RunOptions) -> Result<(), AppError> {
@@ -389,7 +430,7 @@ fn check_run(rig: &LoadedRig, plan: Option<&Plan>, options: &RunOptions) -> Resu
 fn guided(
     rig: &LoadedRig,
     how: How,
-    console: Option<&Console>,
+    guide: Option<&Arc<Mutex<Guide>>>,
 ) -> Result<Option<Guided>, AppError> {
     let simulated = rig
         .file
@@ -404,8 +445,8 @@ fn guided(
         )));
     }
     let seed = rig.file.poses.as_ref().map_or(1, |p| p.seed);
-    Ok(match (console, how.guided) {
-        (Some(c), true) => Some((c.guidance_watch(), None, seed)),
+    Ok(match (guide, how.guided) {
+        (Some(g), true) => Some((lock(g).watch(), None, seed)),
         _ => None,
     })
 }

@@ -61,8 +61,12 @@ pub fn bench_preview(
     world.place(pose);
     let cameras = opened.devices.cameras.len();
     let mut session = Session::start(opened.devices, &opened.sequence).map_err(|e| input(&e))?;
-    let out = std::env::temp_dir().join(format!("hexcal-bench-preview-{}", std::process::id()));
-    let console = Console::start("127.0.0.1:0", &out, true).map_err(|e| input(&e))?;
+    let panels: Vec<(String, [u32; 2])> = rig
+        .cameras
+        .iter()
+        .map(|c| (c.name.clone(), [c.width, c.height]))
+        .collect();
+    let console = Console::start("127.0.0.1:0", &panels, true).map_err(|e| input(&e))?;
     let tap = console.preview_tap(board);
     let mut b = PreviewBench {
         cameras,
@@ -103,6 +107,5 @@ pub fn bench_preview(
     b.stages = b.stages.scaled(1.0 / n);
     session.finish().map_err(|e| input(&e))?;
     drop(console);
-    let _ = std::fs::remove_dir_all(&out);
     Ok(b)
 }

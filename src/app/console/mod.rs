@@ -5,34 +5,30 @@
 //! capture button.
 //!
 //! Takes the run's progress events, its captured frames (through a [`FrameTap`]), its live
-//! preview frames (through a [`PreviewTap`]) and the processed poses the run writes to its
-//! dataset (`pose-KKK/views.json`); gives the page (served from the binary, no outside file
-//! or network), the capture button's presses and, to a guided simulated operator, the
-//! interim calibrations' guidance ([`GuidanceWatch`]).
+//! preview frames (through a [`PreviewTap`]), the processed poses as the run makes them and
+//! the run's [`Verdict`] (each device's progress, the guidance, done or not: decided by the
+//! run's guidance loop, [`crate::app::guide::interim`]); gives the page (served from the
+//! binary, no outside file or network) and the capture button's presses. It shows what the
+//! run decides; it decides nothing.
 //! The page follows the run through server-sent events; pages come and go as they like.
 
-mod guidance;
+pub mod labels;
 pub mod preview;
 mod server;
 pub mod state;
-pub mod stats;
 pub mod thumbs;
 
-use super::guide::Guidance;
+use super::guide::verdict::Verdict;
 use super::process::PoseViews;
 use super::progress::Event;
 use super::run::{FrameTap, PreviewTap};
 use crate::board::Board;
-use crate::dataset::Dataset;
-use crate::observations::CameraView;
-use crate::observations::DeviceInfo;
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
+use labels::Overlay;
 use preview::LiveView;
 use state::{CameraPanel, Live, Preview, State};
-use stats::{observations, DeviceStats, Overlay};
-use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use thumbs::Thumbs;
 
@@ -61,46 +57,8 @@ struct Shared {
     hub: Mutex<Vec<Sender<()>>>,
     capture: Sender<()>,
     closed: AtomicBool,
-    /// The interim calibrations asked for and finished, by the poses they cover.
-    interim: Mutex<Interim>,
-    interim_done: Condvar,
     /// When the live preview's rounds ended (its rate).
     clock: Mutex<PreviewClock>,
-}
-
-/// The poses (index of the last + 1) of the latest interim calibration asked for and of
-/// the latest finished.
-#[derive(Default)]
-struct Interim {
-    requested: usize,
-    finished: usize,
-}
-
-/// Waits for the console's interim calibrations (a guided simulated operator follows them).
-#[derive(Clone)]
-pub struct GuidanceWatch {
-    shared: Arc<Shared>,
-}
-
-impl GuidanceWatch {
-    /// Once every interim calibration asked for so far has finished (or `stopped` says to
-    /// give up): the latest guidance, and whether the page's sign reads DONE.
-    pub fn latest(&self, stopped: &dyn Fn() -> bool) -> (Option<Guidance>, bool) {
-        let mut i = lock(&self.shared.interim);
-        while i.finished < i.requested && !stopped() {
-            i = match self
-                .shared
-                .interim_done
-                .wait_timeout(i, std::time::Duration::from_millis(100))
-            {
-                Ok((i, _)) => i,
-                Err(e) => e.into_inner().0,
-            };
-        }
-        drop(i);
-        let s = lock(&self.shared.state);
-        (s.guidance.clone(), s.done)
-    }
 }
 
 impl Shared {
@@ -175,10 +133,9 @@ impl Shared {
         }
     }
 
-    /// Judge and number the state, and tell every open page it changed (a page that has
-    /// not yet read the last change reads this one with it: each event is the whole state).
+    /// Number the state, and tell every open page it changed (a page that has not yet read
+    /// the last change reads this one with it: each event is the whole state).
     fn publish(&self, state: &mut State) {
-        state.judge();
         state.version += 1;
         let json = Arc::new(
             serde_json::to_string(&*state)
@@ -200,19 +157,17 @@ pub struct Console {
     thumbs: Arc<Mutex<Thumbs>>,
     captures: Receiver<()>,
     url: String,
-    out: PathBuf,
-    data: Option<(Dataset, Board)>,
-    pending: Vec<(usize, bool)>,
-    /// Every calibration view processed so far, and the poses they come from.
-    views: Vec<CameraView>,
-    poses: std::collections::BTreeSet<usize>,
-    worker: guidance::Worker,
 }
 
 impl Console {
-    /// Serve the console on `addr` (e.g. 127.0.0.1:8765; port 0 picks a free one) for the
-    /// run whose dataset is `out`; `auto`: the run places poses itself (no capture button).
-    pub fn start(addr: &str, out: &Path, auto: bool) -> Result<Console, ConsoleError> {
+    /// Serve the console on `addr` (e.g. 127.0.0.1:8765; port 0 picks a free one) for a run
+    /// with these `cameras` (name, image size); `auto`: the run places poses itself (no
+    /// capture button).
+    pub fn start(
+        addr: &str,
+        cameras: &[(String, [u32; 2])],
+        auto: bool,
+    ) -> Result<Console, ConsoleError> {
         let fail = |reason: String| ConsoleError {
             addr: addr.to_string(),
             reason,
@@ -227,7 +182,14 @@ impl Console {
             status: "starting".into(),
             message: "opening the rig".into(),
             auto,
-            threshold: crate::rig::file::DEFAULT_UNCERTAINTY_PX,
+            cameras: cameras
+                .iter()
+                .map(|(name, size)| CameraPanel {
+                    name: name.clone(),
+                    size: *size,
+                    ..CameraPanel::default()
+                })
+                .collect(),
             ..State::default()
         };
         let shared = Arc::new(Shared {
@@ -238,29 +200,10 @@ impl Console {
             hub: Mutex::new(Vec::new()),
             capture,
             closed: AtomicBool::new(false),
-            interim: Mutex::new(Interim::default()),
-            interim_done: Condvar::new(),
             clock: Mutex::new(PreviewClock::default()),
         });
         shared.publish(&mut lock(&shared.state));
         let server = Arc::new(server);
-        let sh = Arc::clone(&shared);
-        let worker = guidance::Worker::start(move |poses, outcome| {
-            let mut s = lock(&sh.state);
-            s.guiding = false;
-            match outcome {
-                Ok(g) => {
-                    s.guidance = Some(g);
-                    s.guidance_error = None;
-                }
-                Err(e) => s.guidance_error = Some(e),
-            }
-            sh.publish(&mut s);
-            drop(s);
-            let mut i = lock(&sh.interim);
-            i.finished = i.finished.max(poses);
-            sh.interim_done.notify_all();
-        });
         let (srv, sh) = (Arc::clone(&server), Arc::clone(&shared));
         let thread = std::thread::Builder::new()
             .name("console".into())
@@ -273,33 +216,37 @@ impl Console {
             thumbs: Arc::new(Mutex::new(Thumbs::default())),
             captures,
             url,
-            out: out.to_path_buf(),
-            data: None,
-            pending: Vec::new(),
-            views: Vec::new(),
-            poses: Default::default(),
-            worker,
         })
     }
 
-    /// Set the done threshold on every device's projection uncertainty (px; the rig
-    /// file's `[guidance] uncertainty_px`).
-    pub fn set_threshold(&mut self, px: f64) {
-        let mut s = lock(&self.shared.state);
-        s.threshold = px;
-        self.shared.publish(&mut s);
+    /// What shows the run's verdicts on the page (give it to the run's guidance loop).
+    pub fn verdicts(&self) -> impl Fn(&Verdict) + Send + 'static {
+        let shared = Arc::clone(&self.shared);
+        move |v| {
+            let mut s = lock(&shared.state);
+            s.verdict = v.clone();
+            shared.publish(&mut s);
+        }
+    }
+
+    /// What draws each processed pose's labelled points over its cameras' pictures.
+    pub fn overlays(&self) -> impl Fn(&PoseViews) + Send + Sync + 'static {
+        let shared = Arc::clone(&self.shared);
+        move |views| {
+            let mut s = lock(&shared.state);
+            for (c, stack) in views.stacks.iter().enumerate() {
+                if let Some(panel) = s.cameras.get_mut(c) {
+                    let view = stack.view.as_ref();
+                    panel.overlay = Some(Overlay::of(views.pose, stack.circles, view));
+                }
+            }
+            shared.publish(&mut s);
+        }
     }
 
     /// The page's address.
     pub fn url(&self) -> &str {
         &self.url
-    }
-
-    /// A watcher of the interim calibrations.
-    pub fn guidance_watch(&self) -> GuidanceWatch {
-        GuidanceWatch {
-            shared: Arc::clone(&self.shared),
-        }
     }
 
     /// The capture button's presses (one message per press taken).
@@ -358,17 +305,15 @@ impl Console {
     pub fn event(&mut self, e: &Event) {
         let shared = Arc::clone(&self.shared);
         let mut state = lock(&shared.state);
-        self.open_dataset(&mut state);
         self.apply(e, &mut state);
         shared.publish(&mut state);
     }
 
-    fn apply(&mut self, e: &Event, s: &mut State) {
+    fn apply(&self, e: &Event, s: &mut State) {
         match e {
             Event::PoseStarted { pose, of } => {
                 // A new placement: the preview's rate starts afresh (a capture lay between).
                 lock(&self.shared.clock).ends.clear();
-                self.read_pending(s);
                 s.status = "waiting".into();
                 s.pose = Some([*pose, *of]);
                 s.frames = None;
@@ -389,9 +334,8 @@ impl Console {
                 self.thumbnails(*pose, s);
                 s.message = format!("pose {} captured; finding the board", pose + 1);
             }
-            Event::PoseProcessed { pose, held_out, .. } => self.pending.push((*pose, *held_out)),
+            Event::PoseProcessed { .. } => {}
             Event::Calibrating { .. } => {
-                self.read_pending(s);
                 s.status = "calibrating".into();
                 s.message = e.to_string();
             }
@@ -405,37 +349,6 @@ impl Console {
             }
             Event::StackFailed { .. } => s.warnings.push(e.to_string()),
             _ => s.message = e.to_string(),
-        }
-    }
-
-    /// The dataset (and its board and devices) once the run has created it.
-    fn open_dataset(&mut self, s: &mut State) {
-        if self.data.is_some() || !self.out.join("dataset.json").exists() {
-            return;
-        }
-        let opened = Dataset::open(&self.out)
-            .map_err(|e| e.to_string())
-            .and_then(|d| {
-                let board = Board::resolve(&d.info.board).map_err(|e| e.to_string())?;
-                Ok((d, board))
-            });
-        match opened {
-            Ok((data, board)) => {
-                let devices: Vec<DeviceInfo> = super::calibrate::devices_of(&data.info);
-                s.devices = devices.iter().map(DeviceStats::new).collect();
-                s.cameras = data
-                    .info
-                    .cameras
-                    .iter()
-                    .map(|c| CameraPanel {
-                        name: c.name.clone(),
-                        size: [c.width, c.height],
-                        ..CameraPanel::default()
-                    })
-                    .collect();
-                self.data = Some((data, board));
-            }
-            Err(e) => s.warnings.push(format!("cannot read the dataset: {e}")),
         }
     }
 
@@ -454,43 +367,6 @@ impl Console {
             panel.thumb = Some(format!("/thumb/{c}.png?pose={pose}"));
             panel.thumb_pose = Some(pose);
             panel.thumb_step = t.step;
-        }
-    }
-
-    /// The processed poses whose views the run has written by now.
-    fn read_pending(&mut self, s: &mut State) {
-        let Some((data, board)) = &self.data else {
-            return;
-        };
-        let mut later = Vec::new();
-        let mut new = false;
-        for (pose, held_out) in std::mem::take(&mut self.pending) {
-            match data.read_pose_file::<PoseViews>(pose, "views.json") {
-                Ok(Some(v)) => {
-                    take_views(board, &v, held_out, s);
-                    if !held_out {
-                        let views = v.stacks.iter().filter_map(|st| st.view.clone());
-                        self.views.extend(views);
-                        self.poses.insert(pose);
-                        new = true;
-                    }
-                }
-                Ok(None) => later.push((pose, held_out)),
-                Err(e) => s.warnings.push(format!("pose {pose}: {e}")),
-            }
-        }
-        self.pending = later;
-        if new && self.poses.len() >= super::calibrate::MIN_CALIBRATION_POSES {
-            s.guiding = true;
-            let poses = self.poses.last().map_or(0, |p| p + 1);
-            lock(&self.shared.interim).requested = poses;
-            self.worker.request(guidance::Request {
-                board: board.clone(),
-                devices: super::calibrate::devices_of(&data.info),
-                views: self.views.clone(),
-                poses,
-                threshold: s.threshold,
-            });
         }
     }
 }
@@ -521,25 +397,6 @@ impl PreviewClock {
             _ => 0.0,
         };
         (rate, 1e3 * (now - started).as_secs_f64())
-    }
-}
-
-/// One processed pose into the panels and device statistics.
-fn take_views(board: &Board, views: &PoseViews, held_out: bool, s: &mut State) {
-    let n = s.devices.len();
-    let mut per_device = vec![(Vec::new(), Vec::new()); n];
-    for (c, stack) in views.stacks.iter().enumerate() {
-        if let Some(panel) = s.cameras.get_mut(c) {
-            panel.overlay = Some(Overlay::of(views.pose, stack.circles, stack.view.as_ref()));
-        }
-        let Some(view) = &stack.view else { continue };
-        for (d, (b, p)) in observations(board, view, n).into_iter().enumerate() {
-            per_device[d].0.extend(b);
-            per_device[d].1.extend(p);
-        }
-    }
-    for (d, (b, p)) in s.devices.iter_mut().zip(per_device) {
-        d.add(&b, &p, held_out);
     }
 }
 

@@ -6,9 +6,10 @@
 //! Takes one preview frame and the board; gives [`LiveView`]: the picture (PNG), the
 //! overlay in the frame's own pixels and whether the camera sees the board.
 
-use super::stats::{Overlay, MIN_POINTS};
+use super::labels::Overlay;
 use super::thumbs::{grey_png, WIDTH};
 use crate::app::detect::Settings;
+use crate::app::guide::stats::MIN_POINTS;
 use crate::board::{Board, Hex};
 use crate::detect::detect;
 use crate::grid::build;

@@ -47,8 +47,7 @@ fn next_state(r: &mut BufReader<TcpStream>) -> serde_json::Value {
 
 #[test]
 fn serves_the_page_state_and_events_and_takes_presses_only_when_waiting() {
-    let dir = std::env::temp_dir().join(format!("hexcal-console-unit-{}", std::process::id()));
-    let mut console = Console::start("127.0.0.1:0", &dir, false).unwrap();
+    let mut console = Console::start("127.0.0.1:0", &[], false).unwrap();
     let url = console.url().to_string();
     assert!(url.starts_with("http://127.0.0.1:"), "{url}");
 
@@ -107,8 +106,7 @@ fn serves_the_page_state_and_events_and_takes_presses_only_when_waiting() {
 
 #[test]
 fn auto_runs_have_no_capture_button() {
-    let dir = std::env::temp_dir().join(format!("hexcal-console-auto-{}", std::process::id()));
-    let mut console = Console::start("127.0.0.1:0", &dir, true).unwrap();
+    let mut console = Console::start("127.0.0.1:0", &[], true).unwrap();
     console.event(&Event::PoseStarted { pose: 0, of: 4 });
     let url = console.url().to_string();
     assert_eq!(request(&url, "POST", "/capture").0, 409);
@@ -117,11 +115,11 @@ fn auto_runs_have_no_capture_button() {
 
 #[test]
 fn a_taken_address_is_refused_naming_it() {
-    let first = Console::start("127.0.0.1:0", Path::new("."), true).unwrap();
+    let first = Console::start("127.0.0.1:0", &[], true).unwrap();
     let addr = first
         .url()
         .trim_start_matches("http://")
         .trim_end_matches('/');
-    let e = Console::start(addr, Path::new("."), true).err().unwrap();
+    let e = Console::start(addr, &[], true).err().unwrap();
     assert!(e.to_string().contains(addr), "{e}");
 }

@@ -1,17 +1,14 @@
-//! What each device has seen so far, for the console: poses seen, a coverage map of its
-//! image, the range of board tilts, and the overlay (labelled points, lattice edges) of each
-//! camera's latest view.
+//! What each device has seen so far: poses seen, a coverage map of its image and the range
+//! of board tilts — half of the done rule ([`super::verdict`]), and what the console shows.
 //!
-//! Takes the processed poses (`views.json` of the dataset) and the devices; gives
-//! [`DeviceStats`] per device and [`Overlay`] per camera.
+//! Takes the processed poses' views and the devices; gives [`DeviceStats`] per device.
 
-use crate::board::{Board, Hex};
+use crate::board::Board;
 use crate::observations::CameraView;
 use crate::observations::DeviceInfo;
 use crate::observations::DeviceKind;
 use nalgebra::{Matrix2, Point2};
 use serde::Serialize;
-use std::collections::HashMap;
 
 /// Columns and rows of a device's coverage map.
 pub const GRID: (usize, usize) = (8, 5);
@@ -112,65 +109,6 @@ pub fn tilt_degrees(board: &[Point2<f64>], pixels: &[Point2<f64>]) -> Option<f64
     (s1 > 0.0 && s2.is_finite()).then(|| (s2 / s1).clamp(0.0, 1.0).acos().to_degrees())
 }
 
-/// What to draw over a camera's thumbnail: its labelled points and lattice edges.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Overlay {
-    /// The pose.
-    pub pose: usize,
-    /// Circles detected.
-    pub circles: usize,
-    /// Whether the labels are anchored on the board.
-    pub anchored: bool,
-    /// Labelled points (image px, rounded to 0.1).
-    pub points: Vec<[f32; 2]>,
-    /// Lattice neighbours as index pairs into `points`.
-    pub edges: Vec<[u32; 2]>,
-}
-
-impl Overlay {
-    /// The overlay of `view` (none: the board was not found) of pose `pose`.
-    pub fn of(pose: usize, circles: usize, view: Option<&CameraView>) -> Overlay {
-        let Some(view) = view else {
-            return Overlay::labelled(pose, circles, false, &[]);
-        };
-        let points: Vec<(Hex, Point2<f64>)> =
-            view.points.iter().map(|p| (p.hex, p.image)).collect();
-        let anchored = matches!(view.frame, crate::observations::Frame::Anchored(_));
-        Overlay::labelled(pose, circles, anchored, &points)
-    }
-
-    /// The overlay of labelled points (lattice position, image px) of pose `pose`, with the
-    /// lattice edges between neighbours.
-    pub fn labelled(
-        pose: usize,
-        circles: usize,
-        anchored: bool,
-        points: &[(Hex, Point2<f64>)],
-    ) -> Overlay {
-        let index: HashMap<Hex, u32> = (0..).zip(points).map(|(i, p)| (p.0, i)).collect();
-        let mut edges = Vec::new();
-        for (i, p) in (0..).zip(points) {
-            // Three of the six directions, so each edge is listed once.
-            for k in 0..3 {
-                if let Some(&j) = index.get(&p.0.neighbour(k)) {
-                    edges.push([i, j]);
-                }
-            }
-        }
-        let round = |v: f64| ((v * 10.0).round() / 10.0) as f32;
-        Overlay {
-            pose,
-            circles,
-            anchored,
-            points: points
-                .iter()
-                .map(|p| [round(p.1.x), round(p.1.y)])
-                .collect(),
-            edges,
-        }
-    }
-}
-
 /// Board points (mm) and a device's pixels of them.
 pub type PointPairs = (Vec<Point2<f64>>, Vec<Point2<f64>>);
 
@@ -197,6 +135,7 @@ pub fn observations(board: &Board, view: &CameraView, devices: usize) -> Vec<Poi
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::board::Hex;
     use nalgebra::{Rotation3, Vector3};
 
     /// Board points tilted by `tilt` about a skew axis, seen by a pinhole (f 1500 px) from
