@@ -12,12 +12,12 @@
 use super::solve::{calibrate, CalibrateOptions, Calibration};
 use super::views::{Evidence, Registered, Unregistered};
 use super::CalibError;
-use hexcal_core::board::{Board, Hex, Side};
+use hexcal_core::board::{lattice_votes, Board, Hex, LatticeMap, Side};
 use hexcal_core::camera::CameraModel;
 use hexcal_core::observations::DeviceInfo;
 use hexcal_core::observations::{CameraView, Frame, ViewPoint};
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
-use std::collections::{BTreeSet, HashMap};
+use std::collections::BTreeSet;
 
 /// Settings of geometric registration.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -42,14 +42,6 @@ impl Default for GeometricParams {
             margin: 3.0,
         }
     }
-}
-
-/// A lattice transform: rotate by `rotation` 60° steps, then translate, on `side`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-struct LatticeMap {
-    rotation: usize,
-    translation: Hex,
-    side: Side,
 }
 
 /// A predicted circle: its label, side and image position, and the predicted distance to
@@ -126,8 +118,7 @@ pub fn place_view(
     params: &GeometricParams,
 ) -> Result<Placed, String> {
     let predicted = predict(board, model, device_from_board);
-    let mut votes: HashMap<LatticeMap, usize> = HashMap::new();
-    let mut matches = 0;
+    let mut pairs = Vec::new();
     for pt in &view.points {
         let nearest = predicted
             .iter()
@@ -136,21 +127,12 @@ pub fn place_view(
         let Some((_, p)) = nearest.filter(|(d, p)| *d <= params.max_distance * p.pitch) else {
             continue;
         };
-        matches += 1;
-        for rotation in 0..6 {
-            let translation = p.hex - pt.hex.rotate(rotation);
-            *votes
-                .entry(LatticeMap {
-                    rotation,
-                    translation,
-                    side: p.side,
-                })
-                .or_default() += 1;
-        }
+        pairs.push((p.side, pt.hex, p.hex));
     }
-    let mut ranked: Vec<(LatticeMap, usize)> = votes.into_iter().collect();
+    let matches = pairs.len();
+    let mut ranked: Vec<((Side, LatticeMap), usize)> = lattice_votes(pairs).into_iter().collect();
     ranked.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
-    let (best, agree) = match ranked.first() {
+    let ((side, best), agree) = match ranked.first() {
         Some(&(m, n)) => (m, n),
         None => return Err("no circle lies near a predicted circle".into()),
     };
@@ -172,13 +154,13 @@ pub fn place_view(
         .points
         .iter()
         .map(|p| ViewPoint {
-            hex: p.hex.rotate(best.rotation) + best.translation,
+            hex: best.apply(p.hex),
             ..p.clone()
         })
         .collect();
     Ok(Placed {
         view: CameraView {
-            frame: Frame::Anchored(best.side),
+            frame: Frame::Anchored(side),
             points,
             ..view.clone()
         },

@@ -10,7 +10,7 @@
 //! cannot be registered are reported, never guessed.
 
 use super::bundle::{Observation, Via};
-use hexcal_core::board::{Hex, Side};
+use hexcal_core::board::{lattice_votes, Hex, Side};
 use hexcal_core::observations::{CameraView, Frame, ViewPoint};
 use nalgebra::Point2;
 use std::collections::HashMap;
@@ -90,14 +90,6 @@ impl Default for RegisterParams {
     }
 }
 
-/// A lattice transform: rotate by `rotation` 60° steps, then translate.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-struct LatticeMap {
-    rotation: usize,
-    translation: Hex,
-    side: Side,
-}
-
 /// Register the unanchored views against the anchored ones; registered views come back
 /// anchored with relabelled points, the others are dropped and reported.
 pub fn register(views: &[CameraView], params: &RegisterParams) -> (Vec<CameraView>, Registration) {
@@ -127,9 +119,8 @@ pub fn register(views: &[CameraView], params: &RegisterParams) -> (Vec<CameraVie
             continue;
         }
         report.unanchored += 1;
-        // Each (point, anchored neighbour) pair votes for the six rotations' translations.
-        let mut votes: HashMap<LatticeMap, usize> = HashMap::new();
-        let mut matches = 0;
+        // Each (point, anchored neighbour) pair votes for the six rotations' maps.
+        let mut pairs = Vec::new();
         for pt in &v.points {
             let mut best: Option<(f64, AnchoredPoint)> = None;
             for pp in &pt.projectors {
@@ -141,22 +132,15 @@ pub fn register(views: &[CameraView], params: &RegisterParams) -> (Vec<CameraVie
                 }
             }
             if let Some((_, AnchoredPoint { side, hex, .. })) = best {
-                matches += 1;
-                for rotation in 0..6 {
-                    let translation = hex - pt.hex.rotate(rotation);
-                    *votes
-                        .entry(LatticeMap {
-                            rotation,
-                            translation,
-                            side,
-                        })
-                        .or_default() += 1;
-                }
+                pairs.push((side, pt.hex, hex));
             }
         }
-        let winner = votes.into_iter().max_by_key(|&(m, n)| (n, m.rotation));
+        let matches = pairs.len();
+        let winner = lattice_votes(pairs)
+            .into_iter()
+            .max_by_key(|&((_, m), n)| (n, m.rotation));
         match winner {
-            Some((map, agree))
+            Some(((side, map), agree))
                 if matches >= params.min_matches
                     && agree as f64 >= params.min_agreement * matches as f64 =>
             {
@@ -168,12 +152,12 @@ pub fn register(views: &[CameraView], params: &RegisterParams) -> (Vec<CameraVie
                     by: Evidence::Projectors,
                 });
                 out.push(CameraView {
-                    frame: Frame::Anchored(map.side),
+                    frame: Frame::Anchored(side),
                     points: v
                         .points
                         .iter()
                         .map(|p| ViewPoint {
-                            hex: p.hex.rotate(map.rotation) + map.translation,
+                            hex: map.apply(p.hex),
                             ..p.clone()
                         })
                         .collect(),

@@ -9,10 +9,12 @@
 //! target of either side ([`Board::svg`]).
 
 pub mod file;
+mod lattice_map;
 mod svg;
 mod validate;
 
 pub use file::BoardError;
+pub use lattice_map::{lattice_votes, LatticeMap};
 pub use validate::Invalid;
 
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};

@@ -5,24 +5,8 @@
 use super::assemble::Component;
 use super::ring::Ring;
 use super::GridParams;
-use hexcal_core::board::{Board, Hex, MarkerKind, Side};
+use hexcal_core::board::{Board, Hex, LatticeMap, MarkerKind, Side};
 use std::collections::{HashMap, HashSet};
-
-/// A map from a component's lattice frame into a side's: h ↦ rotate(h, rotation) + offset.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub(crate) struct LatticeMap {
-    /// 60° counter-clockwise steps.
-    pub rotation: u8,
-    /// Translation applied after the rotation.
-    pub offset: Hex,
-}
-
-impl LatticeMap {
-    /// Apply the map.
-    pub(crate) fn apply(&self, h: Hex) -> Hex {
-        h.rotate(self.rotation as usize) + self.offset
-    }
-}
 
 /// A decoded marker cell placed in a component.
 #[derive(Clone, Copy, Debug)]
@@ -232,10 +216,7 @@ pub(crate) fn frame(
         },
         None => Frame {
             side: None,
-            map: LatticeMap {
-                rotation: 0,
-                offset: Hex::new(0, 0),
-            },
+            map: LatticeMap::IDENTITY,
             anchored: false,
             evidence: Evidence::default(),
         },

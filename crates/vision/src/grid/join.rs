@@ -7,10 +7,10 @@
 //! fits the circles on both sides of the gap with the joined labels: a transform off by a
 //! lattice step still lands on lattice positions, but it stretches or squeezes the gap.
 
-use super::anchor::LatticeMap;
 use super::assemble::{Component, PlacedCell};
 use super::GridParams;
 use hexcal_core::board::Hex;
+use hexcal_core::board::{lattice_votes, LatticeMap};
 use nalgebra::{Matrix3, Point2, SMatrix, SymmetricEigen, Vector2, Vector3};
 use std::collections::HashMap;
 
@@ -167,30 +167,14 @@ fn nearest_to(r: &Reference, points: &[(Vector2<f64>, Hex)], n: usize) -> Vec<(V
 /// of them.
 fn vote(r: &Reference, points: &[(Vector2<f64>, Hex)], p: &GridParams) -> Option<LatticeMap> {
     let candidates = nearest_to(r, points, p.join_candidates);
-    let mut votes: HashMap<LatticeMap, usize> = HashMap::new();
-    for (hex, label) in candidates
+    let pairs = candidates
         .iter()
-        .filter_map(|&(x, label)| Some((predict(r, x, p)?, label)))
-    {
-        for rotation in 0..6u8 {
-            let offset = hex - label.rotate(rotation as usize);
-            *votes.entry(LatticeMap { rotation, offset }).or_default() += 1;
-        }
-    }
-    let (map, agree) = votes
+        .filter_map(|&(x, label)| Some(((), label, predict(r, x, p)?)));
+    let ((_, map), agree) = lattice_votes(pairs)
         .into_iter()
-        .max_by_key(|&(m, n)| (n, std::cmp::Reverse((m.rotation, m.offset))))?;
+        .max_by_key(|&((_, m), n)| (n, std::cmp::Reverse((m.rotation, m.offset))))?;
     (agree >= p.min_join_points && agree as f64 >= p.join_agreement * candidates.len() as f64)
         .then_some(map)
-}
-
-/// The inverse of a lattice transform.
-fn inverse(m: LatticeMap) -> LatticeMap {
-    let rotation = (6 - m.rotation) % 6;
-    LatticeMap {
-        rotation,
-        offset: -m.offset.rotate(rotation as usize),
-    }
 }
 
 /// The lattice transform taking `comp` into the reference's frame, if it joins: the
@@ -205,7 +189,7 @@ fn transform(
 ) -> Option<LatticeMap> {
     let other = Reference::new(comp, centres);
     let map = vote(r, &other.points, p)?;
-    if vote(&other, &r.points, p)? != inverse(map) {
+    if vote(&other, &r.points, p)? != map.inverse() {
         return None;
     }
     (!other

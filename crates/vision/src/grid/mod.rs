@@ -33,7 +33,8 @@ mod cell;
 mod join;
 mod ring;
 
-use anchor::{BoardRings, Frame, LatticeMap, PlacedMarker};
+use anchor::{BoardRings, Frame, PlacedMarker};
+use hexcal_core::board::LatticeMap;
 use hexcal_core::board::{Board, Code, Hex, MarkerKind, Side};
 use nalgebra::Point2;
 use ring::Ring;
@@ -333,10 +334,7 @@ impl<'a> Scene<'a> {
         let Some(side) = frame.side else {
             return false;
         };
-        let to_board = LatticeMap {
-            rotation: (map.rotation + frame.map.rotation) % 6,
-            offset: map.offset.rotate(frame.map.rotation as usize) + frame.map.offset,
-        };
+        let to_board = map.then(frame.map);
         let markers = placed_markers(comp, &self.cells, &self.decoded);
         let ev = anchor::weigh(
             self.board,

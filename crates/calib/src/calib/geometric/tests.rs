@@ -6,6 +6,7 @@ use super::*;
 use crate::calib::synthetic::SyntheticRig;
 use nalgebra::{Translation3, Vector2};
 use rand::{rngs::StdRng, Rng, SeedableRng};
+use std::collections::HashMap;
 
 /// True labels and side of each view made partial, by (camera, pose).
 type Expected = HashMap<(usize, usize), (Frame, Vec<Hex>)>;
