@@ -6,39 +6,20 @@
 
 use hexcal::app::capture::capture_dataset;
 use hexcal::dataset::{Dataset, StackReader};
-use hexcal::rig::file::RigFile;
+use hexcal::rig::fixture::{tiny, SimRig};
 use hexcal::rig::sim::SimWorld;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// One small camera, one linear projector (18 frames a pose), ten poses.
-const RIG: &str = r#"
-name = "disk"
-[timing]
-frame_period_ms = 20.0
-[poses]
-count = 10
-yaw_deg = 20.0
-tilt_deg = 10.0
-shift_mm = 20.0
-seed = 5
-[[camera]]
-name = "front"
-driver = "sim"
-width = 320
-height = 240
-exposure_ms = 10.0
-sim.intrinsics = { fx = 1500.0, fy = 1500.0, cx = 159.5, cy = 119.5 }
-sim.pose = { eye = [0.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
-[[projector]]
-name = "p0"
-driver = "sim"
-width = 320
-height = 200
-gamma = 1.0
-sim.intrinsics = { fx = 400.0, fy = 400.0, cx = 160.0, cy = 180.0 }
-sim.pose = { eye = [300.0, 50.0, 1300.0], target = [0.0, 0.0, 0.0] }
-"#;
+/// The tiny rig's front camera and one linear projector (18 frames a pose), ten poses.
+fn rig() -> SimRig {
+    tiny()
+        .named("disk")
+        .with("poses.count = 10")
+        .with("poses.seed = 5")
+        .without(&["back", "p1"])
+        .edit("p0", |p| p.with("gamma = 1.0"))
+}
 
 const POSES: usize = 10;
 
@@ -172,7 +153,7 @@ fn a_full_disk_stops_the_capture_naming_file_camera_and_frame_and_loses_nothing(
         }
     };
     let rig_path = std::env::temp_dir().join(format!("hexcal-disk-{}.toml", std::process::id()));
-    std::fs::write(&rig_path, RIG).unwrap();
+    std::fs::write(&rig_path, rig().toml()).unwrap();
     let out = disk.dir.join("dataset");
 
     let err = capture(&rig_path, &out).expect_err("2 MB cannot hold 10 poses");
@@ -205,7 +186,7 @@ fn a_full_disk_stops_the_capture_naming_file_camera_and_frame_and_loses_nothing(
     assert!(data.pose(failed).unwrap().is_none());
     assert_no_partial_files(&out);
     let world = SimWorld::new(
-        &RigFile::parse(RIG, "disk.toml").unwrap(),
+        &rig().parse().unwrap(),
         hexcal::board::Board::builtin("hex600").unwrap(),
     )
     .unwrap();
@@ -235,7 +216,7 @@ fn a_frame_written_to_a_full_disk_is_an_error_and_leaves_no_file() {
             return;
         }
     };
-    let rig = RigFile::parse(RIG, "disk.toml").unwrap();
+    let rig = rig().parse().unwrap();
     let sequence = rig.sequence().unwrap();
     let info = DatasetInfo {
         format: hexcal::dataset::FORMAT.into(),

@@ -17,6 +17,7 @@
 mod cli;
 
 use cli::scratch;
+use hexcal::rig::fixture::{paper, SimRig};
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -27,47 +28,15 @@ use std::time::{Duration, Instant};
 
 const CHROMIUM: &str = "/usr/bin/chromium";
 
-/// Two 960×600 cameras facing the board's front and one projector (30 frames a pose): small
-/// enough for the debug build.
-const RIG: &str = r#"
-name = "sim-console"
-board = "hex600"
-[timing]
-frame_period_ms = 20.0
-[guidance]
-uncertainty_px = THRESHOLD
-[poses]
-count = 6
-yaw_deg = 30.0
-tilt_deg = 20.0
-shift_mm = 40.0
-seed = 5
-[[camera]]
-name = "cam0"
-driver = "sim"
-width = 960
-height = 600
-exposure_ms = 10.0
-sim.intrinsics = { fx = 1200.0, fy = 1200.0, cx = 478.0, cy = 301.0 }
-sim.distortion = { k1 = -0.12, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
-sim.pose = { eye = [0.0, -311.9, 1467.2], target = [0.0, 0.0, 0.0] }
-[[camera]]
-name = "cam1"
-driver = "sim"
-width = 960
-height = 600
-exposure_ms = 10.0
-sim.intrinsics = { fx = 1220.0, fy = 1220.0, cx = 481.0, cy = 299.0 }
-sim.distortion = { k1 = -0.1, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
-sim.pose = { eye = [-860.4, 0.0, 1228.7], target = [0.0, 0.0, 0.0] }
-[[projector]]
-name = "proj0"
-driver = "sim"
-width = 1280
-height = 800
-sim.intrinsics = { fx = 1500.0, fy = 1500.0, cx = 640.0, cy = 740.0 }
-sim.pose = { eye = [335.2, 113.3, 1250.9], target = [0.0, 0.0, 0.0] }
-"#;
+/// The reduced paper rig's two 960×600 cameras facing the board's front and its front
+/// projector (30 frames a pose), six poses: small enough for the debug build.
+fn console_rig() -> SimRig {
+    paper()
+        .named("sim-console")
+        .with(&format!("guidance.uncertainty_px = {THRESHOLD}"))
+        .with("poses.count = 6")
+        .without(&["cam2", "proj1"])
+}
 
 /// The rig's done threshold on projection uncertainty (px): between what the first interim
 /// calibration (3 poses) and the second (4 poses) reach on this rig's fixed schedule (with
@@ -532,7 +501,7 @@ fn console_guides_a_run_in_a_real_browser() {
     );
     let dir = scratch("console-browser");
     let rig = dir.join("rig.toml");
-    std::fs::write(&rig, RIG.replace("THRESHOLD", THRESHOLD)).unwrap();
+    std::fs::write(&rig, console_rig().toml()).unwrap();
     let (mut run, mut stdin, url, stderr) = start_run(&rig, &dir.join("data"));
     let browser = start_chromium(&dir.join("profile"));
     let mut page = Page::attach(&dir.join("profile"));
@@ -599,7 +568,7 @@ fn console_guides_a_run_in_a_real_browser() {
 fn a_guided_simulated_operator_follows_the_console_until_done() {
     let dir = scratch("console-guided");
     let rig = dir.join("rig.toml");
-    std::fs::write(&rig, RIG.replace("THRESHOLD", THRESHOLD)).unwrap();
+    std::fs::write(&rig, console_rig().toml()).unwrap();
     let out = dir.join("data");
     let run = Command::new(env!("CARGO_BIN_EXE_hexcal"))
         .args(["run", "--auto", "--guided", "--held-out", "0"])

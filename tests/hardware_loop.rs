@@ -18,6 +18,7 @@ use hexcal::pattern::Sequence;
 use hexcal::phase::files::{decode_dir, DecodeSummary};
 use hexcal::rig::aravis::{AravisCamera, LoopbackCamera, LOOPBACK_ADDRESS};
 use hexcal::rig::file::RigFile;
+use hexcal::rig::fixture::{SimDevice, SimRig};
 use hexcal::rig::sim::SimWorld;
 use hexcal::rig::trigger::{TriggerController, TriggerTiming};
 use hexcal::sim::stack::StackRenderer;
@@ -55,33 +56,18 @@ const WAIT: Duration = Duration::from_secs(2);
 
 /// The rig's ground truth: the camera and projector models and poses the simulator renders
 /// the camera's view from (one linear projector: the default 18-frame sequence).
-const RIG: &str = r#"
-name = "hardware-loop"
-[timing]
-frame_period_ms = 20.0
-[poses]
-count = 2
-yaw_deg = 15.0
-tilt_deg = 8.0
-shift_mm = 20.0
-seed = 11
-[[camera]]
-name = "cam"
-driver = "sim"
-width = 640
-height = 400
-exposure_ms = 5.0
-sim.intrinsics = { fx = 1500.0, fy = 1500.0, cx = 319.5, cy = 199.5 }
-sim.pose = { eye = [0.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
-[[projector]]
-name = "proj"
-driver = "sim"
-width = 640
-height = 400
-gamma = 1.0
-sim.intrinsics = { fx = 800.0, fy = 800.0, cx = 320.0, cy = 360.0 }
-sim.pose = { eye = [300.0, 50.0, 1300.0], target = [0.0, 0.0, 0.0] }
-"#;
+fn rig() -> RigFile {
+    let camera = SimDevice::new("cam", (W, H), [1500.0, 1500.0, 319.5, 199.5]);
+    let projector =
+        SimDevice::new("proj", (W, H), [800.0, 800.0, 320.0, 360.0]).at([300.0, 50.0, 1300.0]);
+    SimRig::new("hardware-loop")
+        .table("[timing]\nframe_period_ms = 20.0")
+        .table("[poses]\ncount = 2\nyaw_deg = 15.0\ntilt_deg = 8.0\nshift_mm = 20.0\nseed = 11")
+        .camera(camera.with("exposure_ms = 5.0"))
+        .projector(projector.with("gamma = 1.0"))
+        .parse()
+        .unwrap()
+}
 
 /// The simulated world, its sequence, and per pose the renderer and the frames it gives.
 struct Truth {
@@ -91,7 +77,7 @@ struct Truth {
 }
 
 fn truth(poses: usize) -> Truth {
-    let rig = RigFile::parse(RIG, "hardware-loop.toml").unwrap();
+    let rig = rig();
     let world = SimWorld::new(&rig, rig.board().unwrap()).unwrap();
     let sequence = rig.sequence().unwrap();
     let renderers: Vec<StackRenderer> = (0..poses)
@@ -283,7 +269,7 @@ impl Projector for Watched {
 
 /// The simulated projector of the truth rig.
 fn simulated_projector() -> Box<dyn Projector> {
-    let rig = RigFile::parse(RIG, "hardware-loop.toml").unwrap();
+    let rig = rig();
     let world = Arc::new(SimWorld::new(&rig, rig.board().unwrap()).unwrap());
     let (_, mut projectors) = world.devices();
     Box::new(projectors.remove(0))

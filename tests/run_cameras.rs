@@ -22,83 +22,46 @@ use hexcal::app::AppError;
 use hexcal::dataset::Dataset;
 use hexcal::images::Pixels;
 use hexcal::rig::file::RigFile;
+use hexcal::rig::fixture::{paper_camera, SimRig};
 use hexcal::rig::sim::SimWorld;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-const RIG: &str = r#"
-name = "sim-cameras-small"
-board = "hex600"
-[timing]
-frame_period_ms = 20.0
-[poses]
-count = 10
-yaw_deg = 35.0
-tilt_deg = 25.0
-shift_mm = 120.0
-seed = 3
-[[camera]]
-name = "cam0"
-driver = "sim"
-width = 960
-height = 600
-exposure_ms = 10.0
-sim.intrinsics = { fx = 1200.0, fy = 1200.0, cx = 478.0, cy = 301.0 }
-sim.distortion = { k1 = -0.12, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
-sim.pose = { eye = [0.0, -311.9, 1467.2], target = [0.0, 0.0, 0.0] }
-[[camera]]
-name = "cam1"
-driver = "sim"
-width = 960
-height = 600
-exposure_ms = 10.0
-sim.intrinsics = { fx = 2400.0, fy = 2400.0, cx = 479.0, cy = 300.0 }
-sim.distortion = { k1 = -0.05, k2 = 0.02, p1 = 0.0002, p2 = -0.0001, k3 = 0.0 }
-sim.pose = { eye = [841.6, 311.9, 1201.9], target = [0.0, 100.0, 0.0] }
-[[camera]]
-name = "cam2"
-driver = "sim"
-width = 960
-height = 600
-exposure_ms = 10.0
-sim.intrinsics = { fx = 2350.0, fy = 2350.0, cx = 480.0, cy = 301.0 }
-sim.distortion = { k1 = -0.06, k2 = 0.02, p1 = 0.0002, p2 = -0.0001, k3 = 0.0 }
-sim.pose = { eye = [-300.0, 300.0, 1400.0], target = [150.0, -90.0, 0.0] }
-[[camera]]
-name = "cam3"
-driver = "sim"
-width = 960
-height = 600
-exposure_ms = 10.0
-sim.intrinsics = { fx = 1230.0, fy = 1230.0, cx = 481.0, cy = 299.0 }
-sim.distortion = { k1 = -0.11, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
-sim.pose = { eye = [0.0, -311.9, -1467.2], target = [0.0, 0.0, 0.0] }
-[[camera]]
-name = "cam4"
-driver = "sim"
-width = 960
-height = 600
-exposure_ms = 10.0
-sim.intrinsics = { fx = 2375.0, fy = 2375.0, cx = 479.0, cy = 301.0 }
-sim.distortion = { k1 = -0.05, k2 = 0.02, p1 = 0.0002, p2 = -0.0001, k3 = 0.0 }
-sim.pose = { eye = [-733.6, 311.9, -1270.7], target = [0.0, 100.0, 0.0] }
-[[camera]]
-name = "cam5"
-driver = "sim"
-width = 960
-height = 600
-exposure_ms = 10.0
-sim.intrinsics = { fx = 2325.0, fy = 2325.0, cx = 480.0, cy = 299.0 }
-sim.distortion = { k1 = -0.06, k2 = 0.02, p1 = 0.0002, p2 = -0.0001, k3 = 0.0 }
-sim.pose = { eye = [300.0, 300.0, -1400.0], target = [-150.0, -90.0, 0.0] }
-"#;
+/// Six 960×600 cameras of the reduced paper rig ([`paper_camera`]), three facing each side
+/// of the board, two of each three zoomed and looking off the board's centre; no projectors.
+fn rig() -> SimRig {
+    // Name, focal length and principal point (px), k1, where it stands and looks (mm).
+    #[rustfmt::skip]
+    let cameras = [
+        ("cam0", 1200.0, [478.0, 301.0], -0.12, [0.0, -311.9, 1467.2], [0.0; 3]),
+        ("cam1", 2400.0, [479.0, 300.0], -0.05, [841.6, 311.9, 1201.9], [0.0, 100.0, 0.0]),
+        ("cam2", 2350.0, [480.0, 301.0], -0.06, [-300.0, 300.0, 1400.0], [150.0, -90.0, 0.0]),
+        ("cam3", 1230.0, [481.0, 299.0], -0.11, [0.0, -311.9, -1467.2], [0.0; 3]),
+        ("cam4", 2375.0, [479.0, 301.0], -0.05, [-733.6, 311.9, -1270.7], [0.0, 100.0, 0.0]),
+        ("cam5", 2325.0, [480.0, 299.0], -0.06, [300.0, 300.0, -1400.0], [-150.0, -90.0, 0.0]),
+    ];
+    let mut rig = SimRig::new("sim-cameras-small")
+        .with("board = \"hex600\"")
+        .table("[timing]\nframe_period_ms = 20.0")
+        .table("[poses]\ncount = 10\nyaw_deg = 35.0\ntilt_deg = 25.0\nshift_mm = 120.0\nseed = 3");
+    for (name, f, c, k1, eye, target) in cameras {
+        let camera = paper_camera(name, f, c, k1, eye).looking_at(target);
+        // The zoomed cameras' lenses distort less.
+        let zoomed = f > 2000.0;
+        rig = rig.camera(if zoomed {
+            camera.distorted([k1, 0.02, 0.0002, -0.0001, 0.0])
+        } else {
+            camera
+        });
+    }
+    rig
+}
 
 #[test]
 fn a_camera_only_rig_calibrates_to_its_ground_truth() {
     let dir = scratch("run-cameras");
-    let rig = dir.join("sim-cameras-small.toml");
-    std::fs::write(&rig, RIG).unwrap();
+    let rig = rig().write(&dir);
     let out = dir.join("data");
     // Stopped (as by Ctrl-C) when pose 4 is placed: poses 0–3 are kept.
     let stop = Arc::new(AtomicBool::new(false));
@@ -236,15 +199,16 @@ fn check_stored_frames(out: &Path, board: &hexcal::board::Board) {
     }
 }
 
-/// One sim camera of the small rig, with `repeats` frames averaged per pose.
+/// cam0 of the small rig alone, with `repeats` frames averaged per pose.
 fn burst_rig(repeats: u32) -> RigFile {
-    let camera =
-        &RIG[RIG.find("[[camera]]").unwrap()..RIG.find("[[camera]]\nname = \"cam1\"").unwrap()];
-    let text = format!(
-        "name = \"burst\"\n[timing]\nframe_period_ms = 20.0\nrepeats = {repeats}\n\
-         [poses]\ncount = 1\nyaw_deg = 0.0\ntilt_deg = 0.0\nshift_mm = 0.0\n{camera}"
-    );
-    RigFile::parse(&text, "burst.toml").unwrap()
+    SimRig::new("burst")
+        .table(&format!(
+            "[timing]\nframe_period_ms = 20.0\nrepeats = {repeats}"
+        ))
+        .table("[poses]\ncount = 1\nyaw_deg = 0.0\ntilt_deg = 0.0\nshift_mm = 0.0")
+        .camera(rig().cameras[0].clone())
+        .parse()
+        .unwrap()
 }
 
 /// The RMS difference (DN) between two plain frames of the same board pose, each the

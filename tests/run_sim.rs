@@ -15,67 +15,16 @@ use cli::scratch;
 use hexcal::app::capture::LoadedRig;
 use hexcal::app::progress::Event;
 use hexcal::app::run::{run, RunOptions};
+use hexcal::rig::fixture::{paper, SimRig};
 use std::path::Path;
 
-const RIG: &str = r#"
-name = "sim-small"
-board = "hex600"
-[timing]
-frame_period_ms = 20.0
-[poses]
-count = 7
-yaw_deg = 30.0
-tilt_deg = 20.0
-shift_mm = 40.0
-seed = 5
-absent = [2]
-[[camera]]
-name = "cam0"
-driver = "sim"
-width = 960
-height = 600
-exposure_ms = 10.0
-sim.intrinsics = { fx = 1200.0, fy = 1200.0, cx = 478.0, cy = 301.0 }
-sim.distortion = { k1 = -0.12, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
-sim.pose = { eye = [0.0, -311.9, 1467.2], target = [0.0, 0.0, 0.0] }
-[[camera]]
-name = "cam1"
-driver = "sim"
-width = 960
-height = 600
-exposure_ms = 10.0
-sim.intrinsics = { fx = 1220.0, fy = 1220.0, cx = 481.0, cy = 299.0 }
-sim.distortion = { k1 = -0.1, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
-sim.pose = { eye = [-860.4, 0.0, 1228.7], target = [0.0, 0.0, 0.0] }
-[[camera]]
-name = "cam2"
-driver = "sim"
-width = 960
-height = 600
-exposure_ms = 10.0
-sim.intrinsics = { fx = 1240.0, fy = 1240.0, cx = 482.0, cy = 300.0 }
-sim.distortion = { k1 = -0.11, k2 = 0.05, p1 = 0.0004, p2 = -0.0003, k3 = 0.0 }
-sim.pose = { eye = [0.0, -311.9, -1467.2], target = [0.0, 0.0, 0.0] }
-[[projector]]
-name = "proj0"
-driver = "sim"
-width = 1280
-height = 800
-sim.intrinsics = { fx = 1500.0, fy = 1500.0, cx = 640.0, cy = 740.0 }
-sim.pose = { eye = [335.2, 113.3, 1250.9], target = [0.0, 0.0, 0.0] }
-[[projector]]
-name = "proj1"
-driver = "sim"
-width = 1280
-height = 800
-sim.intrinsics = { fx = 1520.0, fy = 1520.0, cx = 640.0, cy = 740.0 }
-sim.pose = { eye = [224.9, 113.3, -1275.4], target = [0.0, 0.0, 0.0] }
-"#;
+/// The reduced paper rig; pose 2 has no board in front of the rig.
+fn rig() -> SimRig {
+    paper().with("poses.absent = [2]")
+}
 
 fn rig_file(dir: &Path) -> std::path::PathBuf {
-    let path = dir.join("sim-small.toml");
-    std::fs::write(&path, RIG).unwrap();
-    path
+    rig().write(dir)
 }
 
 #[test]

@@ -11,6 +11,7 @@ use hexcal::capture::{CaptureError, Session};
 use hexcal::dataset::{CameraEntry, Dataset, DatasetInfo, ProjectorEntry, StackReader};
 use hexcal::pattern::{ProjectorResponse, ProjectorSetup, Sequence};
 use hexcal::rig::file::RigFile;
+use hexcal::rig::fixture::{tiny, SimDevice, SimRig};
 use hexcal::rig::window::WindowProjector;
 use hexcal::rig::{CaptureTiming, RigDevices};
 use std::path::Path;
@@ -212,11 +213,11 @@ fn a_missing_monitor_or_a_wrong_size_names_the_projector() {
                 "left: width, height: the projector is 1920×1080 but monitor screen is 1280×800"
             );
             // Through a rig file: the capture's device opening names it too.
-            let rig = RigFile::parse(
-                &rig_text(1920, 1080).replace("\"p1\"", "\"side\""),
-                "wrong.toml",
-            )
-            .unwrap();
+            let side = rig(Some((1920, 1080))).edit("p1", |p| SimDevice {
+                name: "side".into(),
+                ..p
+            });
+            let rig = RigFile::parse(&side.toml(), "wrong.toml").unwrap();
             let e = hexcal::rig::open(&rig).err().unwrap();
             assert_eq!(
                 e.to_string(),
@@ -341,51 +342,16 @@ fn show_returns_once_the_server_has_drawn_the_slide() {
     );
 }
 
-/// Two simulated cameras facing each other across the board and two projectors: p0
-/// simulated, p1 of size `w` × `h` (simulated here, a window in the capture test).
-fn rig_text(w: u32, h: u32) -> String {
-    format!(
-        r#"
-name = "tiny-window"
-[timing]
-frame_period_ms = 20.0
-[poses]
-count = 2
-yaw_deg = 20.0
-tilt_deg = 10.0
-shift_mm = 20.0
-seed = 3
-[[camera]]
-name = "front"
-driver = "sim"
-width = 320
-height = 240
-exposure_ms = 10.0
-sim.intrinsics = {{ fx = 1500.0, fy = 1500.0, cx = 159.5, cy = 119.5 }}
-sim.pose = {{ eye = [0.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }}
-[[camera]]
-name = "back"
-driver = "sim"
-width = 320
-height = 240
-exposure_ms = 10.0
-sim.intrinsics = {{ fx = 1500.0, fy = 1500.0, cx = 159.5, cy = 119.5 }}
-sim.pose = {{ eye = [100.0, 0.0, -1500.0], target = [0.0, 0.0, 0.0] }}
-[[projector]]
-name = "p0"
-driver = "sim"
-width = 320
-height = 200
-sim.intrinsics = {{ fx = 400.0, fy = 400.0, cx = 160.0, cy = 180.0 }}
-sim.pose = {{ eye = [300.0, 50.0, 1300.0], target = [0.0, 0.0, 0.0] }}
-[[projector]]
-name = "p1"
-driver = "window"
-monitor = "screen"
-width = {w}
-height = {h}
-"#
-    )
+/// The tiny rig in two poses (two simulated cameras facing each other across the board, p0
+/// simulated), its p1 a window of `size` on monitor `screen`, or simulated when none.
+fn rig(p1_window: Option<(u32, u32)>) -> SimRig {
+    let rig = tiny().named("tiny-window").with("poses.count = 2");
+    match p1_window {
+        Some(size) => rig.edit("p1", |p| {
+            p.sized(size).driver("window").with("monitor = \"screen\"")
+        }),
+        None => rig,
+    }
 }
 
 /// Projector p1 of the capture: the simulated projector lights the simulated board, the
@@ -420,12 +386,7 @@ fn a_capture_whose_projector_window_is_killed_keeps_the_poses_written() {
         || {
             // The simulated world needs every projector's truth: simulate p1 there and
             // drive its window beside it.
-            let sim_rig = rig_text(320, 200).replace(
-                "driver = \"window\"\nmonitor = \"screen\"",
-                "driver = \"sim\"\nsim.intrinsics = { fx = 400.0, fy = 400.0, cx = 160.0, cy = \
-                 180.0 }\nsim.pose = { eye = [-300.0, 50.0, -1300.0], target = [0.0, 0.0, 0.0] }",
-            );
-            let rig = RigFile::parse(&sim_rig, "tiny-window.toml").unwrap();
+            let rig = rig(None).parse().unwrap();
             let opened = hexcal::rig::open(&rig).unwrap();
             let world = opened.world.clone().unwrap();
             let seq = opened.sequence.clone();

@@ -215,38 +215,25 @@ fn finish_leftovers(
 mod tests {
     use super::{capture_dataset, CaptureOptions, LoadedRig};
     use crate::dataset::Dataset;
+    use crate::rig::fixture::{SimDevice, SimRig};
 
     /// Two simulated 64×48 cameras, one Bayer and one MJPEG, and no projector.
-    const RIG: &str = r#"
-name = "formats"
-[timing]
-frame_period_ms = 20.0
-[poses]
-count = 3
-yaw_deg = 10.0
-tilt_deg = 10.0
-shift_mm = 10.0
-seed = 1
-[[camera]]
-name = "colour"
-driver = "sim"
-format = "BayerGB"
-width = 64
-height = 48
-exposure_ms = 10.0
-sim.intrinsics = { fx = 300.0, fy = 300.0, cx = 31.5, cy = 23.5 }
-sim.pose = { eye = [0.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
-[[camera]]
-name = "webcam"
-driver = "sim"
-format = "MJPG"
-jpeg_quality = 90
-width = 64
-height = 48
-exposure_ms = 10.0
-sim.intrinsics = { fx = 300.0, fy = 300.0, cx = 31.5, cy = 23.5 }
-sim.pose = { eye = [100.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
-"#;
+    fn formats_rig() -> SimRig {
+        let camera = |name, eye| {
+            SimDevice::new(name, (64, 48), [300.0, 300.0, 31.5, 23.5])
+                .at(eye)
+                .with("exposure_ms = 10.0")
+        };
+        SimRig::new("formats")
+            .table("[timing]\nframe_period_ms = 20.0")
+            .table("[poses]\ncount = 3\nyaw_deg = 10.0\ntilt_deg = 10.0\nshift_mm = 10.0\nseed = 1")
+            .camera(camera("colour", [0.0, 0.0, 1500.0]).with("format = \"BayerGB\""))
+            .camera(
+                camera("webcam", [100.0, 0.0, 1500.0])
+                    .with("format = \"MJPG\"")
+                    .with("jpeg_quality = 90"),
+            )
+    }
 
     /// Capture `poses` poses of `rig` into `out`; the error's text if it fails.
     fn capture(rig: &std::path::Path, out: &std::path::Path, poses: usize) -> Result<(), String> {
@@ -270,7 +257,7 @@ sim.pose = { eye = [100.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let rig = dir.join("rig.toml");
-        std::fs::write(&rig, RIG).unwrap();
+        std::fs::write(&rig, formats_rig().toml()).unwrap();
         let out = dir.join("data");
         capture(&rig, &out, 1).unwrap();
         let data = Dataset::open(&out).unwrap();
@@ -288,7 +275,13 @@ sim.pose = { eye = [100.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
         capture(&rig, &out, 2).unwrap();
         assert_eq!(Dataset::open(&out).unwrap().completed().unwrap(), [0, 1]);
         // The webcam now delivers another quality: refused by name, nothing written.
-        std::fs::write(&rig, RIG.replace("jpeg_quality = 90", "jpeg_quality = 80")).unwrap();
+        std::fs::write(
+            &rig,
+            formats_rig()
+                .edit("webcam", |c| c.with("jpeg_quality = 80"))
+                .toml(),
+        )
+        .unwrap();
         let err = capture(&rig, &out, 3).unwrap_err();
         assert!(
             err.contains("dataset.json")

@@ -3,6 +3,7 @@
 //! Ctrl-C in a move and a wait, prompts, and a resumed script.
 
 use super::*;
+use crate::rig::fixture::{SimDevice, SimRig};
 use crate::rig::positioner::board_on_stage;
 use hexcal_simulator::stage::Axes;
 use serialport::SerialPort;
@@ -10,31 +11,8 @@ use std::io::{BufRead, BufReader, Write};
 
 /// A one-camera simulated rig with a stage (and a serial positioner on `port`) and `script`.
 fn rig(port: &str, script: &str) -> RigFile {
-    let text = format!(
-        r#"name = "scripted"
-[timing]
-frame_period_ms = 10.0
-[poses]
-count = 8
-yaw_deg = 10.0
-tilt_deg = 10.0
-shift_mm = 0.0
-[[camera]]
-name = "cam0"
-driver = "sim"
-width = 320
-height = 240
-exposure_ms = 5.0
-sim.intrinsics = {{ fx = 400.0, fy = 400.0, cx = 160.0, cy = 120.0 }}
-sim.pose = {{ eye = [0.0, 0.0, 1200.0], target = [0.0, 0.0, 0.0] }}
-[[projector]]
-name = "proj0"
-driver = "sim"
-width = 400
-height = 300
-sim.intrinsics = {{ fx = 450.0, fy = 450.0, cx = 200.0, cy = 280.0 }}
-sim.pose = {{ eye = [300.0, 100.0, 1200.0], target = [0.0, 0.0, 0.0] }}
-[[positioner]]
+    let positioners = format!(
+        r#"[[positioner]]
 name = "stage"
 driver = "sim"
 command = "MOVE {{angle}} {{tilt}}"
@@ -49,6 +27,18 @@ stop = "HALT"
 timeout_s = 0.6
 {script}"#
     );
+    let camera = SimDevice::new("cam0", (320, 240), [400.0, 400.0, 160.0, 120.0])
+        .at([0.0, 0.0, 1200.0])
+        .with("exposure_ms = 5.0");
+    let projector = SimDevice::new("proj0", (400, 300), [450.0, 450.0, 200.0, 280.0])
+        .at([300.0, 100.0, 1200.0]);
+    let text = SimRig::new("scripted")
+        .table("[timing]\nframe_period_ms = 10.0")
+        .table("[poses]\ncount = 8\nyaw_deg = 10.0\ntilt_deg = 10.0\nshift_mm = 0.0")
+        .camera(camera)
+        .projector(projector)
+        .then(&positioners)
+        .toml();
     RigFile::parse(&text, "rig.toml").unwrap_or_else(|e| panic!("{e}"))
 }
 

@@ -5,6 +5,7 @@
 
 use super::*;
 use crate::rig::file::RigFile;
+use crate::rig::fixture::tiny;
 use crate::rig::sim::{Faults, SimWorld};
 use hexcal_core::dataset::{
     CameraEntry, Dataset, DatasetError, DatasetInfo, ProjectorEntry, StackReader,
@@ -13,7 +14,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 fn rig() -> RigFile {
-    crate::rig::fixture::tiny().parse().unwrap()
+    tiny().parse().unwrap()
 }
 
 /// A session on the tiny rig with `faults` on camera 1 and fast timeouts.
@@ -392,14 +393,11 @@ fn read_tiff(path: &Path) -> Vec<f32> {
 fn the_simulated_controller_on_a_pty_triggers_the_same_frames() {
     // The tiny rig with the trigger controller: the host driver on one end of a pty, the
     // firmware model on the other, its lines wired to the simulated cameras.
-    let text = crate::rig::fixture::tiny()
-        .toml()
-        .replace(
-            "[poses]",
-            "[trigger]\nport = \"sim\"\npulse_us = 100\n[poses]",
-        )
-        .replace("name = \"front\"\n", "name = \"front\"\ntrigger_line = 0\n")
-        .replace("name = \"back\"\n", "name = \"back\"\ntrigger_line = 1\n");
+    let text = tiny()
+        .table("[trigger]\nport = \"sim\"\npulse_us = 100")
+        .edit("front", |c| c.with("trigger_line = 0"))
+        .edit("back", |c| c.with("trigger_line = 1"))
+        .toml();
     let rig = RigFile::parse(&text, "tiny-hw.toml").unwrap();
     let opened = crate::rig::open(&rig).unwrap();
     assert!(opened.devices.trigger.is_some());
@@ -457,19 +455,13 @@ fn difference(a: &[u8], b: &[u8], keep: impl Fn(usize, usize) -> bool) -> (f64, 
 
 #[test]
 fn simulated_bayer_and_mjpeg_cameras_deliver_grey_close_to_the_monochrome_frame() {
-    let text = crate::rig::fixture::tiny()
-        .toml()
-        .replacen(
-            "driver = \"sim\"\n",
-            "driver = \"sim\"\nformat = \"BayerRG\"\n",
-            1,
-        )
-        .replacen(
-            "name = \"back\"\ndriver = \"sim\"\n",
-            "name = \"back\"\ndriver = \"sim\"\nformat = \"MJPG\"\njpeg_quality = 95\n",
-            1,
-        );
-    let rig = RigFile::parse(&text, "tiny.toml").unwrap();
+    let rig = tiny()
+        .edit("front", |c| c.with("format = \"BayerRG\""))
+        .edit("back", |c| {
+            c.with("format = \"MJPG\"").with("jpeg_quality = 95")
+        })
+        .parse()
+        .unwrap();
     let opened = crate::rig::open(&rig).unwrap();
     let world = opened.world.clone().unwrap();
     let names: Vec<Option<String>> = opened

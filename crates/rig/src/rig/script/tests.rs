@@ -1,44 +1,38 @@
 use super::*;
 use crate::rig::file::RigError;
+use crate::rig::fixture::{SimDevice, SimRig};
 
 /// A small simulated rig (one camera) with a stage, a serial positioner and `script`.
 fn rig_text(script: &str) -> String {
-    format!(
-        r#"name = "scripted"
-[timing]
-frame_period_ms = 10.0
-pose_pause_s = 0.5
-[[camera]]
-name = "cam0"
-driver = "sim"
-width = 640
-height = 480
-exposure_ms = 5.0
-sim.intrinsics = {{ fx = 800.0, fy = 800.0, cx = 320.0, cy = 240.0 }}
-sim.pose = {{ eye = [0.0, 0.0, 1200.0], target = [0.0, 0.0, 0.0] }}
-[[projector]]
-name = "proj0"
-driver = "sim"
-width = 800
-height = 600
-sim.intrinsics = {{ fx = 900.0, fy = 900.0, cx = 400.0, cy = 560.0 }}
-sim.pose = {{ eye = [300.0, 100.0, 1200.0], target = [0.0, 0.0, 0.0] }}
-[[positioner]]
+    let camera = SimDevice::new("cam0", (640, 480), [800.0, 800.0, 320.0, 240.0])
+        .at([0.0, 0.0, 1200.0])
+        .with("exposure_ms = 5.0");
+    let projector = SimDevice::new("proj0", (800, 600), [900.0, 900.0, 400.0, 560.0])
+        .at([300.0, 100.0, 1200.0]);
+    SimRig::new("scripted")
+        .table("[timing]\nframe_period_ms = 10.0\npose_pause_s = 0.5")
+        .camera(camera)
+        .projector(projector)
+        .then(POSITIONERS)
+        .then(script)
+        .toml()
+}
+
+/// The rig's positioners: a simulated stage and a serial arm.
+const POSITIONERS: &str = r#"[[positioner]]
 name = "stage"
 driver = "sim"
-command = "MOVE {{angle}} {{tilt}}"
+command = "MOVE {angle} {tilt}"
 sim.speed_deg_s = 10.0
 [[positioner]]
 name = "arm"
 driver = "serial"
 port = "/dev/ttyUSB0"
 line_ending = "crlf"
-command = "GO {{preset}}"
+command = "GO {preset}"
 reply = "^DONE"
 move_s = 2.0
-{script}"#
-    )
-}
+"#;
 
 /// The refusal of `script`, which must name `line` (1-based, counted in the script text)
 /// and a key starting with `field`.

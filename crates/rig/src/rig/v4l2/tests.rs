@@ -7,6 +7,7 @@
 use super::*;
 use crate::capture::Session;
 use crate::rig::file::RigFile;
+use crate::rig::fixture::{tiny, SimDevice};
 use crate::rig::{CaptureTiming, RigDevices};
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -850,37 +851,21 @@ fn describe_names_card_driver_and_formats() {
 }
 
 /// One simulated projector (the engine needs one) and a simulated camera the test replaces.
-const RIG: &str = r#"
-name = "v4l2-sim"
-[timing]
-frame_period_ms = 20.0
-[poses]
-count = 1
-yaw_deg = 20.0
-tilt_deg = 10.0
-shift_mm = 20.0
-seed = 3
-[[camera]]
-name = "unused"
-driver = "sim"
-width = 64
-height = 48
-exposure_ms = 5.0
-sim.intrinsics = { fx = 300.0, fy = 300.0, cx = 31.5, cy = 23.5 }
-sim.pose = { eye = [0.0, 0.0, 1500.0], target = [0.0, 0.0, 0.0] }
-[[projector]]
-name = "p0"
-driver = "sim"
-width = 320
-height = 200
-sim.intrinsics = { fx = 400.0, fy = 400.0, cx = 160.0, cy = 180.0 }
-sim.pose = { eye = [300.0, 50.0, 1300.0], target = [0.0, 0.0, 0.0] }
-"#;
+fn rig() -> RigFile {
+    let camera = SimDevice::new("unused", (64, 48), [300.0, 300.0, 31.5, 23.5]);
+    tiny()
+        .named("v4l2-sim")
+        .with("poses.count = 1")
+        .without(&["front", "back", "p1"])
+        .camera(camera.with("exposure_ms = 5.0"))
+        .parse()
+        .unwrap()
+}
 
 /// One pose through the capture engine with a V4L2 camera on a simulated node that loses
 /// frames `lost`: the timeline and, per frame, its counter and the node's sequence number.
 fn capture_through_engine(lost: &[u32]) -> (hexcal_core::dataset::Timeline, Vec<(u64, u32)>) {
-    let rig = RigFile::parse(RIG, "v4l2-sim.toml").unwrap();
+    let rig = rig();
     let opened = crate::rig::open(&rig).unwrap();
     let node = SimNode::new(&[FourCc::YUYV], uvc_controls());
     node.sim().lost.extend(lost);
