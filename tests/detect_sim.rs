@@ -25,7 +25,7 @@
 use hexcal::app::detect::{analyse, Analysis, Settings};
 use hexcal::board::{Board, Hex, Side};
 use hexcal::camera::{CameraModel, Distortion, Intrinsics};
-use hexcal::images::GrayImage;
+use hexcal::images::FloatImage;
 use hexcal::sim::{render, CircleTruth, Imaging, PoseSpec, Scene};
 use nalgebra::{Point2, Point3};
 use std::collections::HashMap;
@@ -179,10 +179,10 @@ fn rms(sq: &[f64]) -> f64 {
 }
 
 /// The rendered view as linear grey levels, with the extras painted in.
-fn image_of(case: &Case) -> (GrayImage, Vec<CircleTruth>, Option<Side>) {
+fn image_of(case: &Case) -> (FloatImage, Vec<CircleTruth>, Option<Side>) {
     let view = render(&case.scene).unwrap();
     let (w, h) = (view.frame.size.width, view.frame.size.height);
-    let mut img = GrayImage::from_raw(w, h, view.frame.data.iter().map(|&v| v as f32).collect())
+    let mut img = FloatImage::from_raw(w, h, view.frame.data.iter().map(|&v| v as f32).collect())
         .expect("frame size");
     let black = case.scene.imaging.black_dn as f32;
     for r in &case.extras.occluders {

@@ -24,7 +24,7 @@ use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 use {
     hexcal::detect::{detect, DetectParams},
-    hexcal::images::GrayImage,
+    hexcal::images::FloatImage,
 };
 
 /// One camera's view of one pose, rendered and labelled.
@@ -47,7 +47,7 @@ fn view(rig: &SyntheticRig, camera: usize, pose: usize) -> Option<CameraView> {
     };
     let rendered = hexcal::sim::render(&scene).ok()?;
     let (w, h) = (rendered.frame.size.width, rendered.frame.size.height);
-    let image = GrayImage::from_fn(w, h, |x, y| {
+    let image = FloatImage::from_fn(w, h, |x, y| {
         image::Luma([f32::from(rendered.frame.data[(y * w + x) as usize])])
     });
     let circles = detect(&image, &DetectParams::default());

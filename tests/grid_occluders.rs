@@ -18,7 +18,7 @@ use hexcal::app::detect::{analyse, Settings};
 use hexcal::board::{Board, Hex, Side};
 use hexcal::camera::{CameraModel, Distortion, Intrinsics};
 use hexcal::grid::{build, Grid, GridParams};
-use hexcal::images::GrayImage;
+use hexcal::images::FloatImage;
 use hexcal::sim::{render, CircleTruth, Imaging, PoseSpec, Scene};
 use nalgebra::{Point3, Vector2, Vector3};
 use std::collections::{HashMap, HashSet};
@@ -212,10 +212,10 @@ fn scene(case: &Case, seed: u64) -> Scene {
 
 /// The rendered view with the occluders painted in (4×4 supersampled coverage), and the mask
 /// of pixels they touch.
-fn image_of(case: &Case, seed: u64) -> (GrayImage, Vec<bool>, Vec<CircleTruth>) {
+fn image_of(case: &Case, seed: u64) -> (FloatImage, Vec<bool>, Vec<CircleTruth>) {
     let view = render(&scene(case, seed)).unwrap();
     let (w, h) = SIZE;
-    let mut img = GrayImage::from_raw(w, h, view.frame.data.iter().map(|&v| v as f32).collect())
+    let mut img = FloatImage::from_raw(w, h, view.frame.data.iter().map(|&v| v as f32).collect())
         .expect("frame size");
     let mut mask = vec![false; (w * h) as usize];
     for y in 0..h {

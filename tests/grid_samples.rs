@@ -305,7 +305,7 @@ fn samples_without_centre_cell() {
 
 /// Darken the annulus `band` (fractions of the radius) of detection `c` to its background
 /// level, with 4×4 coverage sampling per pixel: a false marker ring.
-fn paint_ring(image: &mut hexcal::images::GrayImage, c: &Circle, band: [f64; 2]) {
+fn paint_ring(image: &mut hexcal::images::FloatImage, c: &Circle, band: [f64; 2]) {
     let e = &c.ellipse;
     let (sa, ca) = e.angle.sin_cos();
     let reach = e.a.ceil() as i64 + 1;

@@ -8,7 +8,7 @@ mod truth;
 
 use hexcal::board::{Board, Hex, Side};
 use hexcal::grid::{build, GridParams};
-use hexcal::images::{Ellipse, GrayImage};
+use hexcal::images::{Ellipse, FloatImage};
 use nalgebra::{Matrix3, Point2, Rotation3, SymmetricEigen, Vector2, Vector3};
 
 /// A view of one side: board-plane point (x, y) in that side's frame (mm) ↦ pixel.
@@ -134,9 +134,9 @@ fn texture(board: &Board, ringed: &std::collections::HashSet<Hex>, p: Vector2<f6
 
 /// Render a side through a view: 2×2 supersampling, Gaussian blur σ = 0.8 px, black 20,
 /// white 200 (docs/design.md §9 single-frame conditions, noise-free).
-fn render(board: &Board, side: Side, view: &View) -> GrayImage {
+fn render(board: &Board, side: Side, view: &View) -> FloatImage {
     let ringed = board.ringed(side);
-    let sharp = GrayImage::from_fn(view.width, view.height, |x, y| {
+    let sharp = FloatImage::from_fn(view.width, view.height, |x, y| {
         let mut acc = 0.0;
         for i in [-0.25, 0.25] {
             for j in [-0.25, 0.25] {
@@ -152,15 +152,15 @@ fn render(board: &Board, side: Side, view: &View) -> GrayImage {
 }
 
 /// Separable Gaussian blur, edges clamped.
-fn blur(img: &GrayImage, sigma: f64) -> GrayImage {
+fn blur(img: &FloatImage, sigma: f64) -> FloatImage {
     let n = (3.0 * sigma).ceil() as i64;
     let k: Vec<f32> = (-n..=n)
         .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32)
         .collect();
     let sum: f32 = k.iter().sum();
     let (w, h) = (i64::from(img.width()), i64::from(img.height()));
-    let pass = |src: &GrayImage, dx: i64, dy: i64| {
-        GrayImage::from_fn(img.width(), img.height(), |x, y| {
+    let pass = |src: &FloatImage, dx: i64, dy: i64| {
+        FloatImage::from_fn(img.width(), img.height(), |x, y| {
             let mut acc = 0.0;
             for (t, kv) in k.iter().enumerate() {
                 let o = t as i64 - n;

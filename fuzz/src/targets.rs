@@ -316,7 +316,7 @@ fn image(data: &[u8]) -> String {
 }
 
 /// Detection and grid building on `image`: the number of circles.
-fn detect_grid(image: &hexcal::images::GrayImage) -> usize {
+fn detect_grid(image: &hexcal::images::FloatImage) -> usize {
     let circles = hexcal::detect::detect(image, &hexcal::detect::DetectParams::default());
     let _ = hexcal::grid::build(
         image,
@@ -351,7 +351,7 @@ fn detect(data: &[u8]) -> String {
     } else {
         &[0u8][..]
     };
-    let image = hexcal::images::GrayImage::from_fn(w, h, |x, y| {
+    let image = hexcal::images::FloatImage::from_fn(w, h, |x, y| {
         let i = (y * w + x) as usize;
         let b = pixels[i % pixels.len()];
         image::Luma([match mode {

@@ -9,7 +9,8 @@
 
 pub use overlay::draw_overlay;
 
-use super::overlay;
+mod overlay;
+
 use crate::board::{Board, Side};
 use crate::grid::{build, Grid, GridParams};
 use crate::images::{load_gray, ImageIoError};
@@ -17,7 +18,7 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use {
     crate::detect::{detect, Circle, DetectParams},
-    crate::images::GrayImage,
+    crate::images::FloatImage,
 };
 
 /// A failure on one image.
@@ -110,7 +111,7 @@ pub struct Analysis {
 }
 
 /// Detect the circles of an image and build its grid.
-pub fn analyse(image: &GrayImage, board: &Board, settings: &Settings) -> Analysis {
+pub fn analyse(image: &FloatImage, board: &Board, settings: &Settings) -> Analysis {
     let circles = detect(image, &settings.detect);
     let grid = build(image, &circles, board, &settings.grid);
     Analysis { circles, grid }

@@ -22,7 +22,6 @@ pub mod console;
 pub mod detect;
 pub mod guide;
 pub mod jobs;
-mod overlay;
 pub mod process;
 pub mod progress;
 pub mod run;

@@ -11,7 +11,7 @@ use crate::dataset::StackReader;
 use crate::dataset::{CameraEntry, Dataset, DatasetInfo};
 use crate::detect::{detect, DetectParams};
 use crate::grid::{build, GridParams};
-use crate::images::{CameraFrame, GrayImage, Pixels};
+use crate::images::{CameraFrame, FloatImage, Pixels};
 use crate::observations::CameraView;
 use crate::pattern::Sequence;
 use crate::phase::files::decode_dir;
@@ -54,7 +54,7 @@ impl StackResult {
 }
 
 /// The stored plain frame of a camera-only pose (`frame-000.png` in `dir`) as a float image.
-fn read_plain_frame(dir: &std::path::Path) -> Result<GrayImage, String> {
+fn read_plain_frame(dir: &std::path::Path) -> Result<FloatImage, String> {
     let stack = StackReader::open(dir).map_err(|e| e.to_string())?;
     let pixels = stack.frame(0).map_err(|e| e.to_string())?;
     let (w, h) = (stack.info.width, stack.info.height);
@@ -193,7 +193,7 @@ pub struct ViewAt {
 /// Detection, grid and, for each of `maps`, the projector fits on one camera's image of the
 /// board: the decoded ambient image, or the plain frame of a camera-only rig (no maps).
 pub fn process_image(
-    image: &GrayImage,
+    image: &FloatImage,
     name: &str,
     board: &Board,
     maps: &[ProjectorMap],
@@ -235,12 +235,12 @@ pub fn process_image(
 }
 
 /// A frame's samples as a linear float image.
-fn float_image(width: u32, height: u32, pixels: &Pixels) -> Option<GrayImage> {
+fn float_image(width: u32, height: u32, pixels: &Pixels) -> Option<FloatImage> {
     let data: Vec<f32> = match pixels {
         Pixels::Gray8(p) => p.iter().map(|&v| f32::from(v)).collect(),
         Pixels::Gray16(p) => p.iter().map(|&v| f32::from(v)).collect(),
     };
-    GrayImage::from_raw(width, height, data)
+    FloatImage::from_raw(width, height, data)
 }
 
 /// The one plain frame of a camera-only pose (`frames` gives it) through detection and

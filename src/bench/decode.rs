@@ -4,7 +4,7 @@
 use crate::pattern::{ProjectorResponse, ProjectorSetup, Sequence};
 use crate::phase::accuracy::{accuracy, ProjectorAccuracy};
 use crate::phase::{Decoder, FrameRef};
-use crate::sim::fringe::{Renderer, Scene};
+use crate::sim::fringe::{FringeScene, Renderer};
 
 /// Timing of one decode.
 #[derive(Clone, Copy, Debug)]
@@ -70,7 +70,7 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
         projectors
     ];
     let seq = Sequence::default_for(&setups).expect("the default sequence is valid");
-    let scene = Scene::standard(width, height, &setups, 1);
+    let scene = FringeScene::standard(width, height, &setups, 1);
     let t0 = std::time::Instant::now();
     let mut renderer = Renderer::new(&scene, &seq);
     let frames: Vec<image::GrayImage> = (0..seq.frame_count()).map(|k| renderer.frame(k)).collect();

@@ -1,14 +1,14 @@
 //! `hexcal bench detect`: the circle detector timed on synthetic boards or given images.
 
 use crate::detect::{detect, synth, DetectParams};
-use crate::images::{load_gray, GrayImage, ImageIoError};
+use crate::images::{load_gray, FloatImage, ImageIoError};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
 /// `hexcal bench detect`: per image, the median and fastest time of `detect` and the
 /// throughput.
 pub fn bench_detect(images: &[PathBuf], runs: usize) -> Result<String, ImageIoError> {
-    let inputs: Vec<(String, GrayImage)> = if images.is_empty() {
+    let inputs: Vec<(String, FloatImage)> = if images.is_empty() {
         vec![
             (
                 "synthetic board, r=10 px, tilt 40°".into(),

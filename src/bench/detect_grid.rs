@@ -12,7 +12,7 @@ use crate::sim::{render, write_view, GroundTruth, Scene, SimError};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
-use {crate::detect::detect, crate::images::GrayImage};
+use {crate::detect::detect, crate::images::FloatImage};
 
 /// A failure of the benchmark.
 #[derive(Debug, thiserror::Error)]
@@ -164,7 +164,7 @@ pub fn bench_detect_grid(
             write_view(&view, dir)?;
         }
         let (w, h) = (view.frame.size.width, view.frame.size.height);
-        let image = GrayImage::from_raw(w, h, view.frame.data.iter().map(|&v| v as f32).collect())
+        let image = FloatImage::from_raw(w, h, view.frame.data.iter().map(|&v| v as f32).collect())
             .expect("frame size matches its data");
         let board: &Board = &scene.board;
         let analysis = analyse(&image, board, &settings);

@@ -9,7 +9,7 @@
 use super::detect_grid::{centre_error, scenes, BenchError};
 use crate::app::detect::{analyse, Settings};
 use crate::images::to_grey::{jpeg_luma, BayerBalance, Cfa};
-use crate::images::GrayImage;
+use crate::images::FloatImage;
 use crate::rig::sim::CFA_RESPONSE;
 use crate::sim::{geometry, ground_truth, sensor, Scene};
 use hexcal_simulator::Sensor;
@@ -138,8 +138,9 @@ pub fn bench_formats(seeds: u64) -> Result<FormatsReport, BenchError> {
             views += 1;
             for (i, (data, ms)) in frames(&scene)?.into_iter().enumerate() {
                 let (w, h) = (truth.width, truth.height);
-                let image = GrayImage::from_raw(w, h, data.iter().map(|&v| f32::from(v)).collect())
-                    .expect("frame size matches its data");
+                let image =
+                    FloatImage::from_raw(w, h, data.iter().map(|&v| f32::from(v)).collect())
+                        .expect("frame size matches its data");
                 let analysis = analyse(&image, &scene.board, &settings);
                 let (whole, matched, rms) = centre_error(&truth, &analysis.circles);
                 let row = &mut rows[i];

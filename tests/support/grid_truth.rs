@@ -11,7 +11,7 @@ use std::collections::HashMap;
 use std::path::PathBuf;
 use {
     hexcal::detect::Circle,
-    hexcal::images::{Ellipse, GrayImage},
+    hexcal::images::{Ellipse, FloatImage},
 };
 
 /// The six sample images.
@@ -78,7 +78,7 @@ pub struct Sample {
     /// File stem.
     pub name: &'static str,
     /// The 8-bit image as linear floats.
-    pub image: GrayImage,
+    pub image: FloatImage,
     /// Its ground truth.
     pub truth: Truth,
 }
@@ -94,7 +94,7 @@ pub fn load(name: &'static str) -> Sample {
     let grey = image::open(dir.join(format!("{name}.png")))
         .unwrap_or_else(|e| panic!("{name}.png: {e}"))
         .into_luma8();
-    let image = GrayImage::from_fn(grey.width(), grey.height(), |x, y| {
+    let image = FloatImage::from_fn(grey.width(), grey.height(), |x, y| {
         image::Luma([f32::from(grey.get_pixel(x, y).0[0])])
     });
     let json = std::fs::read_to_string(dir.join(format!("{name}.json")))
@@ -104,7 +104,7 @@ pub fn load(name: &'static str) -> Sample {
 }
 
 /// The grey level (nearest pixel) at `s` times the ellipse's radius along parameter `t`.
-fn level_at(image: &GrayImage, e: &Ellipse, s: f64, t: f64) -> Option<f32> {
+fn level_at(image: &FloatImage, e: &Ellipse, s: f64, t: f64) -> Option<f32> {
     let (sa, ca) = e.angle.sin_cos();
     let (px, py) = (s * e.a * t.cos(), s * e.b * t.sin());
     let x = (e.center.x + px * ca - py * sa).round();
@@ -117,7 +117,7 @@ fn level_at(image: &GrayImage, e: &Ellipse, s: f64, t: f64) -> Option<f32> {
 /// foreground as the 90th percentile inside 0.9 R (white both inside and outside a marker
 /// ring), the background as the median of the band 1.4–1.7 R (between the circle and its
 /// lattice neighbours, which start at 2.33 R).
-pub fn detection(image: &GrayImage, ellipse: Ellipse) -> Circle {
+pub fn detection(image: &FloatImage, ellipse: Ellipse) -> Circle {
     let band = |s0: f64, s1: f64| {
         let mut v: Vec<f32> = (0..8)
             .flat_map(|i| (0..48).map(move |m| (i, m)))

@@ -53,7 +53,7 @@ pub struct SceneProjector {
 
 /// A synthetic scene seen by one 8-bit camera.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Scene {
+pub struct FringeScene {
     /// Camera width (px).
     pub width: u32,
     /// Camera height (px).
@@ -85,14 +85,14 @@ fn square_to_quad(quad: [[f64; 2]; 4]) -> Matrix3<f64> {
     Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], 1.0)
 }
 
-impl Scene {
+impl FringeScene {
     /// The standard test scene: P projectors share the light above ambient equally. Each
     /// sees the camera's view as a slightly different perspective quadrilateral of about
     /// 0.9 projector px per camera px (at most 90 % of its screen), so fringes of 1080/25
     /// projector px are ≥ 48 camera px wide as in a real rig. Projector 0… P−2 see it centred in their screen; the last
     /// one's screen corner lies inside the view (a quarter of the width and height are
     /// outside its screen), so it lights only part of the scene.
-    pub fn standard(width: u32, height: u32, setups: &[ProjectorSetup], seed: u64) -> Scene {
+    pub fn standard(width: u32, height: u32, setups: &[ProjectorSetup], seed: u64) -> FringeScene {
         let imaging = Imaging::default();
         let np = setups.len();
         let share = (imaging.white - imaging.ambient) / np as f64;
@@ -134,7 +134,7 @@ impl Scene {
                 }
             })
             .collect();
-        Scene {
+        FringeScene {
             width,
             height,
             projectors,
@@ -213,7 +213,7 @@ impl Truth {
 
 /// Renders the frames of one camera's stack.
 pub struct Renderer<'a> {
-    scene: &'a Scene,
+    scene: &'a FringeScene,
     seq: &'a Sequence,
     /// Per projector: albedo·gain·vignette·coverage at each pixel (DN at full white).
     weight: Vec<Vec<f32>>,
@@ -264,7 +264,7 @@ fn blur(img: &mut [f32], w: usize, kernel: &[f32]) {
 
 impl<'a> Renderer<'a> {
     /// Prepare the per-pixel maps of `scene` under `seq` (projectors in the same order).
-    pub fn new(scene: &'a Scene, seq: &'a Sequence) -> Renderer<'a> {
+    pub fn new(scene: &'a FringeScene, seq: &'a Sequence) -> Renderer<'a> {
         let (w, h) = (scene.width as usize, scene.height as usize);
         let codes = seq.projectors();
         let mut albedo = vec![0f32; w * h];

@@ -13,7 +13,7 @@ use crate::app::guide::stats::MIN_POINTS;
 use crate::board::{Board, Hex};
 use crate::detect::detect;
 use crate::grid::build;
-use crate::images::{CameraFrame, GrayImage, Pixels};
+use crate::images::{CameraFrame, FloatImage, Pixels};
 use nalgebra::Point2;
 
 /// Preview frames are detected at most this wide (px): a 1920-wide frame at half
@@ -38,7 +38,7 @@ pub struct LiveView {
 
 /// `frame` averaged over `factor` × `factor` blocks (samples as delivered); `None` when its
 /// pixels do not fill its size.
-pub fn reduced(frame: &CameraFrame, factor: u32) -> Option<GrayImage> {
+pub fn reduced(frame: &CameraFrame, factor: u32) -> Option<FloatImage> {
     let (w, h) = (frame.width as usize, frame.height as usize);
     if frame.pixels.len() != w * h || factor == 0 {
         return None;
@@ -55,7 +55,7 @@ pub fn reduced(frame: &CameraFrame, factor: u32) -> Option<GrayImage> {
         return None;
     }
     let scale = 1.0 / (f * f) as f32;
-    let mut out = GrayImage::new(rw as u32, rh as u32);
+    let mut out = FloatImage::new(rw as u32, rh as u32);
     for (x, y, p) in out.enumerate_pixels_mut() {
         let (x0, y0) = (x as usize * f, y as usize * f);
         let mut sum = 0.0;
@@ -150,7 +150,7 @@ impl Hint {
 /// The circles and grid of `image` (or of its `region`, with circles up to `max_radius`),
 /// in the image's pixels.
 fn find(
-    image: &GrayImage,
+    image: &FloatImage,
     board: &Board,
     region: Option<([u32; 4], f64)>,
     stages: &mut Stages,
@@ -267,7 +267,7 @@ fn seen_area(
 }
 
 /// The picture of a reduced frame: sampled to at most [`WIDTH`] across, as a PNG.
-fn picture(image: &GrayImage) -> Option<Vec<u8>> {
+fn picture(image: &FloatImage) -> Option<Vec<u8>> {
     let (rw, rh) = image.dimensions();
     let step = rw.div_ceil(WIDTH).max(1);
     let (tw, th) = ((rw / step).max(1), (rh / step).max(1));

@@ -1,11 +1,11 @@
 //! Image loading: 8- or 16-bit, grey or colour PNG, JPEG, TIFF (and PNM) files into a
-//! [`GrayImage`].
+//! [`FloatImage`].
 //!
 //! Grey values keep the file's scale (0–255 for 8-bit, 0–65535 for 16-bit, as stored for
 //! float files); colour becomes Rec. 709 luma (0.2126 R + 0.7152 G + 0.0722 B) on that same
 //! scale; alpha is ignored.
 
-use super::GrayImage;
+use super::FloatImage;
 use image::{DynamicImage, ImageDecoder, ImageReader};
 use std::io::{BufRead, Seek};
 use std::path::{Path, PathBuf};
@@ -55,7 +55,7 @@ pub fn decode<R: BufRead + Seek>(reader: ImageReader<R>) -> Result<DynamicImage,
 }
 
 /// Reads an image file as grey levels on the file's own scale (see the module doc).
-pub fn load_gray(path: &Path) -> Result<GrayImage, ImageIoError> {
+pub fn load_gray(path: &Path) -> Result<FloatImage, ImageIoError> {
     let read = |source| ImageIoError::Read {
         path: path.to_owned(),
         source,
@@ -65,7 +65,7 @@ pub fn load_gray(path: &Path) -> Result<GrayImage, ImageIoError> {
 }
 
 /// Converts a decoded image to grey levels on its own scale (see the module doc).
-pub fn to_gray(img: &DynamicImage) -> GrayImage {
+pub fn to_gray(img: &DynamicImage) -> FloatImage {
     let (w, h) = (img.width(), img.height());
     let luma = |r: f32, g: f32, b: f32| 0.2126 * r + 0.7152 * g + 0.0722 * b;
     let data: Vec<f32> = match img {
@@ -97,7 +97,7 @@ pub fn to_gray(img: &DynamicImage) -> GrayImage {
             .map(|p| luma(p.0[0], p.0[1], p.0[2]))
             .collect(),
     };
-    GrayImage::from_raw(w, h, data).expect("one value per pixel")
+    FloatImage::from_raw(w, h, data).expect("one value per pixel")
 }
 
 #[cfg(test)]

@@ -1,5 +1,5 @@
 //! Image vocabulary shared by every stage (docs/design.md §2): camera frames as delivered
-//! ([`CameraFrame`]), linear grey images ([`GrayImage`]), image ellipses ([`Ellipse`]) and
+//! ([`CameraFrame`]), linear grey images ([`FloatImage`]), image ellipses ([`Ellipse`]) and
 //! image files ([`load_gray`]). Pixel (0, 0) is the centre of the top-left pixel.
 
 mod frame;
@@ -12,8 +12,9 @@ pub use io::*;
 use nalgebra::{Matrix2, Point2};
 use serde::{Deserialize, Serialize};
 
-/// A single-channel image with linear floating-point intensities (any scale).
-pub type GrayImage = image::ImageBuffer<image::Luma<f32>, Vec<f32>>;
+/// A single-channel image of linear `f32` intensities (any scale); `image::GrayImage` is
+/// the 8-bit one.
+pub type FloatImage = image::ImageBuffer<image::Luma<f32>, Vec<f32>>;
 
 /// An image ellipse: centre, semi-axes and orientation.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

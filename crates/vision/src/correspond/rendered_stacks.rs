@@ -501,9 +501,10 @@ fn flat_frames_light_the_board_evenly_and_leave_the_stack_as_it_was() {
     // Flat frames leave the stack's frames as they were.
     assert_eq!(renderer.frame(7).data, before.data);
     // The board's circles are found on the flat field, as a preview needs.
-    let image = hexcal_core::images::GrayImage::from_fn(camera().width, camera().height, |x, y| {
-        image::Luma([f32::from(white.data[(y * camera().width + x) as usize])])
-    });
+    let image =
+        hexcal_core::images::FloatImage::from_fn(camera().width, camera().height, |x, y| {
+            image::Luma([f32::from(white.data[(y * camera().width + x) as usize])])
+        });
     let circles = detect(&image, &DetectParams::default());
     assert!(circles.len() > 100, "{} circles", circles.len());
 }

@@ -14,7 +14,7 @@ use rand::{rngs::StdRng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use {
     crate::detect::{detect, DetectParams},
-    hexcal_core::images::GrayImage,
+    hexcal_core::images::FloatImage,
 };
 
 struct Setup {
@@ -105,7 +105,7 @@ fn projector_pixels_at_ellipse_centres_match_the_geometry() {
     };
     let view = render(&scene).unwrap();
     let (w, h) = (s.camera.width, s.camera.height);
-    let image = GrayImage::from_fn(w, h, |x, y| {
+    let image = FloatImage::from_fn(w, h, |x, y| {
         image::Luma([f32::from(view.frame.data[(y * w + x) as usize])])
     });
     let circles = detect(&image, &DetectParams::default());

@@ -413,7 +413,7 @@ mod tests {
     #[test]
     fn noise_floor_of_the_reference_contrast() {
         // White noise of σ = 2 on a flat image: h_ref = 10 σ within the MAD's sampling error.
-        let mut img = hexcal_core::images::GrayImage::new(400, 300);
+        let mut img = hexcal_core::images::FloatImage::new(400, 300);
         crate::detect::synth::add_noise(&mut img, 2.0, 3);
         let v = View {
             data: img.as_raw(),

@@ -15,7 +15,7 @@ pub mod synth;
 
 use circleness::{Constants, Peak, Scale, FIRST_LEVEL_MIN_SIGMA, LEVEL_SIGMA, MIN_LEVEL_SIGMA};
 use filter::{blur_decimate, Kernel, Plane, View};
-use hexcal_core::images::{Ellipse, GrayImage};
+use hexcal_core::images::{Ellipse, FloatImage};
 use nalgebra::Point2;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -90,7 +90,7 @@ impl Default for DetectParams {
 }
 
 /// Detects the white circles of a grey image (docs/design.md §4), strongest first.
-pub fn detect(image: &GrayImage, params: &DetectParams) -> Vec<Circle> {
+pub fn detect(image: &FloatImage, params: &DetectParams) -> Vec<Circle> {
     let (w, h) = (image.width() as usize, image.height() as usize);
     if w < 8 || h < 8 {
         return Vec::new();

@@ -4,7 +4,7 @@
 //! this is only a quick, exact pattern generator with known ellipse centres.)
 
 use super::filter::{blur, View};
-use super::{Ellipse, GrayImage};
+use super::{Ellipse, FloatImage};
 use nalgebra::Point2;
 
 /// One white ellipse; a ringed one carries a dark annulus between 0.45 and 0.75 of its size
@@ -19,7 +19,7 @@ pub struct Blob {
 
 /// Blobs on a uniform background.
 #[derive(Clone, Debug)]
-pub struct Scene {
+pub struct BlobScene {
     /// Image width (px).
     pub width: u32,
     /// Image height (px).
@@ -68,9 +68,9 @@ fn coverage(e: &Ellipse, s: f64, p: Point2<f64>) -> f64 {
 }
 
 /// Renders a scene: each pixel the mean of the scene over its square.
-pub fn render(scene: &Scene) -> GrayImage {
+pub fn render(scene: &BlobScene) -> FloatImage {
     let (w, h) = (scene.width, scene.height);
-    let mut img = GrayImage::from_pixel(w, h, image::Luma([scene.background]));
+    let mut img = FloatImage::from_pixel(w, h, image::Luma([scene.background]));
     let contrast = (scene.foreground - scene.background) as f64;
     for blob in &scene.blobs {
         let e = &blob.ellipse;
@@ -93,19 +93,19 @@ pub fn render(scene: &Scene) -> GrayImage {
 }
 
 /// Gaussian point-spread function of standard deviation `sigma` (px), edges replicated.
-pub fn blur_psf(img: &GrayImage, sigma: f64) -> GrayImage {
+pub fn blur_psf(img: &FloatImage, sigma: f64) -> FloatImage {
     let v = View {
         data: img.as_raw(),
         width: img.width() as usize,
         height: img.height() as usize,
     };
     let out = blur(v, sigma, 4.0);
-    GrayImage::from_raw(img.width(), img.height(), out.data).expect("same size")
+    FloatImage::from_raw(img.width(), img.height(), out.data).expect("same size")
 }
 
 /// Adds white Gaussian noise of standard deviation `sigma`, reproducibly from `seed`
 /// (xorshift64* and Box–Muller).
-pub fn add_noise(img: &mut GrayImage, sigma: f32, seed: u64) {
+pub fn add_noise(img: &mut FloatImage, sigma: f32, seed: u64) {
     let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
     let mut uniform = move || {
         state ^= state >> 12;
@@ -121,7 +121,7 @@ pub fn add_noise(img: &mut GrayImage, sigma: f32, seed: u64) {
 }
 
 /// Rounds to integers in 0..=255, as an 8-bit camera would.
-pub fn quantise8(img: &mut GrayImage) {
+pub fn quantise8(img: &mut FloatImage) {
     for px in img.pixels_mut() {
         px.0[0] = px.0[0].round().clamp(0.0, 255.0);
     }
@@ -131,7 +131,7 @@ pub fn quantise8(img: &mut GrayImage) {
 /// |y| ≤ 230 mm, 797 circles) at `radius` px, centred in a `width`×`height` image and
 /// foreshortened by `tilt_deg` along y; circles not wholly inside the image are left out,
 /// and every seventh is ringed. Levels 30 (background) and 200 (circles).
-pub fn lattice(width: u32, height: u32, radius: f64, tilt_deg: f64) -> Scene {
+pub fn lattice(width: u32, height: u32, radius: f64, tilt_deg: f64) -> BlobScene {
     let px_per_mm = radius / 6.0;
     let cos_t = tilt_deg.to_radians().cos();
     let (cx, cy) = (width as f64 / 2.0, height as f64 / 2.0);
@@ -164,7 +164,7 @@ pub fn lattice(width: u32, height: u32, radius: f64, tilt_deg: f64) -> Scene {
             });
         }
     }
-    Scene {
+    BlobScene {
         width,
         height,
         background: 30.0,
@@ -174,7 +174,7 @@ pub fn lattice(width: u32, height: u32, radius: f64, tilt_deg: f64) -> Scene {
 }
 
 /// [`lattice`] rendered with a PSF of σ = 0.9 px, 2 DN noise, 8-bit quantisation.
-pub fn lattice_image(width: u32, height: u32, radius: f64, tilt_deg: f64, seed: u64) -> GrayImage {
+pub fn lattice_image(width: u32, height: u32, radius: f64, tilt_deg: f64, seed: u64) -> FloatImage {
     let mut img = blur_psf(&render(&lattice(width, height, radius, tilt_deg)), 0.9);
     add_noise(&mut img, 2.0, seed);
     quantise8(&mut img);
@@ -195,7 +195,7 @@ mod tests {
             angle: 0.4,
         };
         for ringed in [false, true] {
-            let scene = Scene {
+            let scene = BlobScene {
                 width: 48,
                 height: 40,
                 background: 0.0,

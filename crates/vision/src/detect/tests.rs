@@ -1,7 +1,7 @@
 //! Whole-detector tests: the independent sample images with exact ground truth
 //! (`tests/data/samples`), and synthetic area-integrated patterns.
 
-use super::synth::{add_noise, blur_psf, quantise8, render, Blob, Scene};
+use super::synth::{add_noise, blur_psf, quantise8, render, Blob, BlobScene};
 use super::*;
 use crate::testdata::samples_dir;
 use hexcal_core::images::load_gray;
@@ -179,7 +179,7 @@ fn sample_g6_occluded() {
 
 /// A synthetic sheet of ellipses of geometric-mean radius `r`, tilts 0–60° (b/a = cos θ),
 /// random orientation and subpixel position, every third one ringed; levels 30 / 200.
-fn ellipse_sheet(r: f64, rng: &mut rand::rngs::StdRng) -> Scene {
+fn ellipse_sheet(r: f64, rng: &mut rand::rngs::StdRng) -> BlobScene {
     let (cols, rows) = (5, 4);
     // Pitch ≥ 10/3 of the largest semi-axis (a = r/√cos 60° = 1.41 r), as on the board.
     let pitch = (3.4 * 1.42 * r).max(24.0);
@@ -207,7 +207,7 @@ fn ellipse_sheet(r: f64, rng: &mut rand::rngs::StdRng) -> Scene {
         (pitch * (cols as f64 + 0.5)) as u32,
         (pitch * (rows as f64 + 0.5)) as u32,
     );
-    Scene {
+    BlobScene {
         width: w,
         height: h,
         background: 30.0,
@@ -217,7 +217,7 @@ fn ellipse_sheet(r: f64, rng: &mut rand::rngs::StdRng) -> Scene {
 }
 
 /// Renders a scene as an 8-bit camera would: area-integrated, Gaussian PSF, noise, rounding.
-fn camera_image(scene: &Scene, psf: f64, noise: f32, seed: u64) -> GrayImage {
+fn camera_image(scene: &BlobScene, psf: f64, noise: f32, seed: u64) -> FloatImage {
     let mut img = blur_psf(&render(scene), psf);
     add_noise(&mut img, noise, seed);
     quantise8(&mut img);
@@ -348,7 +348,7 @@ fn clutter_gives_few_detections() {
         }
         v
     };
-    let mut img = GrayImage::new(w, h);
+    let mut img = FloatImage::new(w, h);
     for (x, y, p) in img.enumerate_pixels_mut() {
         let mut sum = 0.0;
         for i in 0..4 {

@@ -39,7 +39,7 @@ use hexcal_core::board::{Board, Code, Hex, MarkerKind, Side};
 use nalgebra::Point2;
 use ring::Ring;
 use serde::{Deserialize, Serialize};
-use {crate::detect::Circle, hexcal_core::images::GrayImage};
+use {crate::detect::Circle, hexcal_core::images::FloatImage};
 
 /// A detected circle with its lattice label.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -228,7 +228,7 @@ struct Scene<'a> {
 }
 
 /// Build the labelled grid of one image from its detected circles (docs/design.md §5).
-pub fn build(image: &GrayImage, circles: &[Circle], board: &Board, params: &GridParams) -> Grid {
+pub fn build(image: &FloatImage, circles: &[Circle], board: &Board, params: &GridParams) -> Grid {
     let (scene, mut stats) = Scene::read(image, circles, board, params);
     // Pass 2: seeds are centre cells first, then the best cells.
     let mut assembler = assemble::Assembler::new(&scene.cells, circles.len());
@@ -281,7 +281,7 @@ impl<'a> Scene<'a> {
     /// Pass 1 and the ring readings: every circle's local cell, its ring, and the decoded
     /// marker cells.
     fn read(
-        image: &GrayImage,
+        image: &FloatImage,
         circles: &'a [Circle],
         board: &'a Board,
         params: &'a GridParams,
@@ -432,7 +432,7 @@ impl<'a> Scene<'a> {
 /// the brightest foreground of the cells it belongs to. Every ringed circle neighbours its
 /// marker's plain centre.
 fn read_rings(
-    image: &GrayImage,
+    image: &FloatImage,
     circles: &[Circle],
     cells: &[cell::Cell],
     board: &Board,

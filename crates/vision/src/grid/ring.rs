@@ -2,7 +2,7 @@
 //! detected white circle?
 
 use std::sync::OnceLock;
-use {crate::detect::Circle, hexcal_core::images::GrayImage};
+use {crate::detect::Circle, hexcal_core::images::FloatImage};
 
 /// What the annulus of one circle shows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -30,7 +30,7 @@ const RADIAL: [f64; 3] = [1.0 / 6.0, 0.5, 5.0 / 6.0];
 /// Each sample is weighted by the ellipse's radius along its ray: where the ellipse is
 /// foreshortened the ring is thin, blurred away, and would only dilute the reading.
 pub(crate) fn ring_contrast(
-    image: &GrayImage,
+    image: &FloatImage,
     circle: &Circle,
     white: f32,
     band: [f64; 2],
@@ -76,7 +76,7 @@ pub(crate) fn classify(contrast: Option<f64>, plain_below: f64, ringed_above: f6
 
 /// Bilinear interpolation with pixel centres at integer coordinates; `None` outside the
 /// image.
-fn bilinear(image: &GrayImage, x: f64, y: f64) -> Option<f32> {
+fn bilinear(image: &FloatImage, x: f64, y: f64) -> Option<f32> {
     let (w, h) = (image.width() as usize, image.height() as usize);
     if w < 2 || h < 2 || !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
         return None;
@@ -99,14 +99,14 @@ mod tests {
 
     /// A sharp synthetic circle of radius `r` at (x, y), optionally with a ring, sampled at 4×4
     /// points per pixel; white 200, black 20.
-    fn disk(r: f64, ringed: bool, band: [f64; 2]) -> (GrayImage, Circle) {
+    fn disk(r: f64, ringed: bool, band: [f64; 2]) -> (FloatImage, Circle) {
         blurred_disk(r, ringed, band, 0.0)
     }
 
     /// [`disk`] seen through a Gaussian PSF of `sigma` px (none at 0).
-    fn blurred_disk(r: f64, ringed: bool, band: [f64; 2], sigma: f64) -> (GrayImage, Circle) {
+    fn blurred_disk(r: f64, ringed: bool, band: [f64; 2], sigma: f64) -> (FloatImage, Circle) {
         let (cx, cy) = (20.3, 19.6);
-        let img = GrayImage::from_fn(41, 41, |x, y| {
+        let img = FloatImage::from_fn(41, 41, |x, y| {
             let mut acc = 0.0;
             for i in 0..4 {
                 for j in 0..4 {
@@ -125,8 +125,8 @@ mod tests {
                 .map(|i| (-f64::from(i * i) / (2.0 * sigma * sigma)).exp() as f32)
                 .collect();
             let total: f32 = k.iter().sum();
-            let pass = |src: &GrayImage, dx: i32, dy: i32| {
-                GrayImage::from_fn(41, 41, |x, y| {
+            let pass = |src: &FloatImage, dx: i32, dy: i32| {
+                FloatImage::from_fn(41, 41, |x, y| {
                     let v: f32 = (-n..=n)
                         .map(|o| {
                             let xx = (x as i32 + o * dx).clamp(0, 40) as u32;

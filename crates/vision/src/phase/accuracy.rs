@@ -1,7 +1,7 @@
 //! Decoded maps against a synthetic scene's ground truth (`sim::fringe`), for the decoder's
 //! tests and benchmark.
 
-use super::decode::DecodedStack;
+use super::maps::DecodedStack;
 use hexcal_core::pattern::Sequence;
 use hexcal_sim::fringe::Truth;
 

@@ -9,7 +9,8 @@
 //! camera is processed; [`super::Decoder::finish`] spreads them at once into a
 //! [`DecodedStack`].
 
-use super::decode::{DecodedStack, FloatImage, Mask, NoiseModel, PhaseNoise, ProjectorMaps};
+use super::maps::{DecodedStack, Mask, NoiseModel, PhaseNoise, ProjectorMaps};
+use hexcal_core::images::FloatImage;
 use rayon::prelude::*;
 
 /// One projector's maps at the candidate pixels, in row-major pixel order.

@@ -143,7 +143,7 @@ fn write_png_gray(path: &Path, img: &image::GrayImage) -> Result<(), DecodeFiles
 }
 
 /// A DN image on an 8-bit scale (values scaled so `full_scale` is 255).
-fn to_8bit(img: &super::FloatImage, full_scale: f32) -> image::GrayImage {
+fn to_8bit(img: &hexcal_core::images::FloatImage, full_scale: f32) -> image::GrayImage {
     let s = 255.0 / full_scale;
     image::GrayImage::from_fn(img.width(), img.height(), |x, y| {
         image::Luma([(img.get_pixel(x, y).0[0] * s).round().clamp(0.0, 255.0) as u8])
@@ -155,7 +155,7 @@ fn to_8bit(img: &super::FloatImage, full_scale: f32) -> image::GrayImage {
 /// stay black).
 pub fn projector_view(
     maps: &ProjectorMaps,
-    image: &super::FloatImage,
+    image: &hexcal_core::images::FloatImage,
     width: u32,
     height: u32,
     full_scale: f32,

@@ -8,11 +8,13 @@ pub mod accuracy;
 mod compact;
 mod decode;
 pub mod files;
+mod maps;
 mod pages;
 mod unwrap;
 
 pub use compact::*;
 pub use decode::*;
+pub use maps::*;
 pub use unwrap::*;
 
 #[cfg(test)]

@@ -4,8 +4,9 @@
 
 use super::accuracy::{accuracy, ProjectorAccuracy};
 use super::*;
+use hexcal_core::images::FloatImage;
 use hexcal_core::pattern::*;
-use hexcal_sim::fringe::{Renderer, Scene, Truth};
+use hexcal_sim::fringe::{FringeScene, Renderer, Truth};
 
 const GAMMA: ProjectorResponse = ProjectorResponse::Gamma { gamma: 2.2 };
 const LINEARISED: ProjectorResponse = ProjectorResponse::Linearised { gamma: 2.2 };
@@ -30,7 +31,7 @@ struct Case {
 fn decode_case(p: usize, response: ProjectorResponse, width: u32, height: u32, seed: u64) -> Case {
     let setups = setups(p, response);
     let seq = Sequence::default_for(&setups).unwrap();
-    let scene = Scene::standard(width, height, &setups, seed);
+    let scene = FringeScene::standard(width, height, &setups, seed);
     let mut renderer = Renderer::new(&scene, &seq);
     let mut decoder = Decoder::<u8>::new(&seq, "cam0", width, height, 255.0).unwrap();
     for k in 0..seq.frame_count() {
@@ -361,7 +362,7 @@ fn lit_images_are_each_projectors_full_white_alone() {
 fn saturated_pixels_are_invalid() {
     let setups = setups(1, GAMMA);
     let seq = Sequence::default_for(&setups).unwrap();
-    let mut scene = Scene::standard(160, 120, &setups, 3);
+    let mut scene = FringeScene::standard(160, 120, &setups, 3);
     scene.projectors[0].gain *= 1.6; // 40 + 312 DN at full white: clipped at 255
     let mut renderer = Renderer::new(&scene, &seq);
     let mut decoder = Decoder::<u8>::new(&seq, "cam", 160, 120, 255.0).unwrap();
@@ -382,7 +383,7 @@ fn saturated_pixels_are_invalid() {
 fn small_stack() -> (Sequence, Vec<image::GrayImage>) {
     let setups = setups(1, GAMMA);
     let seq = Sequence::default_for(&setups).unwrap();
-    let scene = Scene::standard(64, 48, &setups, 1);
+    let scene = FringeScene::standard(64, 48, &setups, 1);
     let mut r = Renderer::new(&scene, &seq);
     let frames = (0..seq.frame_count()).map(|k| r.frame(k)).collect();
     (seq, frames)
@@ -517,7 +518,7 @@ fn compact_stack_gives_the_full_maps_at_its_candidates() {
     let (w, h) = (200, 150);
     let setups = setups(2, GAMMA);
     let seq = Sequence::default_for(&setups).unwrap();
-    let scene = Scene::standard(w, h, &setups, 3);
+    let scene = FringeScene::standard(w, h, &setups, 3);
     let mut renderer = Renderer::new(&scene, &seq);
     let mut full = Decoder::<u8>::new(&seq, "c", w, h, 255.0).unwrap();
     let mut compact = Decoder::<u8>::new(&seq, "c", w, h, 255.0).unwrap();

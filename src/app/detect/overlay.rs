@@ -3,9 +3,9 @@
 //! labelled neighbours (cyan when anchored, yellow when not) and each point's "q,r" label
 //! in a 3×5 pixel font.
 
-use super::detect::Analysis;
+use super::Analysis;
 use crate::board::Hex;
-use crate::images::{Ellipse, GrayImage};
+use crate::images::{Ellipse, FloatImage};
 use image::{Rgb, RgbImage};
 use std::collections::HashMap;
 
@@ -17,7 +17,7 @@ const TEXT: Rgb<u8> = Rgb([255, 80, 255]);
 const TEXT_BACK: Rgb<u8> = Rgb([0, 0, 0]);
 
 /// Draw the overlay of an analysed image (see the module doc).
-pub fn draw_overlay(image: &GrayImage, analysis: &Analysis) -> RgbImage {
+pub fn draw_overlay(image: &FloatImage, analysis: &Analysis) -> RgbImage {
     let mut out = dimmed(image);
     let labelled: HashMap<usize, Hex> = analysis
         .grid
@@ -65,7 +65,7 @@ pub fn draw_overlay(image: &GrayImage, analysis: &Analysis) -> RgbImage {
 }
 
 /// The image mapped from its 1st–99th percentile range to 0–180 grey.
-fn dimmed(image: &GrayImage) -> RgbImage {
+fn dimmed(image: &FloatImage) -> RgbImage {
     let mut v: Vec<f32> = image.as_raw().iter().step_by(7).copied().collect();
     v.sort_by(f32::total_cmp);
     let at = |f: f64| v.get(((v.len() - 1) as f64 * f) as usize).copied();
@@ -192,7 +192,7 @@ mod tests {
 
     #[test]
     fn draws_outlines_links_and_labels() {
-        let image = GrayImage::from_pixel(100, 60, image::Luma([5.0]));
+        let image = FloatImage::from_pixel(100, 60, image::Luma([5.0]));
         let analysis = Analysis {
             circles: vec![circle(25.0, 30.0), circle(70.0, 30.0), circle(50.0, 50.0)],
             grid: Grid {
