@@ -441,7 +441,7 @@ pub fn devices() -> anyhow::Result<()> {
     let mut notes = Vec::new();
     match serial_ports() {
         Ok(p) => all.extend(p),
-        Err(e) => notes.push(e),
+        Err(e) => notes.push(e.to_string()),
     }
     all.extend(video_nodes());
     extra_devices(&mut all, &mut notes);
