@@ -17,7 +17,9 @@
 #![warn(missing_docs)]
 
 pub use hexcal_calib::{calib, report};
-pub use hexcal_core::{atomic, board, camera, dataset, images, limits, observations, pattern};
+pub use hexcal_core::{
+    atomic, board, camera, dataset, images, invalid, limits, observations, pattern,
+};
 pub use hexcal_rig::{capture, rig};
 pub use hexcal_sim as sim;
 pub use hexcal_vision::{correspond, detect, grid, phase};

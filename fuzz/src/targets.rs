@@ -146,8 +146,8 @@ fn rig(data: &[u8]) -> String {
     let _ = hexcal::app::script::plan_of(&rig);
     if let Ok(s) = &sequence {
         let info = rig.dataset_info(s);
-        if let Err((at, what)) = info.check() {
-            panic!("a checked rig gives an invalid dataset.json: {at}: {what}");
+        if let Err(e) = info.check() {
+            panic!("a checked rig gives an invalid dataset.json: {e}");
         }
     }
     outcome(&sequence)
@@ -181,8 +181,8 @@ fn correspondences(data: &[u8]) -> String {
         Ok(c) => c,
         Err(e) => return class(&e.to_string()),
     };
-    if let Err((at, what)) = c.check() {
-        return class(&format!("{at}: {what}"));
+    if let Err(e) = c.check() {
+        return class(&e.to_string());
     }
     let size: usize = c
         .views
@@ -218,10 +218,7 @@ fn views(data: &[u8]) -> String {
         Ok(v) => v,
         Err(e) => return class(&e.to_string()),
     };
-    outcome(
-        &v.check(v.pose, small_dataset())
-            .map_err(|(a, w)| format!("{a}: {w}")),
-    )
+    outcome(&v.check(v.pose, small_dataset()).map_err(|e| e.to_string()))
 }
 
 fn stack(data: &[u8]) -> String {
@@ -238,7 +235,7 @@ fn stack(data: &[u8]) -> String {
 
 fn dataset(data: &[u8]) -> String {
     if let Ok(info) = serde_json::from_slice::<DatasetInfo>(data) {
-        return outcome(&info.check().map_err(|(a, w)| format!("{a}: {w}")));
+        return outcome(&info.check().map_err(|e| e.to_string()));
     }
     let pose: PoseInfo = match serde_json::from_slice(data) {
         Ok(p) => p,
@@ -247,7 +244,7 @@ fn dataset(data: &[u8]) -> String {
     outcome(
         &pose
             .check(pose.pose, small_dataset())
-            .map_err(|(a, w)| format!("{a}: {w}")),
+            .map_err(|e| e.to_string()),
     )
 }
 

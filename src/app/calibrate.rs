@@ -291,8 +291,7 @@ pub fn read_correspondences(path: &Path) -> Result<Correspondences, AppError> {
         what: "correspondences file",
         source,
     })?;
-    c.check()
-        .map_err(|(at, what)| AppError::Input(format!("{}: {at}: {what}", path.display())))?;
+    c.check().map_err(|e| AppError::Invalid(e.in_file(path)))?;
     Ok(c)
 }
 

@@ -115,7 +115,7 @@ pub fn devices() -> (Vec<Found>, Vec<String>) {
     let mut notes = Vec::new();
     match serial_ports() {
         Ok(p) => all.extend(p),
-        Err(e) => notes.push(e),
+        Err(e) => notes.push(e.to_string()),
     }
     all.extend(video_nodes());
     driver_devices(&mut all, &mut notes);

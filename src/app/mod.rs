@@ -77,6 +77,9 @@ pub enum AppError {
     /// The input cannot give what the job needs (the message names the file or setting).
     #[error("{0}")]
     Input(String),
+    /// A value of an input file is wrong: the file, the value's JSON path and what is wrong.
+    #[error(transparent)]
+    Invalid(crate::invalid::ValidationError),
     /// Ctrl-C: the capture stopped after finishing every pose already captured.
     #[error(
         "interrupted: complete poses {kept:?} are kept; pose {place_again} was not finished: \

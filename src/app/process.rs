@@ -8,10 +8,11 @@
 use crate::board::Board;
 use crate::correspond::{camera_view, FitParams, ProjectorMap};
 use crate::dataset::StackReader;
-use crate::dataset::{CameraEntry, Dataset, DatasetInfo};
+use crate::dataset::{CameraEntry, Dataset, DatasetError, DatasetInfo};
 use crate::detect::{detect, DetectParams};
 use crate::grid::{build, GridParams};
 use crate::images::{CameraFrame, FloatImage, Pixels};
+use crate::invalid::{Invalid, ValidationError};
 use crate::observations::CameraView;
 use crate::pattern::Sequence;
 use crate::phase::files::decode_dir;
@@ -54,12 +55,14 @@ impl StackResult {
 }
 
 /// The stored plain frame of a camera-only pose (`frame-000.png` in `dir`) as a float image.
-fn read_plain_frame(dir: &std::path::Path) -> Result<FloatImage, String> {
-    let stack = StackReader::open(dir).map_err(|e| e.to_string())?;
-    let pixels = stack.frame(0).map_err(|e| e.to_string())?;
+fn read_plain_frame(dir: &std::path::Path) -> Result<FloatImage, DatasetError> {
+    let stack = StackReader::open(dir)?;
+    let pixels = stack.frame(0)?;
     let (w, h) = (stack.info.width, stack.info.height);
-    float_image(w, h, &Pixels::Gray16(pixels))
-        .ok_or_else(|| format!("{}: frame 0 is not {w}×{h}", dir.display()))
+    float_image(w, h, &Pixels::Gray16(pixels)).ok_or_else(|| DatasetError::Invalid {
+        path: dir.to_owned(),
+        reason: format!("frame 0 is not {w}×{h}"),
+    })
 }
 
 /// `pose-KKK/views.json`: every camera's result for one pose.
@@ -76,30 +79,30 @@ impl crate::dataset::PoseFile for PoseViews {
     /// dataset in order, one projector count per projector, and every view of its own
     /// camera and pose with projector indices among the dataset's projectors (device
     /// indices: cameras first, then projectors).
-    fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), (String, String)> {
+    fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), ValidationError> {
         if self.pose != pose {
-            return Err((
-                "pose".into(),
+            return Err(ValidationError::new(
+                "pose",
                 format!("{} in the folder of pose {pose}", self.pose),
             ));
         }
         let (cameras, projectors) = (info.cameras.len(), info.projectors.len());
         if self.stacks.len() != cameras {
-            return Err((
-                "stacks".into(),
+            return Err(ValidationError::new(
+                "stacks",
                 format!("{} results for {cameras} cameras", self.stacks.len()),
             ));
         }
         for (c, (s, entry)) in self.stacks.iter().zip(&info.cameras).enumerate() {
             let at = |k: &str| format!("stacks[{c}].{k}");
             if s.camera != entry.name {
-                return Err((
+                return Err(ValidationError::new(
                     at("camera"),
                     format!("{:?}, but camera {c} is {:?}", s.camera, entry.name),
                 ));
             }
             if s.projector_points.len() != projectors {
-                return Err((
+                return Err(ValidationError::new(
                     at("projector_points"),
                     format!(
                         "{} counts for {projectors} projectors",
@@ -110,23 +113,23 @@ impl crate::dataset::PoseFile for PoseViews {
             let Some(view) = &s.view else { continue };
             let camera = |i: usize| match i == c {
                 true => Ok(()),
-                false => Err(format!("camera {i} in the result of camera {c}")),
+                false => Err(Invalid(format!("camera {i} in the result of camera {c}"))),
             };
             let projector = |j: usize| match (cameras..cameras + projectors).contains(&j) {
                 true => Ok(()),
-                false => Err(format!(
+                false => Err(Invalid(format!(
                     "device {j} is not one of the {projectors} projectors (devices from \
                      {cameras} on)"
-                )),
+                ))),
             };
             if view.pose != pose {
-                return Err((
+                return Err(ValidationError::new(
                     at("view.pose"),
                     format!("{} in the folder of pose {pose}", view.pose),
                 ));
             }
             view.check(&camera, &projector, pose + 1)
-                .map_err(|(k, m)| (at(&format!("view.{k}")), m))?;
+                .map_err(|e| e.map_at(|k| at(&format!("view.{k}"))))?;
         }
         Ok(())
     }
@@ -390,7 +393,8 @@ pub fn process_stored(data: &Dataset, board: &Board, k: usize) -> PoseViews {
             };
             let result = match data.info.sequence.is_camera_only() {
                 true => read_plain_frame(&dir)
-                    .map(|image| process_image(&image, &entry.name, board, &[], at)),
+                    .map(|image| process_image(&image, &entry.name, board, &[], at))
+                    .map_err(|e| e.to_string()),
                 false => decode_dir(&dir)
                     .map(|d| process_decoded(&d, board, c, k, cameras))
                     .map_err(|e| e.to_string()),

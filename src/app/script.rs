@@ -40,14 +40,9 @@ pub enum ScriptError {
         /// The step.
         step: String,
     },
-    /// The rig file's script cannot be planned.
-    #[error("{field}: {message}")]
-    Plan {
-        /// Dotted key.
-        field: String,
-        /// Why.
-        message: String,
-    },
+    /// The rig file's script cannot be planned: the dotted key and why.
+    #[error(transparent)]
+    Plan(crate::invalid::ValidationError),
     /// The run asked for a pose the script does not capture.
     #[error("the script captures {captures} poses; pose {pose} is not among them")]
     NoSuchPose {
@@ -229,7 +224,7 @@ pub fn capture_seconds(rig: &RigFile) -> Result<f64, AppError> {
 /// The rig file's script unrolled and planned, if it has one.
 pub fn plan_of(rig: &RigFile) -> Result<Option<Plan>, AppError> {
     rig.script_plan(capture_seconds(rig)?)
-        .map_err(|(field, message)| ScriptError::Plan { field, message }.into())
+        .map_err(|e| ScriptError::Plan(e).into())
 }
 
 impl<'a> ScriptRun<'a> {

@@ -7,6 +7,7 @@
 //! keeps every finished pose and resumes at the first incomplete one.
 
 use crate::images::{CameraFrame, Pixels};
+use crate::invalid::ValidationError;
 use crate::limits;
 use crate::pattern::Sequence;
 use serde::{Deserialize, Serialize};
@@ -37,6 +38,9 @@ pub enum DatasetError {
         /// What is wrong.
         reason: String,
     },
+    /// A value of a file is wrong: the file, the value's JSON path and what is wrong.
+    #[error(transparent)]
+    Check(ValidationError),
     /// A frame of a stack is missing, unreadable or does not match the others.
     #[error("camera {camera}, frame {frame} ({path}): {reason}")]
     Frame {
@@ -183,38 +187,37 @@ fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, DatasetErro
     })
 }
 
-/// `Invalid` naming `path` and the JSON path of a problem found by a check.
-fn invalid(path: &Path) -> impl FnOnce((String, String)) -> DatasetError + '_ {
-    move |(at, what)| DatasetError::Invalid {
-        path: path.to_owned(),
-        reason: format!("{at}: {what}"),
-    }
+/// `Check` naming `path` with the problem a check found.
+fn invalid(path: &Path) -> impl FnOnce(ValidationError) -> DatasetError + '_ {
+    move |e| DatasetError::Check(e.in_file(path))
 }
 
 /// Device names of the dataset, unique and usable as folder names ([`limits::device_name`]).
-fn check_names<'a>(names: impl Iterator<Item = (String, &'a str)>) -> Result<(), (String, String)> {
+fn check_names<'a>(names: impl Iterator<Item = (String, &'a str)>) -> Result<(), ValidationError> {
     let mut seen: std::collections::HashMap<&str, String> = std::collections::HashMap::new();
     for (at, name) in names {
-        limits::device_name(name).map_err(|m| (at.clone(), m))?;
+        limits::device_name(name).map_err(|m| m.at(at.clone()))?;
         if let Some(first) = seen.insert(name, at.clone()) {
-            return Err((at, format!("{name:?} is already the name of {first}")));
+            return Err(ValidationError::new(
+                at,
+                format!("{name:?} is already the name of {first}"),
+            ));
         }
     }
     Ok(())
 }
 
 impl DatasetInfo {
-    /// The first problem of a `dataset.json`: (JSON path, what is wrong). Devices within
+    /// The first problem of a `dataset.json`: the JSON path and what is wrong. Devices within
     /// [`limits::MAX_DEVICES`], names unique and usable as folder names, image sizes within
     /// [`limits::image_size`], 8, 12 or 16 bits, and one sequence code per projector with
     /// the projector's raster size.
-    pub fn check(&self) -> Result<(), (String, String)> {
+    pub fn check(&self) -> Result<(), ValidationError> {
         if self.cameras.is_empty() {
-            return Err(("cameras".into(), "no camera".into()));
+            return Err(ValidationError::new("cameras", "no camera"));
         }
         let devices = self.cameras.len() + self.projectors.len();
-        limits::count(devices, limits::MAX_DEVICES, "devices")
-            .map_err(|m| ("cameras".into(), m))?;
+        limits::count(devices, limits::MAX_DEVICES, "devices").map_err(|m| m.at("cameras"))?;
         let cameras = self.cameras.iter().enumerate();
         let projectors = self.projectors.iter().enumerate();
         check_names(
@@ -229,21 +232,21 @@ impl DatasetInfo {
         )?;
         for (i, c) in cameras {
             limits::image_size(c.width, c.height)
-                .map_err(|m| (format!("cameras[{i}].width"), m))?;
+                .map_err(|m| m.at(format!("cameras[{i}].width")))?;
             if ![8, 12, 16].contains(&c.bits) {
-                return Err((
+                return Err(ValidationError::new(
                     format!("cameras[{i}].bits"),
                     format!("{} bits: 8, 12 or 16", c.bits),
                 ));
             }
             if let Some(f) = &c.pixel_format {
-                limits::label(f).map_err(|m| (format!("cameras[{i}].pixel_format"), m))?;
+                limits::label(f).map_err(|m| m.at(format!("cameras[{i}].pixel_format")))?;
             }
         }
         let codes = self.sequence.projectors();
         if codes.len() != self.projectors.len() {
-            return Err((
-                "sequence.projectors".into(),
+            return Err(ValidationError::new(
+                "sequence.projectors",
                 format!(
                     "{} codes for {} projectors",
                     codes.len(),
@@ -253,7 +256,7 @@ impl DatasetInfo {
         }
         for ((i, p), code) in projectors.zip(codes) {
             if (p.width, p.height) != (code.width, code.height) {
-                return Err((
+                return Err(ValidationError::new(
                     format!("projectors[{i}].width"),
                     format!(
                         "{}×{} px, but its sequence code is {}×{} px",
@@ -267,14 +270,17 @@ impl DatasetInfo {
 }
 
 impl StackInfo {
-    /// The first problem of a `stack.json`: (JSON path, what is wrong). A camera name usable
+    /// The first problem of a `stack.json`: the JSON path and what is wrong. A camera name usable
     /// as a folder name, an image size within [`limits::image_size`], 8, 12 or 16 bits, and
     /// frame files inside the stack folder (relative, no `..`) with finite exposures.
-    pub fn check(&self) -> Result<(), (String, String)> {
-        limits::device_name(&self.camera).map_err(|m| ("camera".into(), m))?;
-        limits::image_size(self.width, self.height).map_err(|m| ("width".into(), m))?;
+    pub fn check(&self) -> Result<(), ValidationError> {
+        limits::device_name(&self.camera).map_err(|m| m.at("camera"))?;
+        limits::image_size(self.width, self.height).map_err(|m| m.at("width"))?;
         if ![8, 12, 16].contains(&self.bits) {
-            return Err(("bits".into(), format!("{} bits: 8, 12 or 16", self.bits)));
+            return Err(ValidationError::new(
+                "bits",
+                format!("{} bits: 8, 12 or 16", self.bits),
+            ));
         }
         for (i, f) in self.frames.iter().enumerate() {
             let inside = !f.file.is_empty()
@@ -282,13 +288,13 @@ impl StackInfo {
                     .components()
                     .all(|c| matches!(c, std::path::Component::Normal(_)));
             if !inside {
-                return Err((
+                return Err(ValidationError::new(
                     format!("frames[{i}].file"),
                     format!("{:?} is not a file inside the stack folder", f.file),
                 ));
             }
             limits::non_negative(f.exposure_us, 1e3 * limits::MAX_DURATION_MS)
-                .map_err(|m| (format!("frames[{i}].exposure_us"), m))?;
+                .map_err(|m| m.at(format!("frames[{i}].exposure_us")))?;
         }
         Ok(())
     }
@@ -297,25 +303,24 @@ impl StackInfo {
 /// `pose.json` and `captured.json`: its own pose index, cameras of the dataset, finite
 /// non-negative times.
 impl PoseFile for PoseInfo {
-    fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), (String, String)> {
+    fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), ValidationError> {
         if self.pose != pose {
-            return Err((
-                "pose".into(),
+            return Err(ValidationError::new(
+                "pose",
                 format!("{} in the folder of pose {pose}", self.pose),
             ));
         }
         for (i, c) in self.cameras.iter().enumerate() {
             if !info.cameras.iter().any(|e| &e.name == c) {
-                return Err((
+                return Err(ValidationError::new(
                     format!("cameras[{i}]"),
                     format!("{c:?} is not a camera of the dataset"),
                 ));
             }
         }
-        limits::non_negative(self.seconds, limits::MAX_DURATION_MS)
-            .map_err(|m| ("seconds".into(), m))?;
+        limits::non_negative(self.seconds, limits::MAX_DURATION_MS).map_err(|m| m.at("seconds"))?;
         for (i, t) in self.timeline.iter().enumerate() {
-            limits::finite(t).map_err(|m| (format!("timeline[{i}]"), m))?;
+            limits::finite(t).map_err(|m| m.at(format!("timeline[{i}]")))?;
         }
         Ok(())
     }
@@ -323,9 +328,9 @@ impl PoseFile for PoseInfo {
 
 /// A JSON file of a pose folder, checked against its dataset before use.
 pub trait PoseFile: for<'de> Deserialize<'de> {
-    /// The first problem of the file of pose `pose` in a dataset of `info`: (JSON path,
-    /// what is wrong).
-    fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), (String, String)>;
+    /// The first problem of the file of pose `pose` in a dataset of `info`: the JSON path
+    /// and what is wrong.
+    fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), ValidationError>;
 }
 
 impl Dataset {

@@ -3,9 +3,10 @@
 //! Takes nothing from the other hexcal crates; gives the board ([`board`]), the camera and
 //! projector model ([`camera`]), the phase-shift sequence ([`pattern`]), images ([`images`]),
 //! the dataset format ([`dataset`]), the observations that are the seam between the image
-//! stages and calibration ([`observations`]), the limits on what is read ([`limits`]) and
-//! atomic file writes ([`atomic`]). A user who only needs the camera model and the
-//! calibration files depends on this crate (and `hexcal-calib`) alone.
+//! stages and calibration ([`observations`]), the limits on what is read ([`limits`]), the
+//! refusals of what is read ([`invalid`]) and atomic file writes ([`atomic`]). A user who
+//! only needs the camera model and the calibration files depends on this crate (and
+//! `hexcal-calib`) alone.
 #![warn(missing_docs)]
 
 pub mod atomic;
@@ -13,10 +14,13 @@ pub mod board;
 pub mod camera;
 pub mod dataset;
 pub mod images;
+pub mod invalid;
 pub mod limits;
 pub mod observations;
 pub mod pattern;
 pub mod tomlspan;
+
+pub use invalid::{Invalid, ValidationError};
 
 /// Paths of the test data vendored in the repository (`tests/data`).
 #[cfg(test)]

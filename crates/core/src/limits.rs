@@ -6,6 +6,8 @@
 //! 10 poses and 614 circles per side); they exist so that a typo or a corrupted file is
 //! refused with one line instead of an out-of-memory abort or an hour of work.
 
+use crate::invalid::Invalid;
+
 /// Board poses of a rig file's `[poses] count`, `--poses`, a correspondences file's `poses`
 /// and a dataset's pose folders.
 pub const MAX_POSES: usize = 10_000;
@@ -72,59 +74,59 @@ pub fn read_text(path: &std::path::Path) -> std::io::Result<String> {
 }
 
 /// `Err` naming the limit when `n` exceeds `max`, e.g. "20000 poses: at most 10000".
-pub fn count(n: usize, max: usize, what: &str) -> Result<(), String> {
+pub fn count(n: usize, max: usize, what: &str) -> Result<(), Invalid> {
     if n > max {
-        return Err(format!("{n} {what}: at most {max}"));
+        return Err(Invalid(format!("{n} {what}: at most {max}")));
     }
     Ok(())
 }
 
 /// `Err` unless a `width`×`height` image is non-empty and within [`MAX_IMAGE_SIDE`] and
 /// [`MAX_IMAGE_PIXELS`].
-pub fn image_size(width: u32, height: u32) -> Result<(), String> {
+pub fn image_size(width: u32, height: u32) -> Result<(), Invalid> {
     if width == 0 || height == 0 {
-        return Err(format!("{width}×{height} px is empty"));
+        return Err(Invalid(format!("{width}×{height} px is empty")));
     }
     if width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
-        return Err(format!(
+        return Err(Invalid(format!(
             "{width}×{height} px: width and height at most {MAX_IMAGE_SIDE}"
-        ));
+        )));
     }
     if u64::from(width) * u64::from(height) > MAX_IMAGE_PIXELS {
-        return Err(format!(
+        return Err(Invalid(format!(
             "{width}×{height} px: at most {MAX_IMAGE_PIXELS} (2²⁸) pixels"
-        ));
+        )));
     }
     Ok(())
 }
 
 /// `Err` unless every value is finite.
-pub fn finite(values: &[f64]) -> Result<(), String> {
+pub fn finite(values: &[f64]) -> Result<(), Invalid> {
     match values.iter().find(|v| !v.is_finite()) {
-        Some(v) => Err(format!("{v} is not a finite number")),
+        Some(v) => Err(Invalid(format!("{v} is not a finite number"))),
         None => Ok(()),
     }
 }
 
 /// `Err` unless `v` is finite and in `[0, max]`.
-pub fn non_negative(v: f64, max: f64) -> Result<(), String> {
+pub fn non_negative(v: f64, max: f64) -> Result<(), Invalid> {
     if !(v.is_finite() && (0.0..=max).contains(&v)) {
-        return Err(format!("{v} is not a number in [0, {max}]"));
+        return Err(Invalid(format!("{v} is not a number in [0, {max}]")));
     }
     Ok(())
 }
 
 /// `Err` unless `name` can name a device, and so a folder or file: not empty, at most
 /// [`MAX_NAME_BYTES`], no `/`, `\`, control character, and not `.` or `..`.
-pub fn device_name(name: &str) -> Result<(), String> {
+pub fn device_name(name: &str) -> Result<(), Invalid> {
     if name.is_empty() {
-        return Err("a device needs a name".into());
+        return Err(Invalid::new("a device needs a name"));
     }
     if name.len() > MAX_NAME_BYTES {
-        return Err(format!(
+        return Err(Invalid(format!(
             "a name of {} bytes: at most {MAX_NAME_BYTES}",
             name.len()
-        ));
+        )));
     }
     if name == "."
         || name == ".."
@@ -132,24 +134,24 @@ pub fn device_name(name: &str) -> Result<(), String> {
             .chars()
             .any(|c| c == '/' || c == '\\' || c.is_control())
     {
-        return Err(format!(
+        return Err(Invalid(format!(
             "{name:?} cannot name a folder (no /, \\, control characters, . or ..)"
-        ));
+        )));
     }
     Ok(())
 }
 
 /// `Err` unless `text` is a one-line label (a pixel format's name, …): not empty, at most
 /// [`MAX_NAME_BYTES`], no control character.
-pub fn label(text: &str) -> Result<(), String> {
+pub fn label(text: &str) -> Result<(), Invalid> {
     if text.is_empty() || text.len() > MAX_NAME_BYTES {
-        return Err(format!(
+        return Err(Invalid(format!(
             "a label of {} bytes: 1 to {MAX_NAME_BYTES}",
             text.len()
-        ));
+        )));
     }
     if text.chars().any(char::is_control) {
-        return Err(format!("{text:?} holds a control character"));
+        return Err(Invalid(format!("{text:?} holds a control character")));
     }
     Ok(())
 }
@@ -165,8 +167,14 @@ mod tests {
             "20000 poses: at most 10000"
         );
         assert!(count(MAX_POSES, MAX_POSES, "poses").is_ok());
-        assert!(image_size(4_294_967_295, 10).unwrap_err().contains("65536"));
-        assert!(image_size(65_536, 65_536).unwrap_err().contains("2²⁸"));
+        assert!(image_size(4_294_967_295, 10)
+            .unwrap_err()
+            .message()
+            .contains("65536"));
+        assert!(image_size(65_536, 65_536)
+            .unwrap_err()
+            .message()
+            .contains("2²⁸"));
         assert!(image_size(0, 10).unwrap_err().contains("empty"));
         assert!(image_size(16_384, 16_384).is_ok());
         assert!(finite(&[1.0, f64::NAN]).is_err() && finite(&[1.0, -2.0]).is_ok());
@@ -175,7 +183,10 @@ mod tests {
         for bad in ["", ".", "..", "a/b", "a\\b", "a\nb"] {
             assert!(device_name(bad).is_err(), "{bad:?}");
         }
-        assert!(device_name(&"x".repeat(101)).unwrap_err().contains("100"));
+        assert!(device_name(&"x".repeat(101))
+            .unwrap_err()
+            .message()
+            .contains("100"));
         assert!(device_name("cam 0").is_ok());
     }
 }

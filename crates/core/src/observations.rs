@@ -7,6 +7,7 @@
 //! from disk must pass.
 
 use crate::board::{Hex, Side};
+use crate::invalid::{Invalid, ValidationError};
 use crate::limits;
 use nalgebra::Point2;
 use std::collections::BTreeMap;
@@ -55,7 +56,7 @@ pub struct CameraView {
 }
 
 /// Says whether a device index is one a view may use (`Err` says why not).
-pub type IndexCheck<'a> = &'a dyn Fn(usize) -> Result<(), String>;
+pub type IndexCheck<'a> = &'a dyn Fn(usize) -> Result<(), Invalid>;
 
 impl CameraView {
     /// The first problem of a view read from a file: (JSON path within the view, what is
@@ -66,28 +67,28 @@ impl CameraView {
         camera: IndexCheck,
         projector: IndexCheck,
         poses: usize,
-    ) -> Result<(), (String, String)> {
-        camera(self.camera).map_err(|m| ("camera".to_string(), m))?;
+    ) -> Result<(), ValidationError> {
+        camera(self.camera).map_err(|m| m.at("camera"))?;
         if self.pose >= poses {
-            return Err((
-                "pose".into(),
+            return Err(ValidationError::new(
+                "pose",
                 format!("pose {} is out of range ({poses} poses)", self.pose),
             ));
         }
         let max = crate::limits::MAX_LATTICE_COORD;
         for (i, p) in self.points.iter().enumerate() {
             if p.hex.q.abs() > max || p.hex.r.abs() > max {
-                return Err((
+                return Err(ValidationError::new(
                     format!("points[{i}].hex"),
                     format!("({}, {}) is beyond ±{max}", p.hex.q, p.hex.r),
                 ));
             }
             crate::limits::finite(&[p.image.x, p.image.y])
-                .map_err(|m| (format!("points[{i}].image"), m))?;
+                .map_err(|m| m.at(format!("points[{i}].image")))?;
             for (j, q) in p.projectors.iter().enumerate() {
                 let at = |k: &str| format!("points[{i}].projectors[{j}].{k}");
-                projector(q.projector).map_err(|m| (at("projector"), m))?;
-                crate::limits::finite(&[q.pixel.x, q.pixel.y]).map_err(|m| (at("pixel"), m))?;
+                projector(q.projector).map_err(|m| m.at(at("projector")))?;
+                crate::limits::finite(&[q.pixel.x, q.pixel.y]).map_err(|m| m.at(at("pixel")))?;
             }
         }
         Ok(())
@@ -134,14 +135,14 @@ pub struct Correspondences {
 }
 
 impl Correspondences {
-    /// The first problem of a correspondences file: (JSON path, what is wrong), as
+    /// The first problem of a correspondences file: the JSON path and what is wrong, as
     /// [`check_input`] finds it.
-    pub fn check(&self) -> Result<(), (String, String)> {
+    pub fn check(&self) -> Result<(), ValidationError> {
         check_input(&self.devices, self.poses, &self.views)
     }
 }
 
-/// The first problem of calibration input: (JSON path, what is wrong). At least one and
+/// The first problem of calibration input: the JSON path and what is wrong. At least one and
 /// at most [`limits::MAX_DEVICES`] devices with unique names usable as file names and sizes
 /// within [`limits::image_size`]; 1 to [`limits::MAX_POSES`] poses; every view of a camera
 /// and a pose in range, at most one per (camera, pose), its projector pixels of projectors
@@ -150,44 +151,45 @@ pub fn check_input(
     devices: &[DeviceInfo],
     poses: usize,
     views: &[CameraView],
-) -> Result<(), (String, String)> {
+) -> Result<(), ValidationError> {
     if devices.is_empty() {
-        return Err(("devices".into(), "no device".into()));
+        return Err(ValidationError::new("devices", "no device"));
     }
-    limits::count(devices.len(), limits::MAX_DEVICES, "devices")
-        .map_err(|m| ("devices".to_string(), m))?;
+    limits::count(devices.len(), limits::MAX_DEVICES, "devices").map_err(|m| m.at("devices"))?;
     let mut names = BTreeMap::new();
     for (i, d) in devices.iter().enumerate() {
         let at = |k: &str| format!("devices[{i}].{k}");
-        limits::device_name(&d.name).map_err(|m| (at("name"), m))?;
+        limits::device_name(&d.name).map_err(|m| m.at(at("name")))?;
         if let Some(first) = names.insert(d.name.as_str(), i) {
-            return Err((
+            return Err(ValidationError::new(
                 at("name"),
                 format!("{:?} is already the name of devices[{first}]", d.name),
             ));
         }
-        limits::image_size(d.width, d.height).map_err(|m| (at("width"), m))?;
+        limits::image_size(d.width, d.height).map_err(|m| m.at(at("width")))?;
     }
     if poses == 0 {
-        return Err(("poses".into(), "no board pose".into()));
+        return Err(ValidationError::new("poses", "no board pose"));
     }
-    limits::count(poses, limits::MAX_POSES, "poses").map_err(|m| ("poses".to_string(), m))?;
+    limits::count(poses, limits::MAX_POSES, "poses").map_err(|m| m.at("poses"))?;
     let kind = |want: DeviceKind, i: usize| match devices.get(i) {
         Some(d) if d.kind == want => Ok(()),
-        Some(d) => Err(format!("device {i} ({}) is a {:?}", d.name, d.kind).to_lowercase()),
-        None => Err(format!(
+        Some(d) => Err(Invalid(
+            format!("device {i} ({}) is a {:?}", d.name, d.kind).to_lowercase(),
+        )),
+        None => Err(Invalid(format!(
             "device {i} is out of range ({} devices)",
             devices.len()
-        )),
+        ))),
     };
     let camera = |i| kind(DeviceKind::Camera, i);
     let projector = |i| kind(DeviceKind::Projector, i);
     let mut seen = BTreeMap::new();
     for (i, v) in views.iter().enumerate() {
         v.check(&camera, &projector, poses)
-            .map_err(|(k, m)| (format!("views[{i}].{k}"), m))?;
+            .map_err(|e| e.map_at(|k| format!("views[{i}].{k}")))?;
         if let Some(first) = seen.insert((v.camera, v.pose), i) {
-            return Err((
+            return Err(ValidationError::new(
                 format!("views[{i}]"),
                 format!(
                     "camera {} at pose {} already has a view (views[{first}])",

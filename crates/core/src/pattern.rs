@@ -212,7 +212,7 @@ pub enum SequenceError {
     TooFewSteps(u32),
     /// A count or size beyond [`crate::limits`].
     #[error("sequence: {0}")]
-    Limit(String),
+    Limit(crate::invalid::Invalid),
     /// A frequency outside 0 < f < N/2.
     #[error("sequence: projector {projector}'s frequency f={frequency} is outside 0 < f < N/2 = {half} (N = {steps})", half = *steps as f64 / 2.0)]
     FrequencyRange {
@@ -403,10 +403,9 @@ impl Sequence {
             return Err(SequenceError::TooFewSteps(n));
         }
         if n > crate::limits::MAX_PHASE_STEPS {
-            return Err(SequenceError::Limit(format!(
-                "steps N = {n}: at most {}",
-                crate::limits::MAX_PHASE_STEPS
-            )));
+            return Err(SequenceError::Limit(
+                format!("steps N = {n}: at most {}", crate::limits::MAX_PHASE_STEPS).into(),
+            ));
         }
         crate::limits::count(
             self.projectors.len(),

@@ -275,7 +275,7 @@ impl Scene {
     fn check(&self) -> Result<(), SimError> {
         self.camera
             .check()
-            .map_err(|(f, m)| SimError::Scene(format!("[camera] {f}: {m}")))?;
+            .map_err(|e| SimError::Scene(format!("[camera] {e}")))?;
         let p = &self.pose;
         for (key, v) in [
             ("rvec", p.rvec),

@@ -42,6 +42,17 @@ pub struct ConsoleError {
     pub reason: String,
 }
 
+/// Why the capture button was refused (answered as 409).
+#[derive(Debug, thiserror::Error)]
+enum PressRefused {
+    /// The run does not wait for the board to be placed by hand (its status).
+    #[error("not waiting for the board ({0})")]
+    NotWaiting(String),
+    /// The run has ended.
+    #[error("the run no longer listens")]
+    Gone,
+}
+
 /// A mutex that a panicked holder leaves usable (the console's data stays consistent field
 /// by field, and the run must go on).
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -122,14 +133,14 @@ impl Shared {
     }
 
     /// The capture button: taken when the run waits for the board and places by hand.
-    fn press_capture(&self) -> Result<(), String> {
+    fn press_capture(&self) -> Result<(), PressRefused> {
         let s = lock(&self.state);
         if s.prompt.is_none() && (s.auto || s.status != "waiting") {
-            return Err(format!("not waiting for the board ({})", s.status));
+            return Err(PressRefused::NotWaiting(s.status.clone()));
         }
         match self.capture.try_send(()) {
             Ok(()) | Err(TrySendError::Full(())) => Ok(()),
-            Err(TrySendError::Disconnected(())) => Err("the run no longer listens".into()),
+            Err(TrySendError::Disconnected(())) => Err(PressRefused::Gone),
         }
     }
 

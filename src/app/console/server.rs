@@ -91,7 +91,7 @@ fn respond(request: Request, shared: &Arc<Shared>) -> std::io::Result<()> {
         }
         (Method::Post, "/capture") => match shared.press_capture() {
             Ok(()) => request.respond(text(200, "taken")),
-            Err(why) => request.respond(text(409, &why)),
+            Err(why) => request.respond(text(409, &why.to_string())),
         },
         _ => request.respond(text(404, "not found")),
     }

@@ -16,6 +16,7 @@ use crate::app::process::PoseViews;
 use crate::board::Board;
 use crate::calib::geometric::{calibrate_registering, GeometricParams};
 use crate::calib::solve::CalibrateOptions;
+use crate::calib::CalibError;
 use crate::observations::{CameraView, DeviceInfo};
 use crossbeam_channel::{unbounded, Sender};
 use std::collections::BTreeSet;
@@ -173,7 +174,7 @@ impl Guide {
 }
 
 /// One interim calibration and its guidance.
-fn interim(r: &Request) -> Result<Guidance, String> {
+fn interim(r: &Request) -> Result<Guidance, CalibError> {
     let cal = calibrate_registering(
         &r.board,
         &r.devices,
@@ -181,14 +182,13 @@ fn interim(r: &Request) -> Result<Guidance, String> {
         &r.views,
         &CalibrateOptions::default(),
         &GeometricParams::default(),
-    )
-    .map_err(|e| format!("interim calibration: {e}"))?;
+    )?;
     Ok(guide(&cal, &r.devices, r.threshold))
 }
 
 /// An interim calibration of `poses` poses finished: its guidance (or why none) into the
 /// verdict, and the watchers woken.
-fn finished(shared: &Shared, poses: usize, outcome: Result<Guidance, String>) {
+fn finished(shared: &Shared, poses: usize, outcome: Result<Guidance, CalibError>) {
     let mut v = lock(&shared.verdict);
     v.guiding = false;
     match outcome {
@@ -196,7 +196,7 @@ fn finished(shared: &Shared, poses: usize, outcome: Result<Guidance, String>) {
             v.guidance = Some(g);
             v.guidance_error = None;
         }
-        Err(e) => v.guidance_error = Some(e),
+        Err(e) => v.guidance_error = Some(format!("interim calibration: {e}")),
     }
     shared.publish(&mut v);
     drop(v);

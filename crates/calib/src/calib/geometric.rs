@@ -16,6 +16,7 @@ use hexcal_core::board::{lattice_votes, Board, Hex, LatticeMap, Side};
 use hexcal_core::camera::CameraModel;
 use hexcal_core::observations::DeviceInfo;
 use hexcal_core::observations::{CameraView, Frame, ViewPoint};
+use hexcal_core::Invalid;
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 use std::collections::BTreeSet;
 
@@ -116,7 +117,7 @@ pub fn place_view(
     device_from_board: &Isometry3<f64>,
     view: &CameraView,
     params: &GeometricParams,
-) -> Result<Placed, String> {
+) -> Result<Placed, Invalid> {
     let predicted = predict(board, model, device_from_board);
     let mut pairs = Vec::new();
     for pt in &view.points {
@@ -139,16 +140,16 @@ pub fn place_view(
     let second = ranked.get(1).map_or(0, |r| r.1);
     let n = view.points.len();
     if matches < params.min_matches || (agree as f64) < params.min_agreement * n as f64 {
-        return Err(format!(
+        return Err(Invalid(format!(
             "{matches} of {n} circles near a predicted circle, the best lattice transform \
              agrees with {agree}"
-        ));
+        )));
     }
     if (agree as f64) < params.margin * second as f64 {
-        return Err(format!(
+        return Err(Invalid(format!(
             "ambiguous: the best lattice transform agrees with {agree} circles, the next \
              with {second}"
-        ));
+        )));
     }
     let points = view
         .points

@@ -63,14 +63,10 @@ pub enum CalibError {
         reason: String,
     },
     /// The input refers to what is not there (a device, pose or index out of range, a
-    /// duplicate name or view, a value that is not finite).
-    #[error("{at}: {reason}")]
-    Input {
-        /// Where: the JSON path of the offending value (e.g. `views[3].camera`).
-        at: String,
-        /// What is wrong.
-        reason: String,
-    },
+    /// duplicate name or view, a value that is not finite): the JSON path of the offending
+    /// value (e.g. `views[3].camera`) and what is wrong.
+    #[error(transparent)]
+    Input(#[from] hexcal_core::ValidationError),
 }
 
 #[cfg(test)]

@@ -16,6 +16,7 @@ use super::{CalibError, PlanarView, PlaneCorrespondence};
 use hexcal_core::board::{Board, Side};
 use hexcal_core::camera::CameraModel;
 use hexcal_core::observations::{check_input, CameraView, DeviceInfo};
+use hexcal_core::{Invalid, ValidationError};
 use std::collections::BTreeMap;
 
 impl From<&Device> for DeviceInfo {
@@ -108,7 +109,7 @@ fn initialise(
     device: usize,
     obs: &[Observation],
     min_points: usize,
-) -> Result<Start, String> {
+) -> Result<Start, Invalid> {
     // Group by (pose, side); a projector sees each circle through several cameras: keep one
     // correspondence per circle (the first) for the start.
     let mut groups = Groups::new();
@@ -128,7 +129,7 @@ fn initialise(
         .map(|(k, _)| *k)
         .collect();
     if keys.len() < zhang::MIN_VIEWS {
-        return Err(too_few_views(&groups, keys.len(), min_points));
+        return Err(Invalid(too_few_views(&groups, keys.len(), min_points)));
     }
     let views: Vec<PlanarView> = keys
         .iter()
@@ -137,14 +138,14 @@ fn initialise(
         })
         .collect();
     let (model, poses) = zhang::initialise(&views, info.width, info.height).map_err(|e| {
-        format!(
+        Invalid(format!(
             "Zhang initialisation from {} views ({}): {e}",
             views.len(),
             keys.iter()
                 .map(|&(k, s)| format!("pose {k} {s}"))
                 .collect::<Vec<_>>()
                 .join(", ")
-        )
+        ))
     })?;
     let pairs = keys
         .iter()
@@ -182,13 +183,13 @@ fn too_few_views(groups: &Groups, usable: usize, min_points: usize) -> String {
 /// Refuses a reference device index out of range.
 fn check_reference(devices: &[DeviceInfo], reference: usize) -> Result<(), CalibError> {
     if reference >= devices.len() {
-        return Err(CalibError::Input {
-            at: "reference".into(),
-            reason: format!(
+        return Err(CalibError::Input(ValidationError::new(
+            "reference",
+            format!(
                 "device {reference} is out of range ({} devices)",
                 devices.len()
             ),
-        });
+        )));
     }
     Ok(())
 }
@@ -273,7 +274,7 @@ pub fn calibrate(
     views: &[CameraView],
     options: &CalibrateOptions,
 ) -> Result<Calibration, CalibError> {
-    check_input(devices, poses, views).map_err(|(at, reason)| CalibError::Input { at, reason })?;
+    check_input(devices, poses, views)?;
     check_reference(devices, options.bundle.reference)?;
     let (views, registration) = register(views, &options.register);
     let obs = observations(&views);
@@ -290,7 +291,7 @@ pub fn calibrate(
             }
             Err(reason) => excluded.push(Excluded {
                 name: info.name.clone(),
-                reason,
+                reason: reason.into(),
             }),
         }
     }

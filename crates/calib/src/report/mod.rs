@@ -15,6 +15,7 @@ use crate::calib::lens_model::TermChoice;
 use crate::calib::solve::Calibration;
 use hexcal_core::camera::{CameraModel, Distortion, Intrinsics};
 use hexcal_core::observations::DeviceKind;
+use hexcal_core::{Invalid, ValidationError};
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -199,6 +200,9 @@ pub enum ReportError {
         /// What is wrong.
         message: String,
     },
+    /// A value of the file is wrong: the file, the value's JSON path and what is wrong.
+    #[error(transparent)]
+    Invalid(ValidationError),
     /// A file could not be written.
     #[error("cannot write {path}: {source}")]
     Io {
@@ -285,52 +289,50 @@ impl CalibrationFile {
             });
         }
         let file: CalibrationFile = serde_json::from_str(text).map_err(parse)?;
-        file.check().map_err(|(at, what)| ReportError::Parse {
-            path: path.into(),
-            message: format!("{at}: {what}"),
-        })?;
+        file.check()
+            .map_err(|e| ReportError::Invalid(e.in_file(path)))?;
         Ok(file)
     }
 
-    /// The first problem of a calibration file: (JSON path, what is wrong). Devices within
+    /// The first problem of a calibration file: the JSON path and what is wrong. Devices within
     /// [`hexcal_core::limits::MAX_DEVICES`] with unique names, models as
     /// [`CameraModel::check`] requires, finite poses and figures, and a reference among them.
-    pub fn check(&self) -> Result<(), (String, String)> {
+    pub fn check(&self) -> Result<(), ValidationError> {
         use hexcal_core::limits;
         limits::count(self.devices.len(), limits::MAX_DEVICES, "devices")
-            .map_err(|m| ("devices".to_string(), m))?;
+            .map_err(|m| m.at("devices"))?;
         let mut names = std::collections::BTreeMap::new();
         for (i, d) in self.devices.iter().enumerate() {
             let at = |k: &str| format!("devices[{i}].{k}");
-            limits::device_name(&d.name).map_err(|m| (at("name"), m))?;
+            limits::device_name(&d.name).map_err(|m| m.at(at("name")))?;
             if let Some(first) = names.insert(d.name.as_str(), i) {
-                return Err((
+                return Err(ValidationError::new(
                     at("name"),
                     format!("{:?} is already the name of devices[{first}]", d.name),
                 ));
             }
-            d.model().check().map_err(|(f, m)| (at(&f), m))?;
-            limits::finite(&d.pose.rvec).map_err(|m| (at("pose.rvec"), m))?;
-            limits::finite(&d.pose.tvec).map_err(|m| (at("pose.tvec"), m))?;
+            d.model().check().map_err(|e| e.map_at(at))?;
+            limits::finite(&d.pose.rvec).map_err(|m| m.at(at("pose.rvec")))?;
+            limits::finite(&d.pose.tvec).map_err(|m| m.at(at("pose.tvec")))?;
             limits::count(
                 d.lens_std.len(),
                 hexcal_core::camera::LENS_PARAM_COUNT,
                 "values",
             )
-            .map_err(|m| (at("lens_std"), m))?;
-            check_covariance(d).map_err(|(k, m)| (at(k), m))?;
-            check_lens_model(d).map_err(|m| (at("lens_model"), m))?;
+            .map_err(|m| m.at(at("lens_std")))?;
+            check_covariance(d).map_err(|e| e.map_at(|k| at(k)))?;
+            check_lens_model(d).map_err(|m| m.at(at("lens_model")))?;
         }
         if !self.devices.iter().any(|d| d.name == self.reference) {
-            return Err((
-                "reference".into(),
+            return Err(ValidationError::new(
+                "reference",
                 format!("{:?} is none of the devices", self.reference),
             ));
         }
-        limits::finite(&self.front_back.rvec).map_err(|m| ("front_back.rvec".to_string(), m))?;
-        limits::finite(&self.front_back.tvec).map_err(|m| ("front_back.tvec".to_string(), m))?;
-        limits::finite(&self.bend).map_err(|m| ("bend".to_string(), m))?;
-        limits::finite(&[self.bend_scale, self.sigma]).map_err(|m| ("sigma".to_string(), m))
+        limits::finite(&self.front_back.rvec).map_err(|m| m.at("front_back.rvec"))?;
+        limits::finite(&self.front_back.tvec).map_err(|m| m.at("front_back.tvec"))?;
+        limits::finite(&self.bend).map_err(|m| m.at("bend"))?;
+        limits::finite(&[self.bend_scale, self.sigma]).map_err(|m| m.at("sigma"))
     }
 
     /// Pretty JSON text.
@@ -341,7 +343,7 @@ impl CalibrationFile {
 
 /// The first problem of a record's lens-model terms: at most one per lens parameter, each
 /// named as one, with finite figures.
-fn check_lens_model(d: &DeviceRecord) -> Result<(), String> {
+fn check_lens_model(d: &DeviceRecord) -> Result<(), Invalid> {
     hexcal_core::limits::count(
         d.lens_model.len(),
         hexcal_core::camera::LENS_PARAM_COUNT,
@@ -352,7 +354,7 @@ fn check_lens_model(d: &DeviceRecord) -> Result<(), String> {
             .iter()
             .any(|p| p.name() == t.term)
         {
-            return Err(format!("{:?} is no lens parameter", t.term));
+            return Err(Invalid(format!("{:?} is no lens parameter", t.term)));
         }
         hexcal_core::limits::finite(&[t.estimate, t.std])?;
     }
@@ -361,13 +363,13 @@ fn check_lens_model(d: &DeviceRecord) -> Result<(), String> {
 
 /// The first problem of a record's labelled covariance: names of lens parameters, as many
 /// as `lens_std` holds (or none), a square finite matrix of that size.
-fn check_covariance(d: &DeviceRecord) -> Result<(), (&'static str, String)> {
+fn check_covariance(d: &DeviceRecord) -> Result<(), ValidationError> {
     let n = d.lens_params.len();
     if n == 0 && d.lens_covariance.is_empty() {
         return Ok(());
     }
     if n != d.lens_std.len() {
-        return Err((
+        return Err(ValidationError::new(
             "lens_params",
             format!("{n} names for {} standard deviations", d.lens_std.len()),
         ));
@@ -377,13 +379,19 @@ fn check_covariance(d: &DeviceRecord) -> Result<(), (&'static str, String)> {
         .map(|p| p.name())
         .collect();
     if let Some(bad) = d.lens_params.iter().find(|p| !names.contains(&p.as_str())) {
-        return Err(("lens_params", format!("{bad:?} is no lens parameter")));
+        return Err(ValidationError::new(
+            "lens_params",
+            format!("{bad:?} is no lens parameter"),
+        ));
     }
     if d.lens_covariance.len() != n || d.lens_covariance.iter().any(|r| r.len() != n) {
-        return Err(("lens_covariance", format!("not a {n} × {n} matrix")));
+        return Err(ValidationError::new(
+            "lens_covariance",
+            format!("not a {n} × {n} matrix"),
+        ));
     }
     for row in &d.lens_covariance {
-        hexcal_core::limits::finite(row).map_err(|m| ("lens_covariance", m))?;
+        hexcal_core::limits::finite(row).map_err(|m| m.at("lens_covariance"))?;
     }
     Ok(())
 }

@@ -20,6 +20,7 @@ pub use distortion::{CoefficientJacobian, DistortedPoint, Distortion};
 pub use params::{LensJacobian, LensParam, LensParams, LensVector, LENS_PARAM_COUNT};
 pub use projection::{PoseIncrement, ProjectionJacobians, UndistortedPixel};
 
+use crate::invalid::ValidationError;
 use nalgebra::{Point2, Point3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -52,25 +53,28 @@ pub struct CameraModel {
 }
 
 impl Intrinsics {
-    /// The first problem of intrinsics read from a file: (field, what is wrong); focal
+    /// The first problem of intrinsics read from a file: the field and what is wrong; focal
     /// lengths must be finite and positive, the principal point finite.
-    pub fn check(&self) -> Result<(), (&'static str, String)> {
+    pub fn check(&self) -> Result<(), ValidationError> {
         for (field, v) in [("fx", self.fx), ("fy", self.fy)] {
             if !(v.is_finite() && v > 0.0) {
-                return Err((field, format!("{v} is not a positive focal length (px)")));
+                return Err(ValidationError::new(
+                    field,
+                    format!("{v} is not a positive focal length (px)"),
+                ));
             }
         }
         for (field, v) in [("cx", self.cx), ("cy", self.cy)] {
-            crate::limits::finite(&[v]).map_err(|m| (field, m))?;
+            crate::limits::finite(&[v]).map_err(|m| m.at(field))?;
         }
         Ok(())
     }
 }
 
 impl Distortion {
-    /// The first problem of coefficients read from a file: (coefficient, what is wrong);
+    /// The first problem of coefficients read from a file: the coefficient and what is wrong;
     /// every coefficient must be finite.
-    pub fn check(&self) -> Result<(), (&'static str, String)> {
+    pub fn check(&self) -> Result<(), ValidationError> {
         let d = self;
         let named = [
             ("k1", d.k1),
@@ -83,24 +87,24 @@ impl Distortion {
             ("k6", d.k6),
         ];
         for (field, v) in named {
-            crate::limits::finite(&[v]).map_err(|m| (field, m))?;
+            crate::limits::finite(&[v]).map_err(|m| m.at(field))?;
         }
         Ok(())
     }
 }
 
 impl CameraModel {
-    /// The first problem of a model read from a file: (dotted field, what is wrong). The
+    /// The first problem of a model read from a file: the dotted field and what is wrong. The
     /// image size is within [`crate::limits::image_size`], the intrinsics and distortion as
     /// [`Intrinsics::check`] and [`Distortion::check`] require.
-    pub fn check(&self) -> Result<(), (String, String)> {
-        crate::limits::image_size(self.width, self.height).map_err(|m| ("width".into(), m))?;
+    pub fn check(&self) -> Result<(), ValidationError> {
+        crate::limits::image_size(self.width, self.height).map_err(|m| m.at("width"))?;
         self.intrinsics
             .check()
-            .map_err(|(f, m)| (format!("intrinsics.{f}"), m))?;
+            .map_err(|e| e.map_at(|f| format!("intrinsics.{f}")))?;
         self.distortion
             .check()
-            .map_err(|(f, m)| (format!("distortion.{f}"), m))
+            .map_err(|e| e.map_at(|f| format!("distortion.{f}")))
     }
 
     /// Pixel of a normalised (already distorted) image point.

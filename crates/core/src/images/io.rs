@@ -31,7 +31,7 @@ pub enum DecodeError {
     Image(#[from] image::ImageError),
     /// The header gives a size beyond [`crate::limits::image_size`].
     #[error("{0}")]
-    Size(String),
+    Size(crate::invalid::Invalid),
 }
 
 /// Bytes a decoder may allocate: a 2²⁸-pixel image of 16-bit RGBA samples.

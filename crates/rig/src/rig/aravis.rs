@@ -25,6 +25,7 @@ use aravis::{
 };
 use hexcal_core::images::to_grey::{to_grey, BayerBalance, Cfa, Colour, Packing, SampleFormat};
 use hexcal_core::images::CameraFrame;
+use hexcal_core::Invalid;
 use std::ffi::CStr;
 use std::os::raw::c_char;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -157,7 +158,7 @@ pub fn choose_format(
     named: Option<&str>,
     bits: u8,
     offered: &[String],
-) -> Result<(String, SampleFormat), String> {
+) -> Result<(String, SampleFormat), Invalid> {
     let known = pixel_formats();
     let usable = |name: &str| {
         known
@@ -168,11 +169,18 @@ pub fn choose_format(
     let listing = offered.join(", ");
     if let Some(name) = named {
         if !offered.iter().any(|o| o == name) {
-            return Err(format!("{name} not offered; the camera offers {listing}"));
+            return Err(Invalid(format!(
+                "{name} not offered; the camera offers {listing}"
+            )));
         }
         return usable(name).ok_or_else(|| match known.iter().find(|(n, _)| n == name) {
-            Some((_, f)) => format!("{name} gives {} bits, the rig file asks {bits}", f.bits),
-            None => format!("hexcal cannot read {name}; the camera offers {listing}"),
+            Some((_, f)) => Invalid(format!(
+                "{name} gives {} bits, the rig file asks {bits}",
+                f.bits
+            )),
+            None => Invalid(format!(
+                "hexcal cannot read {name}; the camera offers {listing}"
+            )),
         });
     }
     known
@@ -180,7 +188,11 @@ pub fn choose_format(
         .filter(|(n, f)| offered.contains(n) && f.rank(bits).is_some())
         .min_by_key(|(_, f)| f.rank(bits))
         .cloned()
-        .ok_or_else(|| format!("no pixel format gives {bits} bits; the camera offers {listing}"))
+        .ok_or_else(|| {
+            Invalid(format!(
+                "no pixel format gives {bits} bits; the camera offers {listing}"
+            ))
+        })
 }
 
 /// Packet statistics of a running GigE Vision stream.
@@ -439,7 +451,7 @@ impl AravisCamera {
             .map(|o| o.to_string())
             .collect();
         let (name, format) = choose_format(self.format_name.as_deref(), bits, &offered)
-            .map_err(|reason| self.unsupported("format", reason))?;
+            .map_err(|reason| self.unsupported("format", reason.into()))?;
         self.camera
             .set_pixel_format_from_string(&name)
             .map_err(|e| self.error(&format!("PixelFormat = {name}"), e))?;

@@ -12,9 +12,14 @@ pub struct Found {
     pub description: String,
 }
 
+/// The system could not list its serial ports.
+#[derive(Debug, thiserror::Error)]
+#[error("serial ports: {0}")]
+pub struct PortsError(#[from] pub serialport::Error);
+
 /// Serial ports, as a rig file's `[trigger] port`.
-pub fn serial_ports() -> Result<Vec<Found>, String> {
-    let ports = serialport::available_ports().map_err(|e| format!("serial ports: {e}"))?;
+pub fn serial_ports() -> Result<Vec<Found>, PortsError> {
+    let ports = serialport::available_ports()?;
     Ok(ports
         .into_iter()
         .map(|p| Found {

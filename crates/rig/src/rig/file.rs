@@ -12,6 +12,7 @@ use hexcal_core::pattern::{
     ProjectorCode, ProjectorResponse, ProjectorSetup, Sequence, SequenceError,
 };
 use hexcal_core::tomlspan::{line_of, KeySpans};
+use hexcal_core::ValidationError;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -118,7 +119,7 @@ pub const DEFAULT_JPEG_QUALITY: u8 = 85;
 impl CameraSpec {
     /// What this camera delivers if simulated: its `format` and `jpeg_quality`; the reason
     /// (naming the key) when they make no simulated format.
-    pub fn sim_format(&self) -> Result<SimFormat, (&'static str, String)> {
+    pub fn sim_format(&self) -> Result<SimFormat, ValidationError> {
         let format = match self.format.as_deref().unwrap_or("Mono") {
             "Mono" => SimFormat::Mono,
             "BayerRG" => SimFormat::Bayer(Cfa::Rggb),
@@ -127,7 +128,7 @@ impl CameraSpec {
             "BayerBG" => SimFormat::Bayer(Cfa::Bggr),
             "MJPG" => SimFormat::Mjpeg(self.jpeg_quality.unwrap_or(DEFAULT_JPEG_QUALITY)),
             other => {
-                return Err((
+                return Err(ValidationError::new(
                     "format",
                     format!(
                         "{other:?}: a simulated camera is Mono, BayerRG, BayerGR, BayerGB, \
@@ -137,15 +138,18 @@ impl CameraSpec {
             }
         };
         match (format, self.jpeg_quality) {
-            (SimFormat::Mjpeg(q), _) if !(1..=100).contains(&q) => {
-                Err(("jpeg_quality", format!("{q}: use 1 to 100")))
-            }
-            (SimFormat::Mjpeg(_), _) if self.bits != 8 => {
-                Err(("bits", format!("{} bits: MJPEG is 8 bits", self.bits)))
-            }
-            (SimFormat::Mono | SimFormat::Bayer(_), Some(_)) => {
-                Err(("jpeg_quality", "only for format = \"MJPG\"".into()))
-            }
+            (SimFormat::Mjpeg(q), _) if !(1..=100).contains(&q) => Err(ValidationError::new(
+                "jpeg_quality",
+                format!("{q}: use 1 to 100"),
+            )),
+            (SimFormat::Mjpeg(_), _) if self.bits != 8 => Err(ValidationError::new(
+                "bits",
+                format!("{} bits: MJPEG is 8 bits", self.bits),
+            )),
+            (SimFormat::Mono | SimFormat::Bayer(_), Some(_)) => Err(ValidationError::new(
+                "jpeg_quality",
+                "only for format = \"MJPG\"",
+            )),
             _ => Ok(format),
         }
     }
@@ -355,25 +359,17 @@ pub enum RigError {
         /// The cause.
         source: std::io::Error,
     },
-    /// Not valid TOML of the format, or an impossible value.
-    #[error("{origin}{}: {field}: {message}", line.map_or(String::new(), |l| format!(":{l}")))]
-    Invalid {
-        /// The file.
-        origin: String,
-        /// Line of the key (1-based), when known.
-        line: Option<usize>,
-        /// Dotted key, e.g. `camera[2].exposure_ms`.
-        field: String,
-        /// What is wrong.
-        message: String,
-    },
+    /// Not valid TOML of the format, or an impossible value: the file, the line of the key
+    /// when known, the dotted key (e.g. `camera[2].exposure_ms`) and what is wrong.
+    #[error(transparent)]
+    Invalid(ValidationError),
 }
 
 impl RigError {
     /// The key the error is about, if any.
     pub fn field(&self) -> Option<&str> {
         match self {
-            RigError::Invalid { field, .. } => Some(field),
+            RigError::Invalid(e) => Some(&e.at),
             RigError::Io { .. } => None,
         }
     }
@@ -381,7 +377,7 @@ impl RigError {
     /// The line the error is about, if known.
     pub fn line(&self) -> Option<usize> {
         match self {
-            RigError::Invalid { line, .. } => *line,
+            RigError::Invalid(e) => e.line,
             RigError::Io { .. } => None,
         }
     }
@@ -512,35 +508,37 @@ impl RigFile {
                 });
         let rig = rig.map_err(|e| {
             let span = e.span().filter(|s| Some(s) != keys.root.as_ref());
-            RigError::Invalid {
-                origin: origin.to_owned(),
-                line: span.as_ref().map(|s| line_of(text, s.start)),
-                field: span
-                    .and_then(|s| keys.field_at(&s))
-                    .unwrap_or_else(|| "(file)".into()),
-                message: e.message().trim().replace('\n', ", "),
-            }
+            let line = span.as_ref().map(|s| line_of(text, s.start));
+            let field = span
+                .and_then(|s| keys.field_at(&s))
+                .unwrap_or_else(|| "(file)".into());
+            let message = e.message().trim().replace('\n', ", ");
+            RigError::Invalid(
+                ValidationError::new(field, message)
+                    .in_file(origin)
+                    .on_line(line),
+            )
         })?;
-        rig.check().map_err(|(field, message)| RigError::Invalid {
-            origin: origin.to_owned(),
-            line: keys.line_of(&field, text),
-            field,
-            message,
+        rig.check().map_err(|e| {
+            let line = keys.line_of(&e.at, text);
+            RigError::Invalid(e.in_file(origin).on_line(line))
         })?;
         Ok(rig)
     }
 
-    /// The checks serde cannot make: (dotted key, message) of the first violation. Every
+    /// The checks serde cannot make: the dotted key and message of the first violation. Every
     /// number is finite and physically possible, every count and size within
     /// [`hexcal_core::limits`], every name unique and usable as a folder name.
-    fn check(&self) -> Result<(), (String, String)> {
+    fn check(&self) -> Result<(), ValidationError> {
         self.check_timing()?;
         if self.cameras.is_empty() {
-            return Err(("camera".into(), "a rig needs at least one camera".into()));
+            return Err(ValidationError::new(
+                "camera",
+                "a rig needs at least one camera",
+            ));
         }
         let devices = self.cameras.len() + self.projectors.len();
-        limits::count(devices, limits::MAX_DEVICES, "devices")
-            .map_err(|m| ("camera".to_string(), m))?;
+        limits::count(devices, limits::MAX_DEVICES, "devices").map_err(|m| m.at("camera"))?;
         let mut names: HashMap<&str, String> = HashMap::new();
         let mut lines: HashMap<u8, String> = HashMap::new();
         for (i, c) in self.cameras.iter().enumerate() {
@@ -564,8 +562,8 @@ impl RigFile {
         self.check_poses()?;
         let u = self.guidance.uncertainty_px;
         if !(u.is_finite() && u > 0.0 && u <= 100.0) {
-            return Err((
-                "guidance.uncertainty_px".into(),
+            return Err(ValidationError::new(
+                "guidance.uncertainty_px",
                 format!("{u} px is not a projection uncertainty (0 < u ≤ 100 px)"),
             ));
         }
@@ -574,14 +572,14 @@ impl RigFile {
     }
 
     /// `[timing]`: durations finite, positive where they must be, at most an hour.
-    fn check_timing(&self) -> Result<(), (String, String)> {
+    fn check_timing(&self) -> Result<(), ValidationError> {
         let t = &self.timing;
         let at = |k: &str| format!("timing.{k}");
         if !(t.frame_period_ms.is_finite()
             && t.frame_period_ms > 0.0
             && t.frame_period_ms <= limits::MAX_DURATION_MS)
         {
-            return Err((
+            return Err(ValidationError::new(
                 at("frame_period_ms"),
                 format!(
                     "{} is not a duration in (0, {}] ms",
@@ -591,7 +589,7 @@ impl RigFile {
             ));
         }
         if !(t.settle_ms.is_finite() && t.settle_ms >= 0.0 && t.settle_ms < t.frame_period_ms) {
-            return Err((
+            return Err(ValidationError::new(
                 at("settle_ms"),
                 format!(
                     "must lie in [0, frame_period_ms = {}) ms",
@@ -600,9 +598,9 @@ impl RigFile {
             ));
         }
         limits::non_negative(t.pose_pause_s, limits::MAX_DURATION_MS / 1e3)
-            .map_err(|m| (at("pose_pause_s"), format!("{m} s")))?;
+            .map_err(|m| ValidationError::new(at("pose_pause_s"), format!("{m} s")))?;
         if !(1..=limits::MAX_REPEATS).contains(&t.repeats) {
-            return Err((
+            return Err(ValidationError::new(
                 at("repeats"),
                 format!("{} repeats: 1 to {}", t.repeats, limits::MAX_REPEATS),
             ));
@@ -616,15 +614,18 @@ impl RigFile {
         &self,
         c: &CameraSpec,
         at: &dyn Fn(&str) -> String,
-    ) -> Result<(), (String, String)> {
+    ) -> Result<(), ValidationError> {
         let t = &self.timing;
         let window = t.frame_period_ms - t.settle_ms;
-        limits::image_size(c.width, c.height).map_err(|m| (at("width"), m))?;
+        limits::image_size(c.width, c.height).map_err(|m| m.at(at("width")))?;
         if ![8, 12, 16].contains(&c.bits) {
-            return Err((at("bits"), format!("{} bits: use 8, 12 or 16", c.bits)));
+            return Err(ValidationError::new(
+                at("bits"),
+                format!("{} bits: use 8, 12 or 16", c.bits),
+            ));
         }
         if !(c.exposure_ms > 0.0 && c.exposure_ms <= window) {
-            return Err((
+            return Err(ValidationError::new(
                 at("exposure_ms"),
                 format!(
                     "{} ms does not fit in a pattern's display time after settling \
@@ -633,23 +634,26 @@ impl RigFile {
                 ),
             ));
         }
-        limits::finite(&[c.gain_db]).map_err(|m| (at("gain_db"), m))?;
+        limits::finite(&[c.gain_db]).map_err(|m| m.at(at("gain_db")))?;
         if let Some(f) = &c.format {
             if f.is_empty()
                 || f.len() > 32
                 || !f.chars().all(|ch| ch.is_ascii_graphic() || ch == ' ')
             {
-                return Err((at("format"), format!("{f:?} is not a pixel format name")));
+                return Err(ValidationError::new(
+                    at("format"),
+                    format!("{f:?} is not a pixel format name"),
+                ));
             }
         }
         match c.driver {
             CameraDriver::Sim => {
-                c.sim_format().map_err(|(key, m)| (at(key), m))?;
+                c.sim_format().map_err(|e| e.map_at(|key| at(key)))?;
             }
             _ if c.jpeg_quality.is_some() => {
-                return Err((
+                return Err(ValidationError::new(
                     at("jpeg_quality"),
-                    "only for a simulated camera (a real one sets its own)".into(),
+                    "only for a simulated camera (a real one sets its own)",
                 ))
             }
             _ => {}
@@ -668,14 +672,17 @@ impl RigFile {
         &self,
         p: &ProjectorSpec,
         at: &dyn Fn(&str) -> String,
-    ) -> Result<(), (String, String)> {
+    ) -> Result<(), ValidationError> {
         let period = self.timing.frame_period_ms;
-        limits::image_size(p.width, p.height).map_err(|m| (at("width"), m))?;
+        limits::image_size(p.width, p.height).map_err(|m| m.at(at("width")))?;
         if !(p.gamma > 0.0 && p.gamma < 5.0) {
-            return Err((at("gamma"), format!("{} is not a projector gamma", p.gamma)));
+            return Err(ValidationError::new(
+                at("gamma"),
+                format!("{} is not a projector gamma", p.gamma),
+            ));
         }
         if !(p.latency_ms.is_finite() && p.latency_ms >= 0.0 && p.latency_ms < period) {
-            return Err((
+            return Err(ValidationError::new(
                 at("latency_ms"),
                 format!(
                     "{} is not in [0, frame_period_ms = {period}) ms",
@@ -685,13 +692,22 @@ impl RigFile {
         }
         match p.driver {
             ProjectorDriver::Sim if p.sim.is_none() => {
-                return Err((at("sim"), "a sim projector needs its ground truth".into()))
+                return Err(ValidationError::new(
+                    at("sim"),
+                    "a sim projector needs its ground truth",
+                ))
             }
             ProjectorDriver::Window if p.monitor.is_none() => {
-                return Err((at("monitor"), "a window projector needs a monitor".into()))
+                return Err(ValidationError::new(
+                    at("monitor"),
+                    "a window projector needs a monitor",
+                ))
             }
             ProjectorDriver::Window if p.sim.is_some() => {
-                return Err((at("sim"), "only sim projectors have ground truth".into()))
+                return Err(ValidationError::new(
+                    at("sim"),
+                    "only sim projectors have ground truth",
+                ))
             }
             _ => {}
         }
@@ -699,20 +715,20 @@ impl RigFile {
     }
 
     /// `[trigger]`: present when lines are given; a pulse that fits the frame.
-    fn check_trigger(&self, lines: &HashMap<u8, String>) -> Result<(), (String, String)> {
+    fn check_trigger(&self, lines: &HashMap<u8, String>) -> Result<(), ValidationError> {
         let Some(t) = &self.trigger else {
             if lines.is_empty() {
                 return Ok(());
             }
-            return Err((
-                "trigger".into(),
-                "trigger lines are given but no trigger controller".into(),
+            return Err(ValidationError::new(
+                "trigger",
+                "trigger lines are given but no trigger controller",
             ));
         };
         let period_us = 1e3 * self.timing.frame_period_ms;
         if t.pulse_us == 0 || f64::from(t.pulse_us) > period_us {
-            return Err((
-                "trigger.pulse_us".into(),
+            return Err(ValidationError::new(
+                "trigger.pulse_us",
                 format!(
                     "{} µs is not in [1, {period_us}] µs (the frame period)",
                     t.pulse_us
@@ -723,20 +739,19 @@ impl RigFile {
     }
 
     /// `[sequence]`: enough fringe counts, each and the steps within the limits.
-    fn check_sequence(&self) -> Result<(), (String, String)> {
+    fn check_sequence(&self) -> Result<(), ValidationError> {
         let s = &self.sequence;
         if self.projectors.is_empty() && *s != SequenceSpec::default() {
-            return Err((
-                "sequence".into(),
+            return Err(ValidationError::new(
+                "sequence",
                 "a rig without projectors shows no sequence: each pose is one frame per \
-                 camera (a burst with [timing] repeats)"
-                    .into(),
+                 camera (a burst with [timing] repeats)",
             ));
         }
         if s.fringe_counts.len() < 2 {
-            return Err((
-                "sequence.fringe_counts".into(),
-                "temporal unwrapping needs at least two fringe counts".into(),
+            return Err(ValidationError::new(
+                "sequence.fringe_counts",
+                "temporal unwrapping needs at least two fringe counts",
             ));
         }
         if let Some(&c) = s
@@ -744,14 +759,14 @@ impl RigFile {
             .iter()
             .find(|&&c| c > limits::MAX_IMAGE_SIDE)
         {
-            return Err((
-                "sequence.fringe_counts".into(),
+            return Err(ValidationError::new(
+                "sequence.fringe_counts",
                 format!("{c} fringes: at most {}", limits::MAX_IMAGE_SIDE),
             ));
         }
         if let Some(n) = s.steps.filter(|&n| n > limits::MAX_PHASE_STEPS) {
-            return Err((
-                "sequence.steps".into(),
+            return Err(ValidationError::new(
+                "sequence.steps",
                 format!("{n} steps: at most {}", limits::MAX_PHASE_STEPS),
             ));
         }
@@ -760,33 +775,31 @@ impl RigFile {
 
     /// `[poses]`: present for a simulated rig, a count within the limit, finite ranges,
     /// absent poses among them.
-    fn check_poses(&self) -> Result<(), (String, String)> {
+    fn check_poses(&self) -> Result<(), ValidationError> {
         let simulated = self.cameras.iter().any(|c| c.driver == CameraDriver::Sim);
         if simulated && self.poses.is_none() && !self.has_sim_stage() {
-            return Err((
-                "poses".into(),
-                "a simulated rig needs board poses (or a sim positioner that moves the board)"
-                    .into(),
+            return Err(ValidationError::new(
+                "poses",
+                "a simulated rig needs board poses (or a sim positioner that moves the board)",
             ));
         }
         let Some(p) = &self.poses else {
             return Ok(());
         };
         if p.count == 0 {
-            return Err(("poses.count".into(), "at least one pose".into()));
+            return Err(ValidationError::new("poses.count", "at least one pose"));
         }
-        limits::count(p.count, limits::MAX_POSES, "poses")
-            .map_err(|m| ("poses.count".to_string(), m))?;
+        limits::count(p.count, limits::MAX_POSES, "poses").map_err(|m| m.at("poses.count"))?;
         for (key, v) in [
             ("yaw_deg", p.yaw_deg),
             ("tilt_deg", p.tilt_deg),
             ("shift_mm", p.shift_mm),
         ] {
-            limits::finite(&[v]).map_err(|m| (format!("poses.{key}"), m))?;
+            limits::finite(&[v]).map_err(|m| m.at(format!("poses.{key}")))?;
         }
         if let Some(k) = p.absent.iter().find(|&&k| k >= p.count) {
-            return Err((
-                "poses.absent".into(),
+            return Err(ValidationError::new(
+                "poses.absent",
                 format!("pose {k} is out of range (count = {})", p.count),
             ));
         }
@@ -799,20 +812,20 @@ impl RigFile {
 fn check_truth(
     truth: Option<&SimTruth>,
     at: &dyn Fn(&str) -> String,
-) -> Result<(), (String, String)> {
+) -> Result<(), ValidationError> {
     let Some(t) = truth else {
         return Ok(());
     };
     t.intrinsics
         .check()
-        .map_err(|(f, m)| (at(&format!("sim.intrinsics.{f}")), m))?;
+        .map_err(|e| e.map_at(|f| at(&format!("sim.intrinsics.{f}"))))?;
     t.distortion
         .check()
-        .map_err(|(f, m)| (at(&format!("sim.distortion.{f}")), m))?;
-    limits::finite(&t.pose.eye).map_err(|m| (at("sim.pose.eye"), m))?;
-    limits::finite(&t.pose.target).map_err(|m| (at("sim.pose.target"), m))?;
+        .map_err(|e| e.map_at(|f| at(&format!("sim.distortion.{f}"))))?;
+    limits::finite(&t.pose.eye).map_err(|m| m.at(at("sim.pose.eye")))?;
+    limits::finite(&t.pose.target).map_err(|m| m.at(at("sim.pose.target")))?;
     if t.pose.eye == t.pose.target {
-        return Err((at("sim.pose"), "eye equals target".into()));
+        return Err(ValidationError::new(at("sim.pose"), "eye equals target"));
     }
     Ok(())
 }
@@ -821,10 +834,13 @@ fn check_device<'a>(
     names: &mut HashMap<&'a str, String>,
     name: &'a str,
     field: String,
-) -> Result<(), (String, String)> {
-    limits::device_name(name).map_err(|m| (field.clone(), m))?;
+) -> Result<(), ValidationError> {
+    limits::device_name(name).map_err(|m| m.at(field.clone()))?;
     match names.insert(name, field.clone()) {
-        Some(first) => Err((field, format!("{name:?} is already the name of {first}"))),
+        Some(first) => Err(ValidationError::new(
+            field,
+            format!("{name:?} is already the name of {first}"),
+        )),
         None => Ok(()),
     }
 }
@@ -834,9 +850,12 @@ fn check_line(
     line: u8,
     device: &str,
     field: String,
-) -> Result<(), (String, String)> {
+) -> Result<(), ValidationError> {
     match lines.insert(line, device.to_owned()) {
-        Some(other) => Err((field, format!("line {line} is already {other}'s"))),
+        Some(other) => Err(ValidationError::new(
+            field,
+            format!("line {line} is already {other}'s"),
+        )),
         None => Ok(()),
     }
 }
@@ -846,11 +865,20 @@ fn check_driver(
     has_truth: bool,
     address: &Option<String>,
     at: &dyn Fn(&str) -> String,
-) -> Result<(), (String, String)> {
+) -> Result<(), ValidationError> {
     match (sim, has_truth, address) {
-        (true, false, _) => Err((at("sim"), "a sim camera needs its ground truth".into())),
-        (false, true, _) => Err((at("sim"), "only sim cameras have ground truth".into())),
-        (false, _, None) => Err((at("address"), "a real camera needs an address".into())),
+        (true, false, _) => Err(ValidationError::new(
+            at("sim"),
+            "a sim camera needs its ground truth",
+        )),
+        (false, true, _) => Err(ValidationError::new(
+            at("sim"),
+            "only sim cameras have ground truth",
+        )),
+        (false, _, None) => Err(ValidationError::new(
+            at("address"),
+            "a real camera needs an address",
+        )),
         _ => Ok(()),
     }
 }

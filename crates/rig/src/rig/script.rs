@@ -2,14 +2,15 @@
 //! positioners").
 //!
 //! Takes the `[[positioner]]` and `[[script]]` tables of a [`RigFile`]; gives them checked —
-//! every refusal a (dotted key, message) pair that the rig-file loader turns into
-//! `file:line: key: message` — and the script unrolled into a flat [`Plan`]: one
+//! every refusal a [`ValidationError`] (dotted key, message) that the rig-file loader
+//! places at `file:line: key: message` — and the script unrolled into a flat [`Plan`]: one
 //! [`PlannedStep`] per capture, wait, prompt and move, with `repeat` blocks expanded (their
 //! stepping variables substituted) and `every` blocks turned into timed captures, each with
 //! its planned start and duration.
 
 use super::file::RigFile;
 use hexcal_core::limits;
+use hexcal_core::{Invalid, ValidationError};
 use regex::Regex;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashSet};
@@ -338,9 +339,6 @@ pub struct Plan {
     pub duration_s: f64,
 }
 
-/// A refusal: (dotted key, message).
-pub type Refusal = (String, String);
-
 /// Unrolls scripts: variables in scope, planned clock, poses and blocks so far.
 struct Unroller<'a> {
     rig: &'a RigFile,
@@ -356,7 +354,7 @@ struct Unroller<'a> {
 impl RigFile {
     /// The script unrolled, a capture planned at `capture_s` seconds (its frames and the
     /// pose pause). `None` when the rig file has no script.
-    pub fn script_plan(&self, capture_s: f64) -> Result<Option<Plan>, Refusal> {
+    pub fn script_plan(&self, capture_s: f64) -> Result<Option<Plan>, ValidationError> {
         if self.script.is_empty() {
             return Ok(None);
         }
@@ -385,13 +383,16 @@ impl RigFile {
     /// `[[positioner]]` and `[[script]]`: positioners well formed with unique names, the
     /// script unrolls, and a simulated rig without a simulated stage has a board pose for
     /// every capture.
-    pub(super) fn check_script(&self, simulated: bool) -> Result<(), Refusal> {
+    pub(super) fn check_script(&self, simulated: bool) -> Result<(), ValidationError> {
         let mut names = HashSet::new();
         for (i, p) in self.positioners.iter().enumerate() {
             let at = |k: &str| format!("positioner[{i}].{k}");
-            limits::device_name(&p.name).map_err(|m| (at("name"), m))?;
+            limits::device_name(&p.name).map_err(|m| m.at(at("name")))?;
             if !names.insert(p.name.as_str()) {
-                return Err((at("name"), format!("{:?} names two positioners", p.name)));
+                return Err(ValidationError::new(
+                    at("name"),
+                    format!("{:?} names two positioners", p.name),
+                ));
             }
             check_positioner(p, &at)?;
         }
@@ -399,21 +400,20 @@ impl RigFile {
             return Ok(());
         };
         if plan.captures == 0 {
-            return Err((
-                "script".into(),
-                "a script needs at least one capture".into(),
+            return Err(ValidationError::new(
+                "script",
+                "a script needs at least one capture",
             ));
         }
-        limits::count(plan.captures, limits::MAX_POSES, "captures")
-            .map_err(|m| ("script".to_string(), m))?;
+        limits::count(plan.captures, limits::MAX_POSES, "captures").map_err(|m| m.at("script"))?;
         let staged = self
             .positioners
             .iter()
             .any(|p| p.driver == PositionerDriver::Sim);
         let poses = self.poses.as_ref().map_or(0, |p| p.count);
         if simulated && !staged && poses < plan.captures {
-            return Err((
-                "poses.count".into(),
+            return Err(ValidationError::new(
+                "poses.count",
                 format!(
                     "the script captures {} poses but the simulated rig has {poses} board \
                      poses and no sim positioner to move the board",
@@ -433,59 +433,74 @@ impl RigFile {
 }
 
 /// One positioner: its driver's keys, durations, patterns and template.
-fn check_positioner(p: &PositionerSpec, at: &dyn Fn(&str) -> String) -> Result<(), Refusal> {
+fn check_positioner(
+    p: &PositionerSpec,
+    at: &dyn Fn(&str) -> String,
+) -> Result<(), ValidationError> {
     match (p.driver, &p.port, &p.sim) {
         (PositionerDriver::Serial, None, _) => {
-            return Err((at("port"), "a serial positioner needs a port".into()))
+            return Err(ValidationError::new(
+                at("port"),
+                "a serial positioner needs a port",
+            ))
         }
         (PositionerDriver::Serial, _, Some(_)) => {
-            return Err((at("sim"), "only sim positioners have a sim stage".into()))
+            return Err(ValidationError::new(
+                at("sim"),
+                "only sim positioners have a sim stage",
+            ))
         }
         (PositionerDriver::Sim, Some(_), _) => {
-            return Err((at("port"), "a sim positioner has no port".into()))
+            return Err(ValidationError::new(
+                at("port"),
+                "a sim positioner has no port",
+            ))
         }
         _ => {}
     }
     if p.baud == 0 {
-        return Err((at("baud"), "0 baud".into()));
+        return Err(ValidationError::new(at("baud"), "0 baud"));
     }
     if !(p.timeout_s > 0.0 && p.timeout_s <= limits::MAX_DURATION_MS / 1e3) {
-        return Err((at("timeout_s"), duration_message(p.timeout_s)));
+        return Err(ValidationError::new(
+            at("timeout_s"),
+            duration_message(p.timeout_s),
+        ));
     }
     limits::non_negative(p.move_s, limits::MAX_DURATION_MS / 1e3)
-        .map_err(|m| (at("move_s"), format!("{m} s")))?;
+        .map_err(|m| ValidationError::new(at("move_s"), format!("{m} s")))?;
     for (key, text) in [
         ("command", &p.command),
         ("reply", &p.reply),
         ("fault", &p.fault),
     ] {
-        check_text(text).map_err(|m| (at(key), m))?;
+        check_text(text).map_err(|m| m.at(at(key)))?;
     }
     for (key, pattern) in [("reply", &p.reply), ("fault", &p.fault)] {
-        Regex::new(pattern).map_err(|e| (at(key), pattern_message(&e)))?;
+        Regex::new(pattern).map_err(|e| ValidationError::new(at(key), pattern_message(&e)))?;
     }
     if p.command.trim().is_empty() {
-        return Err((at("command"), "an empty command".into()));
+        return Err(ValidationError::new(at("command"), "an empty command"));
     }
-    placeholders(&p.command).map_err(|m| (at("command"), m))?;
+    placeholders(&p.command).map_err(|m| m.at(at("command")))?;
     if let Some(s) = &p.sim {
         check_stage(s, at)?;
     }
     Ok(())
 }
 
-fn check_stage(s: &SimStageSpec, at: &dyn Fn(&str) -> String) -> Result<(), Refusal> {
-    limits::finite(&s.centre).map_err(|m| (at("sim.centre"), m))?;
-    limits::finite(&s.offset).map_err(|m| (at("sim.offset"), m))?;
-    limits::finite(&[s.roll_deg]).map_err(|m| (at("sim.roll_deg"), m))?;
+fn check_stage(s: &SimStageSpec, at: &dyn Fn(&str) -> String) -> Result<(), ValidationError> {
+    limits::finite(&s.centre).map_err(|m| m.at(at("sim.centre")))?;
+    limits::finite(&s.offset).map_err(|m| m.at(at("sim.offset")))?;
+    limits::finite(&[s.roll_deg]).map_err(|m| m.at(at("sim.roll_deg")))?;
     if !(s.speed_deg_s > 0.0 && s.speed_deg_s <= 1e4) {
-        return Err((
+        return Err(ValidationError::new(
             at("sim.speed_deg_s"),
             format!("{} is not a speed in (0, 10000] deg/s", s.speed_deg_s),
         ));
     }
     if !(s.tilt_limit_deg > 0.0 && s.tilt_limit_deg <= 90.0) {
-        return Err((
+        return Err(ValidationError::new(
             at("sim.tilt_limit_deg"),
             format!("{} is not in (0, 90] deg", s.tilt_limit_deg),
         ));
@@ -506,18 +521,18 @@ fn pattern_message(e: &regex::Error) -> String {
     format!("not a regular expression: {last}")
 }
 
-fn check_text(text: &str) -> Result<(), String> {
+fn check_text(text: &str) -> Result<(), Invalid> {
     if text.len() > MAX_SCRIPT_TEXT {
-        return Err(format!(
+        return Err(Invalid(format!(
             "{} bytes of text: at most {MAX_SCRIPT_TEXT}",
             text.len()
-        ));
+        )));
     }
     Ok(())
 }
 
 /// The `{name}` placeholders of a template, in order; `{{` and `}}` are literal braces.
-pub fn placeholders(template: &str) -> Result<Vec<String>, String> {
+pub fn placeholders(template: &str) -> Result<Vec<String>, Invalid> {
     let mut names = Vec::new();
     fill(template, &mut |name| {
         names.push(name.to_string());
@@ -531,7 +546,7 @@ pub fn placeholders(template: &str) -> Result<Vec<String>, String> {
 pub fn fill(
     template: &str,
     value: &mut dyn FnMut(&str) -> Option<String>,
-) -> Result<String, String> {
+) -> Result<String, Invalid> {
     let mut out = String::new();
     let mut rest = template;
     while let Some(i) = rest.find(['{', '}']) {
@@ -543,13 +558,13 @@ pub fn fill(
             continue;
         }
         if c == b'}' {
-            return Err(format!("a lone }} in {template:?}"));
+            return Err(Invalid(format!("a lone }} in {template:?}")));
         }
         let end = after
             .find('}')
-            .ok_or_else(|| format!("an unclosed {{ in {template:?}"))?;
+            .ok_or_else(|| Invalid(format!("an unclosed {{ in {template:?}")))?;
         let name = after[..end].trim();
-        out.push_str(&value(name).ok_or_else(|| format!("{{{name}}} is not defined"))?);
+        out.push_str(&value(name).ok_or_else(|| Invalid(format!("{{{name}}} is not defined")))?);
         rest = &after[end + 1..];
     }
     out.push_str(rest);
@@ -578,10 +593,10 @@ impl Unroller<'_> {
         vars: &Vars,
         round: &str,
         depth: usize,
-    ) -> Result<(), Refusal> {
+    ) -> Result<(), ValidationError> {
         if depth > MAX_SCRIPT_DEPTH {
-            return Err((
-                path.into(),
+            return Err(ValidationError::new(
+                path,
                 format!("repeats nested deeper than {MAX_SCRIPT_DEPTH}"),
             ));
         }
@@ -589,7 +604,7 @@ impl Unroller<'_> {
             let at = format!("{path}[{i}]");
             self.step(s, &at, vars, round, depth)?;
             if self.out.len() > MAX_SCRIPT_STEPS {
-                return Err((
+                return Err(ValidationError::new(
                     at,
                     format!("the script unrolls to more than {MAX_SCRIPT_STEPS} steps"),
                 ));
@@ -605,14 +620,14 @@ impl Unroller<'_> {
         vars: &Vars,
         round: &str,
         depth: usize,
-    ) -> Result<(), Refusal> {
+    ) -> Result<(), ValidationError> {
         let key = |k: &str| format!("{at}.{k}");
-        let kind = step_kind(s).map_err(|m| (at.to_string(), m))?;
-        check_keys(s, kind).map_err(|(k, m)| (key(k), m))?;
+        let kind = step_kind(s).map_err(|m| m.at(at.to_string()))?;
+        check_keys(s, kind).map_err(|e| e.map_at(|k| key(k)))?;
         let name = format!("{at}{round}");
-        let text = |k: &str, t: &str| -> Result<String, Refusal> {
-            check_text(t).map_err(|m| (key(k), m))?;
-            fill(t, &mut |n| vars.get(n).map(|&v| format_number(v))).map_err(|m| (key(k), m))
+        let text = |k: &str, t: &str| -> Result<String, ValidationError> {
+            check_text(t).map_err(|m| m.at(key(k)))?;
+            fill(t, &mut |n| vars.get(n).map(|&v| format_number(v))).map_err(|m| m.at(key(k)))
         };
         match kind {
             "capture" => {
@@ -623,14 +638,14 @@ impl Unroller<'_> {
             "wait" => {
                 let seconds = s.wait.unwrap_or(0.0);
                 limits::non_negative(seconds, limits::MAX_DURATION_MS / 1e3)
-                    .map_err(|m| (key("wait"), format!("{m} s")))?;
+                    .map_err(|m| ValidationError::new(key("wait"), format!("{m} s")))?;
                 self.push(name, Action::Wait { seconds }, seconds);
             }
             "prompt" => {
                 let text = text("prompt", s.prompt.as_deref().unwrap_or(""))?;
                 let timeout_s = s.timeout_s;
                 if let Some(t) = timeout_s.filter(|&t| !(t > 0.0 && t <= 3.6e3)) {
-                    return Err((key("timeout_s"), duration_message(t)));
+                    return Err(ValidationError::new(key("timeout_s"), duration_message(t)));
                 }
                 let planned = timeout_s.unwrap_or(0.0);
                 self.push(name, Action::Prompt { text, timeout_s }, planned);
@@ -680,11 +695,11 @@ impl Unroller<'_> {
         at: &str,
         name: &str,
         vars: &Vars,
-    ) -> Result<(), Refusal> {
+    ) -> Result<(), ValidationError> {
         let key = |k: &str| format!("{at}.{k}");
         let positioner = s.move_to.clone().unwrap_or_default();
         let p = self.rig.positioner(&positioner).ok_or_else(|| {
-            (
+            ValidationError::new(
                 key("move"),
                 format!("no positioner is named {positioner:?}"),
             )
@@ -694,30 +709,40 @@ impl Unroller<'_> {
         for (k, v) in &given {
             let value = match v {
                 ValueSpec::Number(x) if x.is_finite() => format_number(*x),
-                ValueSpec::Number(x) => return Err((key(&format!("to.{k}")), format!("{x}"))),
+                ValueSpec::Number(x) => {
+                    return Err(ValidationError::new(
+                        key(&format!("to.{k}")),
+                        format!("{x}"),
+                    ))
+                }
                 ValueSpec::Text(t) => {
-                    check_text(t).map_err(|m| (key(&format!("to.{k}")), m))?;
+                    check_text(t).map_err(|m| m.at(key(&format!("to.{k}"))))?;
                     fill(t, &mut |n| vars.get(n).map(|&v| format_number(v)))
-                        .map_err(|m| (key(&format!("to.{k}")), m))?
+                        .map_err(|m| m.at(key(&format!("to.{k}"))))?
                 }
             };
             to.insert(k.clone(), value);
         }
-        let needed = placeholders(&p.command).map_err(|m| (key("move"), m))?;
+        let needed = placeholders(&p.command).map_err(|m| m.at(key("move")))?;
         if let Some(extra) = to.keys().find(|k| !needed.contains(k)) {
-            return Err((
+            return Err(ValidationError::new(
                 key(&format!("to.{extra}")),
                 format!("{positioner}'s command {:?} has no {{{extra}}}", p.command),
             ));
         }
-        let command = fill(&p.command, &mut |n| to.get(n).cloned())
-            .map_err(|m| (key("to"), format!("{positioner}'s command needs it: {m}")))?;
+        let command = fill(&p.command, &mut |n| to.get(n).cloned()).map_err(|m| {
+            ValidationError::new(key("to"), format!("{positioner}'s command needs it: {m}"))
+        })?;
         let expect = s.expect.clone().unwrap_or_else(|| p.reply.clone());
-        check_text(&expect).map_err(|m| (key("expect"), m))?;
-        Regex::new(&expect).map_err(|e| (key("expect"), pattern_message(&e)))?;
+        check_text(&expect).map_err(|m| m.at(key("expect")))?;
+        Regex::new(&expect)
+            .map_err(|e| ValidationError::new(key("expect"), pattern_message(&e)))?;
         let timeout_s = s.timeout_s.unwrap_or(p.timeout_s);
         if !(timeout_s > 0.0 && timeout_s <= limits::MAX_DURATION_MS / 1e3) {
-            return Err((key("timeout_s"), duration_message(timeout_s)));
+            return Err(ValidationError::new(
+                key("timeout_s"),
+                duration_message(timeout_s),
+            ));
         }
         let planned = self.move_time(p, &to);
         let action = Action::Move {
@@ -751,19 +776,19 @@ impl Unroller<'_> {
         vars: &Vars,
         round: &str,
         depth: usize,
-    ) -> Result<(), Refusal> {
+    ) -> Result<(), ValidationError> {
         let key = |k: &str| format!("{at}.{k}");
         let n = s.repeat.unwrap_or(0);
         if n == 0 {
-            return Err((key("repeat"), "repeat at least once".into()));
+            return Err(ValidationError::new(key("repeat"), "repeat at least once"));
         }
         let steps = s.steps.as_deref().unwrap_or(&[]);
         if steps.is_empty() {
-            return Err((key("steps"), "a repeat needs steps".into()));
+            return Err(ValidationError::new(key("steps"), "a repeat needs steps"));
         }
         let defined = s.vars.clone().unwrap_or_default();
         for (name, v) in &defined {
-            check_var(name, v).map_err(|m| (key(&format!("vars.{name}")), m))?;
+            check_var(name, v).map_err(|m| m.at(key(&format!("vars.{name}"))))?;
         }
         for i in 0..n {
             let mut inner = vars.clone();
@@ -773,7 +798,7 @@ impl Unroller<'_> {
             let round = format!("{round} (round {} of {n})", i + 1);
             self.block(steps, &key("steps"), &inner, &round, depth + 1)?;
             if self.out.len() > MAX_SCRIPT_STEPS {
-                return Err((
+                return Err(ValidationError::new(
                     key("repeat"),
                     format!("the script unrolls to more than {MAX_SCRIPT_STEPS} steps"),
                 ));
@@ -782,25 +807,34 @@ impl Unroller<'_> {
         Ok(())
     }
 
-    fn every(&mut self, s: &StepSpec, at: &str, name: &str, vars: &Vars) -> Result<(), Refusal> {
+    fn every(
+        &mut self,
+        s: &StepSpec,
+        at: &str,
+        name: &str,
+        vars: &Vars,
+    ) -> Result<(), ValidationError> {
         let key = |k: &str| format!("{at}.{k}");
         let period_s = s.every.unwrap_or(0.0);
         if !(period_s > 0.0 && period_s <= limits::MAX_DURATION_MS / 1e3) {
-            return Err((key("every"), duration_message(period_s)));
+            return Err(ValidationError::new(
+                key("every"),
+                duration_message(period_s),
+            ));
         }
         let count = s
             .count
-            .ok_or_else(|| (key("count"), "every needs a count".into()))?;
+            .ok_or_else(|| ValidationError::new(key("count"), "every needs a count"))?;
         if count == 0 || count as usize > limits::MAX_POSES {
-            return Err((
+            return Err(ValidationError::new(
                 key("count"),
                 format!("{count} captures: 1 to {}", limits::MAX_POSES),
             ));
         }
         let countdown_s = s.countdown_s.unwrap_or(3.0_f64.min(period_s));
-        limits::non_negative(countdown_s, period_s).map_err(|m| (key("countdown_s"), m))?;
+        limits::non_negative(countdown_s, period_s).map_err(|m| m.at(key("countdown_s")))?;
         let label = s.label.clone().unwrap_or_else(|| "hand-held {i}".into());
-        check_text(&label).map_err(|m| (key("label"), m))?;
+        check_text(&label).map_err(|m| m.at(key("label")))?;
         let exposure = self.exposure(s, at)?;
         let group = self.groups;
         self.groups += 1;
@@ -809,7 +843,7 @@ impl Unroller<'_> {
                 "i" => Some(index.to_string()),
                 _ => vars.get(n).map(|&v| format_number(v)),
             })
-            .map_err(|m| (key("label"), m))?;
+            .map_err(|m| m.at(key("label")))?;
             let tick = Tick {
                 group,
                 index,
@@ -824,7 +858,7 @@ impl Unroller<'_> {
 }
 
 /// Which kind of step `s` is: exactly one kind key.
-fn step_kind(s: &StepSpec) -> Result<&'static str, String> {
+fn step_kind(s: &StepSpec) -> Result<&'static str, Invalid> {
     let kinds: Vec<&'static str> = [
         ("capture", s.capture.is_some()),
         ("wait", s.wait.is_some()),
@@ -839,12 +873,15 @@ fn step_kind(s: &StepSpec) -> Result<&'static str, String> {
     match kinds.as_slice() {
         [one] => Ok(one),
         [] => Err("a step needs one of capture, wait, prompt, move, repeat, every".into()),
-        many => Err(format!("one step, one kind: {} given", many.join(", "))),
+        many => Err(Invalid(format!(
+            "one step, one kind: {} given",
+            many.join(", ")
+        ))),
     }
 }
 
-/// Keys that belong to another kind of step: (key, message) of the first.
-fn check_keys(s: &StepSpec, kind: &str) -> Result<(), (&'static str, String)> {
+/// Keys that belong to another kind of step: the first, refused (at the key alone).
+fn check_keys(s: &StepSpec, kind: &str) -> Result<(), ValidationError> {
     let owners: [(&'static str, bool, &[&str]); 11] = [
         ("to", s.to.is_some(), &["move"]),
         ("expect", s.expect.is_some(), &["move"]),
@@ -864,7 +901,7 @@ fn check_keys(s: &StepSpec, kind: &str) -> Result<(), (&'static str, String)> {
     ];
     for (key, set, kinds) in owners {
         if set && !kinds.contains(&kind) {
-            return Err((
+            return Err(ValidationError::new(
                 key,
                 format!(
                     "a {kind} step takes no {key} (it is for {})",
@@ -876,14 +913,14 @@ fn check_keys(s: &StepSpec, kind: &str) -> Result<(), (&'static str, String)> {
     Ok(())
 }
 
-fn check_var(name: &str, v: &VarSpec) -> Result<(), String> {
+fn check_var(name: &str, v: &VarSpec) -> Result<(), Invalid> {
     let valid = name
         .chars()
         .next()
         .is_some_and(|c| c.is_alphabetic() || c == '_')
         && name.chars().all(|c| c.is_alphanumeric() || c == '_');
     if !valid || name == "i" {
-        return Err(format!("{name:?} cannot name a variable"));
+        return Err(Invalid(format!("{name:?} cannot name a variable")));
     }
     match (&v.values, v.from, v.step) {
         (Some(values), None, None) if !values.is_empty() => limits::finite(values),

@@ -56,6 +56,7 @@ pub use node::Node;
 use super::device::{Camera, CameraConfig, DeviceError, TriggerSource};
 use hexcal_core::images::to_grey::{to_grey, BayerBalance, Cfa, Colour, Packing, SampleFormat};
 use hexcal_core::images::{CameraFrame, Pixels};
+use hexcal_core::Invalid;
 use std::fmt;
 use std::io;
 use std::time::Duration;
@@ -301,7 +302,7 @@ pub fn candidates(
     bits: u8,
     offered: &[FourCc],
     node: &str,
-) -> Result<Vec<(FourCc, SampleFormat)>, String> {
+) -> Result<Vec<(FourCc, SampleFormat)>, Invalid> {
     let listing = offered
         .iter()
         .map(|f| f.to_string())
@@ -310,18 +311,20 @@ pub fn candidates(
     let known = pixel_formats();
     if let Some(name) = named {
         let Some(&(code, format)) = known.iter().find(|(c, _)| c.to_string() == name.trim()) else {
-            return Err(format!(
+            return Err(Invalid(format!(
                 "hexcal cannot read {name}; {node} offers {listing}"
-            ));
+            )));
         };
         if !offered.contains(&code) {
-            return Err(format!("{name} not offered; {node} offers {listing}"));
+            return Err(Invalid(format!(
+                "{name} not offered; {node} offers {listing}"
+            )));
         }
         if format.rank(bits).is_none() {
-            return Err(format!(
+            return Err(Invalid(format!(
                 "{name} gives {} bits, the rig file asks {bits}",
                 format.bits
-            ));
+            )));
         }
         return Ok(vec![(code, format)]);
     }
@@ -331,9 +334,9 @@ pub fn candidates(
         .collect();
     usable.sort_by_key(|(_, f)| f.rank(bits));
     if usable.is_empty() {
-        return Err(format!(
+        return Err(Invalid(format!(
             "no format gives {bits} bits; {node} offers {listing}"
-        ));
+        )));
     }
     Ok(usable)
 }
@@ -501,7 +504,7 @@ impl<D: V4l2Device> V4l2Camera<D> {
             .formats()
             .map_err(|e| self.io_error("VIDIOC_ENUM_FMT", e))?;
         let wanted = candidates(self.format_name.as_deref(), bits, &offered, &self.address)
-            .map_err(|reason| self.unsupported("format", reason))?;
+            .map_err(|reason| self.unsupported("format", reason.into()))?;
         let mut refused = None;
         for (fourcc, samples) in wanted {
             match self.try_format(fourcc, samples, width, height)? {

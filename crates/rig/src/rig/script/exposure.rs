@@ -2,9 +2,10 @@
 //! checked on load against the rig's timing and cameras, and turned into one setting per
 //! camera for the capture engine.
 
-use super::{Plan, Refusal, StepSpec, Unroller};
+use super::{Plan, StepSpec, Unroller};
 use crate::rig::file::RigFile;
 use hexcal_core::limits;
+use hexcal_core::ValidationError;
 use serde::Serialize;
 
 /// The exposure and gain a capture step sets for its captures, undone after each.
@@ -60,13 +61,17 @@ impl Unroller<'_> {
     /// The exposure and gain of capture step `s` at `at`: an exposure that fits in a
     /// pattern's display time after settling (as the cameras' own `exposure_ms` must), a
     /// finite gain, cameras the rig has, each once, and `cameras` only with one of the two.
-    pub(super) fn exposure(&self, s: &StepSpec, at: &str) -> Result<Option<Exposure>, Refusal> {
+    pub(super) fn exposure(
+        &self,
+        s: &StepSpec,
+        at: &str,
+    ) -> Result<Option<Exposure>, ValidationError> {
         let key = |k: &str| format!("{at}.{k}");
         if let Some(e) = s.exposure_us {
             let t = &self.rig.timing;
             let window = 1e3 * (t.frame_period_ms - t.settle_ms);
             if !(e > 0.0 && e <= window) {
-                return Err((
+                return Err(ValidationError::new(
                     key("exposure_us"),
                     format!(
                         "{e} µs does not fit in a pattern's display time after settling \
@@ -77,24 +82,33 @@ impl Unroller<'_> {
             }
         }
         if let Some(g) = s.gain_db {
-            limits::finite(&[g]).map_err(|m| (key("gain_db"), m))?;
+            limits::finite(&[g]).map_err(|m| m.at(key("gain_db")))?;
         }
         let cameras = s.cameras.clone().unwrap_or_default();
         if s.cameras.is_some() && cameras.is_empty() {
-            return Err((key("cameras"), "name at least one camera".into()));
+            return Err(ValidationError::new(
+                key("cameras"),
+                "name at least one camera",
+            ));
         }
         for (i, name) in cameras.iter().enumerate() {
             if !self.rig.cameras.iter().any(|c| &c.name == name) {
-                return Err((key("cameras"), format!("no camera is named {name:?}")));
+                return Err(ValidationError::new(
+                    key("cameras"),
+                    format!("no camera is named {name:?}"),
+                ));
             }
             if cameras[..i].contains(name) {
-                return Err((key("cameras"), format!("{name:?} is named twice")));
+                return Err(ValidationError::new(
+                    key("cameras"),
+                    format!("{name:?} is named twice"),
+                ));
             }
         }
         match (s.exposure_us, s.gain_db) {
-            (None, None) if s.cameras.is_some() => Err((
+            (None, None) if s.cameras.is_some() => Err(ValidationError::new(
                 key("cameras"),
-                "cameras says whom exposure_us or gain_db apply to: give one of them".into(),
+                "cameras says whom exposure_us or gain_db apply to: give one of them",
             )),
             (None, None) => Ok(None),
             (exposure_us, gain_db) => Ok(Some(Exposure {
