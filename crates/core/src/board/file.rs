@@ -29,7 +29,7 @@
 //! # translation = [0.0, 0.0, -10.0]
 //! ```
 
-use super::{Board, Invalid};
+use super::{Board, InvalidField};
 use std::path::{Path, PathBuf};
 
 /// Why a board could not be read: the origin (file path or `<string>`), the field and, where
@@ -65,7 +65,7 @@ pub enum BoardError {
         /// 1-based line of the field's key, when the field is written in the file.
         line: Option<usize>,
         /// The rule broken, with the field to fix.
-        invalid: Invalid,
+        invalid: InvalidField,
     },
     /// `--board` named neither a built-in board nor an existing file.
     #[error(

@@ -15,7 +15,7 @@ mod validate;
 
 pub use file::BoardError;
 pub use lattice_map::{lattice_votes, LatticeMap};
-pub use validate::Invalid;
+pub use validate::InvalidField;
 
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};

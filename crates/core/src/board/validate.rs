@@ -8,22 +8,22 @@ use std::collections::HashMap;
 /// A broken rule: the board field to fix (dotted, as in a board file) and what is wrong.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("field `{field}`: {message}")]
-pub struct Invalid {
+pub struct InvalidField {
     /// Dotted field name, e.g. `pitch` or `codes.front_side`.
     pub field: String,
     /// What is wrong with it.
     pub message: String,
 }
 
-fn invalid(field: &str, message: String) -> Invalid {
-    Invalid {
+fn invalid(field: &str, message: String) -> InvalidField {
+    InvalidField {
         field: field.to_owned(),
         message,
     }
 }
 
 /// Fails unless every number is finite and `ok` holds.
-fn check(field: &str, values: &[f64], ok: bool, rule: &str) -> Result<(), Invalid> {
+fn check(field: &str, values: &[f64], ok: bool, rule: &str) -> Result<(), InvalidField> {
     if values.iter().all(|v| v.is_finite()) && ok {
         Ok(())
     } else {
@@ -46,13 +46,13 @@ impl Board {
     /// - the centre cell wholly on the board (side marks are placed only where they are);
     ///   marker cells disjoint; no circle but a marker centre whose ringed neighbours (as
     ///   printed, a missing neighbour read as unringed) read as a rotation of any code.
-    pub fn validate(&self) -> Result<(), Invalid> {
+    pub fn validate(&self) -> Result<(), InvalidField> {
         self.check_geometry()?;
         self.check_codes()?;
         self.check_markers()
     }
 
-    fn check_geometry(&self) -> Result<(), Invalid> {
+    fn check_geometry(&self) -> Result<(), InvalidField> {
         if self.name.trim().is_empty() {
             return Err(invalid("name", "the board needs a name".into()));
         }
@@ -105,7 +105,7 @@ impl Board {
     /// The pitch is at least [`limits::MIN_BOARD_PITCH_MM`] and a side has at most
     /// [`limits::MAX_BOARD_CIRCLES`] circles (rows × circles per row, an upper bound known
     /// before any lattice is built).
-    fn check_extent(&self) -> Result<(), Invalid> {
+    fn check_extent(&self) -> Result<(), InvalidField> {
         let d = self.pitch;
         if d < limits::MIN_BOARD_PITCH_MM {
             return Err(invalid(
@@ -136,7 +136,7 @@ impl Board {
         Ok(())
     }
 
-    fn check_codes(&self) -> Result<(), Invalid> {
+    fn check_codes(&self) -> Result<(), InvalidField> {
         for (i, &a) in MarkerKind::ALL.iter().enumerate() {
             let field = format!("codes.{}", a.name());
             let code = self.codes.get(a);
@@ -177,7 +177,7 @@ impl Board {
         Ok(())
     }
 
-    fn check_markers(&self) -> Result<(), Invalid> {
+    fn check_markers(&self) -> Result<(), InvalidField> {
         let origin = Hex::new(0, 0);
         for h in std::iter::once(origin).chain(origin.neighbours()) {
             if !self.contains(h) {

@@ -19,13 +19,13 @@ pub enum ImageIoError {
         /// The file.
         path: PathBuf,
         /// What went wrong.
-        source: DecodeError,
+        source: ImageDecodeError,
     },
 }
 
 /// Why image bytes could not be decoded.
 #[derive(Debug, thiserror::Error)]
-pub enum DecodeError {
+pub enum ImageDecodeError {
     /// The decoder's error (format, corrupt data, its allocation limit).
     #[error("{0}")]
     Image(#[from] image::ImageError),
@@ -39,7 +39,7 @@ const MAX_DECODE_BYTES: u64 = 8 * crate::limits::MAX_IMAGE_PIXELS;
 
 /// Decodes an image (format from its first bytes) whose header gives a size within
 /// [`crate::limits::image_size`]; a larger one is refused before its pixels are allocated.
-pub fn decode<R: BufRead + Seek>(reader: ImageReader<R>) -> Result<DynamicImage, DecodeError> {
+pub fn decode<R: BufRead + Seek>(reader: ImageReader<R>) -> Result<DynamicImage, ImageDecodeError> {
     let mut reader = reader
         .with_guessed_format()
         .map_err(image::ImageError::IoError)?;
@@ -50,7 +50,7 @@ pub fn decode<R: BufRead + Seek>(reader: ImageReader<R>) -> Result<DynamicImage,
     reader.limits(limits);
     let decoder = reader.into_decoder()?;
     let (w, h) = decoder.dimensions();
-    crate::limits::image_size(w, h).map_err(DecodeError::Size)?;
+    crate::limits::image_size(w, h).map_err(ImageDecodeError::Size)?;
     Ok(DynamicImage::from_decoder(decoder)?)
 }
 

@@ -17,6 +17,8 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+pub mod steps;
+
 /// Camera drivers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -331,10 +333,10 @@ pub struct RigFile {
     pub guidance: GuidanceSpec,
     /// Positioners that move the board (docs/rig-file.md, "Scripts and positioners").
     #[serde(rename = "positioner", default)]
-    pub positioners: Vec<super::script::PositionerSpec>,
+    pub positioners: Vec<steps::PositionerSpec>,
     /// The capture script: steps run in order by `hexcal run`.
     #[serde(default)]
-    pub script: Vec<super::script::StepSpec>,
+    pub script: Vec<steps::StepSpec>,
     /// The folder of the rig file (board files are relative to it); "." for parsed text.
     #[serde(skip, default = "current_folder")]
     pub base: PathBuf,
