@@ -21,7 +21,7 @@ use cli::{hexcal, scratch};
 /// (scripts/test.sh installs them).
 const PYTHON: &str = "/usr/bin/python3";
 
-/// Grid of the Kalibr refit (src/report/export.rs): the reference pixels are its nodes.
+/// Grid of the Kalibr refit (crates/calib/src/report/export.rs): the reference pixels are its nodes.
 const GRID: (usize, usize) = (48, 30);
 
 /// One calibration of the synthetic paper rig (σ = 0.1 px) with the pair cam0,cam1

@@ -363,6 +363,7 @@ const MODULES: &[(&str, &[&str])] = &[
         &[
             "atomic",
             "tomlspan",
+            "invalid",
             "limits",
             "board",
             "camera",

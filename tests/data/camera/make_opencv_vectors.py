@@ -4,7 +4,7 @@
     pip install opencv-python-headless numpy
     python3 tests/data/camera/make_opencv_vectors.py
 
-Writes opencv_vectors.json beside this script (read by src/camera/tests.rs, which needs no
+Writes opencv_vectors.json beside this script (read by crates/core/src/camera/tests.rs, which needs no
 Python). For each camera (5-coefficient, 8-coefficient rational, strong barrel k1 = -0.3,
 projector-like with the principal point below the image):
   - "views": object points with rvec/tvec and the pixels cv2.projectPoints gives, ~20 per
