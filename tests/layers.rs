@@ -362,6 +362,7 @@ const MODULES: &[(&str, &[&str])] = &[
         "crates/core",
         &[
             "atomic",
+            "lock",
             "tomlspan",
             "invalid",
             "limits",

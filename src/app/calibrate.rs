@@ -231,6 +231,7 @@ pub fn calibrate_dataset(
         )));
     }
     check_held_out(poses.len(), held_out)?;
+    let _lock = crate::lock::FolderLock::acquire(out)?;
     // Renumber the complete poses 0…n−1 in order.
     let mut all = Vec::new();
     let mut warnings = Vec::new();
@@ -330,6 +331,7 @@ pub fn calibrate_file(
     stereo: &[String],
 ) -> Result<FileOutcome, AppError> {
     let c = read_correspondences(input)?;
+    let _lock = crate::lock::FolderLock::acquire(out)?;
     let board = Board::resolve(&c.board)?;
     if let Some(name) = reference {
         let names = c.devices.iter().map(|d| d.name.as_str());

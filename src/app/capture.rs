@@ -6,6 +6,7 @@
 use super::AppError;
 use crate::capture::Session;
 use crate::dataset::{Dataset, Leftover, Timeline};
+use crate::lock::FolderLock;
 use crate::rig::file::RigFile;
 use crate::rig::script::PoseExposures;
 use crate::rig::OpenedRig;
@@ -44,11 +45,14 @@ pub struct Prepared {
     pub opened: OpenedRig,
     /// The dataset.
     pub data: Dataset,
+    /// The dataset folder's lock, held while this is alive.
+    pub lock: FolderLock,
 }
 
-/// Open the devices of `rig` and create or resume the dataset folder `out` for it; the rig
-/// file is copied into the folder once.
+/// Lock the dataset folder `out` (one writer per folder), open the devices of `rig` and
+/// create or resume the dataset for it; the rig file is copied into the folder once.
 pub fn prepare(rig: &LoadedRig, out: &Path) -> Result<Prepared, AppError> {
+    let lock = FolderLock::acquire(out)?;
     let opened = crate::rig::open(&rig.file)?;
     let info = rig.file.dataset_info(&opened.sequence);
     let data = Dataset::create_or_resume(out, info)?;
@@ -60,6 +64,7 @@ pub fn prepare(rig: &LoadedRig, out: &Path) -> Result<Prepared, AppError> {
         rig: rig.file.clone(),
         opened,
         data,
+        lock,
     })
 }
 
@@ -128,6 +133,7 @@ pub fn capture_dataset(
         rig,
         opened,
         mut data,
+        lock: _lock,
     } = prepare(rig, out)?;
     let pause = std::time::Duration::from_secs_f64(rig.timing.pose_pause_s);
     data.remove_stale_temporaries()?;

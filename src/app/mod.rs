@@ -97,6 +97,9 @@ pub enum AppError {
     /// A worker thread could not be started.
     #[error("cannot start a thread: {0}")]
     Spawn(std::io::Error),
+    /// The output folder is another job's.
+    #[error("{0}")]
+    Lock(#[from] crate::lock::LockError),
     /// Ctrl-C and SIGTERM could not be taken over.
     #[error("cannot handle Ctrl-C: {0}")]
     Signals(std::io::Error),

@@ -176,7 +176,12 @@ pub fn run(
     place: &mut PlaceBoard,
     events: &mut dyn FnMut(&Event),
 ) -> Result<Outcome, AppError> {
-    let Prepared { rig, opened, data } = prepare(rig, out)?;
+    let Prepared {
+        rig,
+        opened,
+        data,
+        lock: _lock,
+    } = prepare(rig, out)?;
     let poses = options
         .poses
         .or(rig.poses.map(|p| p.count))

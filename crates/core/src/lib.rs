@@ -16,6 +16,7 @@ pub mod dataset;
 pub mod images;
 pub mod invalid;
 pub mod limits;
+pub mod lock;
 pub mod observations;
 pub mod pattern;
 pub mod tomlspan;
