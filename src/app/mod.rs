@@ -126,3 +126,10 @@ impl AppError {
         }
     }
 }
+
+/// A mutex that a panicked holder leaves usable: the data the app's threads share (the
+/// console's page, the guidance loop's verdict) stays consistent field by field, and the run
+/// must go on.
+pub(crate) fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}

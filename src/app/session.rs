@@ -14,6 +14,7 @@ use super::progress::{Event, Outcome};
 use super::run::{RunOptions, ViewsTap};
 use super::script::{plan_of, Asking, Jitter, ScriptRun};
 use super::AppError;
+use crate::app::lock;
 use crate::rig::file::CameraDriver;
 use crate::rig::script::{Action, Plan};
 use crate::rig::sim::SimWorld;
@@ -370,11 +371,6 @@ fn cameras(rig: &LoadedRig) -> Vec<(String, [u32; 2])> {
     cameras
         .map(|c| (c.name.clone(), [c.width, c.height]))
         .collect()
-}
-
-/// A mutex that a panicked holder leaves usable.
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// The run watched by the console (`c`): its frames make the thumbnails, its live preview

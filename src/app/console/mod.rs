@@ -22,6 +22,7 @@ use super::guide::verdict::Verdict;
 use super::process::PoseViews;
 use super::progress::Event;
 use super::run::{FrameTap, PreviewTap};
+use crate::app::lock;
 use crate::board::Board;
 use crossbeam_channel::{bounded, Receiver, Sender, TrySendError};
 use labels::Overlay;
@@ -51,12 +52,6 @@ enum PressRefused {
     /// The run has ended.
     #[error("the run no longer listens")]
     Gone,
-}
-
-/// A mutex that a panicked holder leaves usable (the console's data stays consistent field
-/// by field, and the run must go on).
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// What the server threads and the run share.

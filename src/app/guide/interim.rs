@@ -12,6 +12,7 @@ use super::stats::{observations, DeviceStats};
 use super::verdict::Verdict;
 use super::{guide, Guidance};
 use crate::app::calibrate::MIN_CALIBRATION_POSES;
+use crate::app::lock;
 use crate::app::process::PoseViews;
 use crate::board::Board;
 use crate::calib::geometric::{calibrate_registering, GeometricParams};
@@ -20,7 +21,7 @@ use crate::calib::CalibError;
 use crate::observations::{CameraView, DeviceInfo};
 use crossbeam_channel::{unbounded, Sender};
 use std::collections::BTreeSet;
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::sync::{Arc, Condvar, Mutex};
 
 /// One interim calibration to run.
 struct Request {
@@ -32,12 +33,6 @@ struct Request {
     poses: usize,
     /// Done threshold (px).
     threshold: f64,
-}
-
-/// A mutex that a panicked holder leaves usable (the verdict stays consistent field by
-/// field, and the run must go on).
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Who hears each new verdict.
