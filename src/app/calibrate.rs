@@ -22,40 +22,46 @@ use std::path::{Path, PathBuf};
 pub const MIN_CALIBRATION_POSES: usize = crate::calib::zhang::MIN_VIEWS;
 
 pub(crate) fn devices_of(info: &DatasetInfo) -> Vec<DeviceInfo> {
-    info.cameras
+    let cameras = info
+        .cameras
         .iter()
-        .map(|c| DeviceInfo {
-            name: c.name.clone(),
-            kind: DeviceKind::Camera,
-            width: c.width,
-            height: c.height,
-        })
-        .chain(info.projectors.iter().map(|p| DeviceInfo {
-            name: p.name.clone(),
-            kind: DeviceKind::Projector,
-            width: p.width,
-            height: p.height,
-        }))
-        .collect()
+        .map(|c| (c.name.as_str(), c.width, c.height));
+    let projectors = info
+        .projectors
+        .iter()
+        .map(|p| (p.name.as_str(), p.width, p.height));
+    devices(cameras, projectors)
 }
 
 /// The devices of a rig file (cameras, then projectors), as its dataset will list them.
 pub fn devices_of_rig(rig: &crate::rig::file::RigFile) -> Vec<DeviceInfo> {
-    let camera = |name: &str, width, height| DeviceInfo {
-        name: name.into(),
-        kind: DeviceKind::Camera,
-        width,
-        height,
-    };
     let cameras = rig
         .cameras
         .iter()
-        .map(|c| camera(&c.name, c.width, c.height));
-    let projectors = rig.projectors.iter().map(|p| DeviceInfo {
-        kind: DeviceKind::Projector,
-        ..camera(&p.name, p.width, p.height)
-    });
-    cameras.chain(projectors).collect()
+        .map(|c| (c.name.as_str(), c.width, c.height));
+    let projectors = rig
+        .projectors
+        .iter()
+        .map(|p| (p.name.as_str(), p.width, p.height));
+    devices(cameras, projectors)
+}
+
+/// Cameras, then projectors, from their (name, width, height).
+fn devices<'a>(
+    cameras: impl Iterator<Item = (&'a str, u32, u32)>,
+    projectors: impl Iterator<Item = (&'a str, u32, u32)>,
+) -> Vec<DeviceInfo> {
+    let kinds = cameras
+        .map(|c| (DeviceKind::Camera, c))
+        .chain(projectors.map(|p| (DeviceKind::Projector, p)));
+    kinds
+        .map(|(kind, (name, width, height))| DeviceInfo {
+            name: name.into(),
+            kind,
+            width,
+            height,
+        })
+        .collect()
 }
 
 /// Every pose's views, with what they refer to.

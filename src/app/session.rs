@@ -322,7 +322,7 @@ pub fn run(
     let mut options = options.clone();
     let mut console = how
         .console
-        .map(|addr| Console::start(addr, &cameras(&rig), how.auto))
+        .map(|addr| Console::start(addr, &camera_panels(&rig.file), how.auto))
         .transpose()?;
     let guide = match &console {
         Some(c) => Some(watch_run(&rig, c, how, &mut options, &voice.tell)?),
@@ -365,9 +365,9 @@ pub fn run(
     })
 }
 
-/// Each camera's name and image size.
-fn cameras(rig: &LoadedRig) -> Vec<(String, [u32; 2])> {
-    let cameras = rig.file.cameras.iter();
+/// Each camera's name and image size: the console's panels.
+pub fn camera_panels(rig: &crate::rig::file::RigFile) -> Vec<(String, [u32; 2])> {
+    let cameras = rig.cameras.iter();
     cameras
         .map(|c| (c.name.clone(), [c.width, c.height]))
         .collect()

@@ -61,11 +61,7 @@ pub fn bench_preview(
     world.place(pose);
     let cameras = opened.devices.cameras.len();
     let mut session = Session::start(opened.devices, &opened.sequence).map_err(|e| input(&e))?;
-    let panels: Vec<(String, [u32; 2])> = rig
-        .cameras
-        .iter()
-        .map(|c| (c.name.clone(), [c.width, c.height]))
-        .collect();
+    let panels = crate::app::session::camera_panels(&rig);
     let console = Console::start("127.0.0.1:0", &panels, true).map_err(|e| input(&e))?;
     let tap = console.preview_tap(board);
     let mut b = PreviewBench {
