@@ -5,6 +5,10 @@
 //! projector response applied to each pattern inside the sum → Gaussian PSF → read + shot
 //! noise → quantisation, all seeded.
 
+mod disturb;
+
+pub use disturb::Disturbance;
+
 use hexcal_core::pattern::{pattern_harmonic, Direction, ProjectorSetup, Sequence};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use rand::SeedableRng;
@@ -360,6 +364,13 @@ impl<'a> Renderer<'a> {
                 *e = s;
             }
         });
+        self.expose(irr, k)
+    }
+
+    /// The sensor's 8-bit frame k of the irradiance `irr` (DN, row-major): PSF, read and
+    /// shot noise seeded by the frame, quantisation.
+    fn expose(&self, mut irr: Vec<f32>, k: usize) -> image::GrayImage {
+        let (w, h) = (self.scene.width as usize, self.scene.height as usize);
         blur(&mut irr, w, &self.kernel);
         let im = &self.scene.imaging;
         let (read2, shot) = ((im.read_noise * im.read_noise) as f32, im.shot_gain as f32);

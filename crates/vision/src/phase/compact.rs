@@ -9,6 +9,7 @@
 //! camera is processed; [`super::Decoder::finish`] spreads them at once into a
 //! [`DecodedStack`].
 
+use super::check::StackVerdict;
 use super::maps::{DecodedStack, Mask, NoiseModel, PhaseNoise, ProjectorMaps};
 use hexcal_core::images::FloatImage;
 use rayon::prelude::*;
@@ -108,6 +109,8 @@ pub struct CompactStack {
     candidate: Vec<bool>,
     /// Per projector, in sequence order.
     pub projectors: Vec<CompactProjector>,
+    /// The stack check's verdict ([`super::check`]).
+    pub verdict: StackVerdict,
 }
 
 /// The slot of a pixel that is not a candidate in [`CompactStack::candidate_slots`].
@@ -204,6 +207,7 @@ impl CompactStack {
             saturated: self.saturated,
             noise: self.noise,
             projectors,
+            verdict: self.verdict,
         }
     }
 }
@@ -296,7 +300,7 @@ impl Sink {
     pub(super) fn into_stack(
         self,
         camera: String,
-        noise: NoiseModel,
+        (noise, verdict): (NoiseModel, StackVerdict),
         saturated: Mask,
         candidate: Vec<bool>,
         stats: &[[f64; 6]],
@@ -322,6 +326,7 @@ impl Sink {
             noise,
             candidate,
             projectors,
+            verdict,
         }
     }
 }

@@ -20,6 +20,7 @@
 //! a pixel estimates σ_I²/N with G − 1 degrees of freedom (free of projector harmonics); a
 //! fit σ_I² = a + b·A over all unsaturated pixels gives the read + shot noise model.
 
+use super::check::{CheckParams, StackSampler, StackVerdict};
 use super::compact::{CompactStack, RowSink, Sink, NO_SLOT};
 use super::maps::{DecodedStack, Mask, NoiseModel};
 use super::unwrap::Constellation;
@@ -225,6 +226,8 @@ pub struct Decoder<T: Sample> {
     saturated: Vec<bool>,
     columns: Arc<Constellation>,
     rows: Arc<Constellation>,
+    /// The stack check's samples ([`super::check`]); taken by the final pass.
+    sampler: Option<StackSampler>,
 }
 
 /// Modulation quantisation: 2^15 steps per full scale (B ≤ 2·full scale).
@@ -283,7 +286,10 @@ impl<T: Sample> Decoder<T> {
             + std::mem::size_of::<Level>()
             + 2
             + seq.groups() * 4 * projectors;
-        let bytes = (npx as u64).saturating_mul(per_pixel as u64);
+        let check = (4 * super::check::MAX_BLOCKS * seq.frame_count() * 4) as u64;
+        let bytes = (npx as u64)
+            .saturating_mul(per_pixel as u64)
+            .saturating_add(check);
         if bytes > hexcal_core::limits::MAX_DECODER_BYTES {
             return Err(DecodeError::TooLarge {
                 camera,
@@ -325,6 +331,7 @@ impl<T: Sample> Decoder<T> {
             saturated: vec![false; npx],
             columns: cons(Direction::Columns),
             rows: cons(Direction::Rows),
+            sampler: Some(StackSampler::new(seq, width, height, full_scale)),
         })
     }
 
@@ -345,6 +352,7 @@ impl<T: Sample> Decoder<T> {
             + self.unlit_b.iter().map(|v| v.len() * 2).sum::<usize>()
             + self.levels.len() * std::mem::size_of::<Level>()
             + self.saturated.len()
+            + self.sampler.as_ref().map_or(0, StackSampler::bytes)
     }
 
     /// Feed frame k (frames must come in sequence order, each exactly once).
@@ -382,6 +390,9 @@ impl<T: Sample> Decoder<T> {
                 got: frame.pixels.len(),
                 expected: npx,
             });
+        }
+        if let Some(sampler) = &mut self.sampler {
+            sampler.push(k, &frame);
         }
         let n = self.seq.steps() as usize;
         let step = k % n;
@@ -567,13 +578,13 @@ impl<T: Sample> Decoder<T> {
             });
         }
         drop(std::mem::take(&mut self.frames));
-        let n = self.seq.steps() as f64;
-        let noise = fit_noise(&noise_sums(
-            &self.levels,
-            &self.saturated,
-            n,
-            self.seq.groups(),
-        ));
+        let verdict = self
+            .sampler
+            .take()
+            .map_or_else(StackVerdict::unchecked, |s| {
+                s.verdict(&CheckParams::default())
+            });
+        let noise = self.noise(&verdict);
         let (fundamental, mean_ratio) = harmonics(self.seq.projectors());
         let (w, h) = (self.width as usize, self.height as usize);
         let np = self.seq.projectors().len();
@@ -587,7 +598,7 @@ impl<T: Sample> Decoder<T> {
         };
         Ok(sink.into_stack(
             std::mem::take(&mut self.camera),
-            noise,
+            (noise, verdict),
             saturated,
             (0..w * h)
                 .into_par_iter()
@@ -596,6 +607,29 @@ impl<T: Sample> Decoder<T> {
             &stats,
             &fundamental,
         ))
+    }
+
+    /// The noise model: from the spread of the group means (docs/design.md §6), unless the
+    /// check found the light or the board changing between groups, which that spread would
+    /// count as noise; then the check's, measured within the groups (§6b).
+    fn noise(&self, verdict: &StackVerdict) -> NoiseModel {
+        let between = |v: &StackVerdict| {
+            v.notes
+                .iter()
+                .any(|n| matches!(n, super::check::StackNote::LightStep { .. }))
+                || v.faults
+                    .iter()
+                    .any(|f| matches!(f, super::check::StackFault::Motion { .. }))
+        };
+        match between(verdict) {
+            true => verdict.figures.noise,
+            false => fit_noise(&noise_sums(
+                &self.levels,
+                &self.saturated,
+                f64::from(self.seq.steps()),
+                self.seq.groups(),
+            )),
+        }
     }
 
     /// Whether pixel i is a candidate: some projector lights it.

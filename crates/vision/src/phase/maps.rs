@@ -135,6 +135,8 @@ pub struct DecodedStack {
     pub noise: NoiseModel,
     /// Per projector, in sequence order.
     pub projectors: Vec<ProjectorMaps>,
+    /// The stack check's verdict ([`super::check`]).
+    pub verdict: super::check::StackVerdict,
 }
 
 impl PhaseNoise {

@@ -5,6 +5,7 @@
 
 #[cfg(any(test, feature = "bench"))]
 pub mod accuracy;
+pub mod check;
 mod compact;
 mod decode;
 pub mod files;

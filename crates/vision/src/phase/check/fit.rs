@@ -1,0 +1,235 @@
+//! Per sampled pixel and fringe group, the phase-shift model fitted by the DFT (docs/design.md
+//! §6b, eq. 6b.1): the group mean, each projector's fundamental, the residual per frame; and the
+//! noise model measured from the residuals.
+
+use super::super::maps::NoiseModel;
+use hexcal_core::pattern::{pattern_harmonic, Sequence, CHECKED_HARMONICS};
+use std::f64::consts::TAU;
+
+/// The model of every group: which DFT bins it holds and their twiddles.
+pub(super) struct GroupFits {
+    /// Phase steps N.
+    pub(super) steps: usize,
+    /// Fringe groups G.
+    pub(super) groups: usize,
+    /// Projectors P.
+    pub(super) projectors: usize,
+    /// Bins 1…⌊N/2⌋ of the model: each projector's fundamental first (index p), then the
+    /// harmonics of uncorrected gammas.
+    bins: Vec<usize>,
+    /// Real parameters q of one group's model (the mean, two per bin, one at N/2).
+    pub(super) params: usize,
+    /// (cos, sin) of 2π·b·s/N at [bin index · N + s].
+    twiddles: Vec<[f32; 2]>,
+    /// Per projector a_0/a_1 of its effective gamma: its mean light over its modulation.
+    pub(super) mean_ratio: Vec<f64>,
+}
+
+/// What the fit keeps of one pixel.
+#[derive(Clone, Debug, Default)]
+pub(super) struct PixelFit {
+    /// Per group, the mean level (DN).
+    pub(super) means: Vec<f32>,
+    /// Per group and projector ([g·P + p]), the fundamental's complex amplitude
+    /// C = (2/N)·Σ_s I_s·e^{−i2πf_p s/N}: the contribution at step s is Re(C·e^{i2πf_p s/N}).
+    pub(super) fundamentals: Vec<[f32; 2]>,
+    /// Per group, Σ of the squared residuals over its frames.
+    pub(super) rss: Vec<f32>,
+}
+
+impl PixelFit {
+    /// The per-frame noise variance with its degrees of freedom, one value per group from
+    /// its residuals when the model leaves `dof` ≥ 2, else one from the spread of the group
+    /// means (N `steps`, G − 1 degrees of freedom).
+    pub(super) fn variances(&self, dof: usize, steps: usize) -> (Vec<f64>, f64) {
+        if dof >= 2 {
+            let v = self
+                .rss
+                .iter()
+                .map(|&r| f64::from(r) / dof as f64)
+                .collect();
+            return (v, dof as f64);
+        }
+        let g = self.means.len() as f64;
+        let mean = self.means.iter().map(|&m| f64::from(m)).sum::<f64>() / g;
+        let ss: f64 = self
+            .means
+            .iter()
+            .map(|&m| (f64::from(m) - mean).powi(2))
+            .sum();
+        (vec![steps as f64 * ss / (g - 1.0)], g - 1.0)
+    }
+
+    /// The mean level over the groups (DN).
+    pub(super) fn level(&self) -> f64 {
+        self.means.iter().map(|&m| f64::from(m)).sum::<f64>() / self.means.len() as f64
+    }
+
+    /// Projector p's modulation: the RMS over groups of |C| (DN).
+    pub(super) fn modulation(&self, p: usize, projectors: usize) -> f64 {
+        let g = self.means.len();
+        let s: f64 = (0..g)
+            .map(|g| {
+                let [re, im] = self.fundamentals[g * projectors + p];
+                f64::from(re * re + im * im)
+            })
+            .sum();
+        (s / g as f64).sqrt()
+    }
+}
+
+impl GroupFits {
+    /// The model of `seq`'s groups; `None` for a single group (nothing to test against).
+    pub(super) fn new(seq: &Sequence) -> Option<GroupFits> {
+        let n = seq.steps() as usize;
+        let fold = |b: usize| (b % n).min(n - b % n);
+        let mut bins: Vec<usize> = seq
+            .projectors()
+            .iter()
+            .map(|c| fold(c.frequency as usize))
+            .collect();
+        for code in seq
+            .projectors()
+            .iter()
+            .filter(|c| c.response.has_harmonics())
+        {
+            for h in 2..=CHECKED_HARMONICS as usize {
+                let b = fold(h * code.frequency as usize);
+                if b != 0 && !bins.contains(&b) {
+                    bins.push(b);
+                }
+            }
+        }
+        let params = 1 + bins
+            .iter()
+            .map(|&b| if 2 * b == n { 1 } else { 2 })
+            .sum::<usize>();
+        if n < params || seq.groups() < 2 {
+            return None;
+        }
+        let twiddles = bins
+            .iter()
+            .flat_map(|&b| {
+                (0..n).map(move |s| {
+                    let a = TAU * ((b * s) % n) as f64 / n as f64;
+                    [a.cos() as f32, a.sin() as f32]
+                })
+            })
+            .collect();
+        let mean_ratio = seq
+            .projectors()
+            .iter()
+            .map(|c| {
+                let g = c.response.effective_gamma();
+                pattern_harmonic(g, 0) / pattern_harmonic(g, 1)
+            })
+            .collect();
+        Some(GroupFits {
+            steps: n,
+            groups: seq.groups(),
+            projectors: seq.projectors().len(),
+            bins,
+            params,
+            twiddles,
+            mean_ratio,
+        })
+    }
+
+    /// Residual degrees of freedom per group, N − q (0 for the shortest sequences, whose
+    /// every step the model uses: then no frame can be tested on its own).
+    pub(super) fn dof(&self) -> usize {
+        self.steps - self.params
+    }
+
+    /// Fit one pixel's series (every frame, in order), replacing it by its residuals.
+    pub(super) fn fit(&self, series: &mut [f32]) -> PixelFit {
+        let n = self.steps;
+        let mut fit = PixelFit {
+            means: Vec::with_capacity(self.groups),
+            fundamentals: Vec::with_capacity(self.groups * self.projectors),
+            rss: Vec::with_capacity(self.groups),
+        };
+        let mut coef = vec![[0f32; 2]; self.bins.len()];
+        for seg in series.chunks_exact_mut(n) {
+            let mut rss = 0f32;
+            let mean = seg.iter().sum::<f32>() / n as f32;
+            for (j, (&b, c)) in self.bins.iter().zip(&mut coef).enumerate() {
+                let tw = &self.twiddles[j * n..(j + 1) * n];
+                let (re, im) = seg
+                    .iter()
+                    .zip(tw)
+                    .fold((0f32, 0f32), |(re, im), (&v, &[c, s])| {
+                        (re + v * c, im - v * s)
+                    });
+                let scale = if 2 * b == n { 1.0 } else { 2.0 } / n as f32;
+                *c = [re * scale, im * scale];
+            }
+            for (s, v) in seg.iter_mut().enumerate() {
+                let model: f32 = coef
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &[re, im])| {
+                        let [c, sn] = self.twiddles[j * n + s];
+                        re * c - im * sn
+                    })
+                    .sum();
+                *v -= mean + model;
+                rss += *v * *v;
+            }
+            fit.rss.push(rss);
+            fit.means.push(mean);
+            fit.fundamentals.extend_from_slice(&coef[..self.projectors]);
+        }
+        fit
+    }
+
+    /// Projector p's temporal frequency θ_p = 2π·f_p/N (rad per step).
+    pub(super) fn theta(&self, p: usize) -> f64 {
+        TAU * self.bins[p] as f64 / self.steps as f64
+    }
+}
+
+/// The noise model σ_I² = a + b·A from per-pixel (level, residual variance) pairs with `dof`
+/// degrees of freedom each: pixels sorted by level into 16 bins of equal count, the median
+/// variance of each bin (÷ the median of χ²_ν/ν, Wilson–Hilferty), a least-squares line
+/// through the bins (eq. 6b.2). A few disturbed pixels or frames do not move a median.
+pub(super) fn robust_noise(mut pairs: Vec<(f64, f64)>, dof: f64) -> NoiseModel {
+    const BINS: usize = 16;
+    let median_ratio = (1.0 - 2.0 / (9.0 * dof)).powi(3);
+    pairs.retain(|(a, v)| a.is_finite() && v.is_finite());
+    if pairs.len() < BINS {
+        let v = pairs.iter().map(|p| p.1).sum::<f64>() / pairs.len().max(1) as f64;
+        return NoiseModel {
+            offset: v,
+            slope: 0.0,
+            floor: 0.01 * v,
+        };
+    }
+    pairs.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let per = pairs.len() / BINS;
+    let points: Vec<(f64, f64)> = pairs
+        .chunks(per)
+        .filter(|c| c.len() == per)
+        .map(|c| {
+            let level = c.iter().map(|p| p.0).sum::<f64>() / per as f64;
+            let mut v: Vec<f64> = c.iter().map(|p| p.1).collect();
+            let mid = v.len() / 2;
+            let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+            (level, *m / median_ratio)
+        })
+        .collect();
+    let n = points.len() as f64;
+    let (sa, sv) = points
+        .iter()
+        .fold((0.0, 0.0), |s, p| (s.0 + p.0, s.1 + p.1));
+    let (ma, mv) = (sa / n, sv / n);
+    let (sxx, sxy) = points.iter().fold((0.0, 0.0), |s, p| {
+        (s.0 + (p.0 - ma) * (p.0 - ma), s.1 + (p.0 - ma) * (p.1 - mv))
+    });
+    let slope = if sxx > 1e-12 { sxy / sxx } else { 0.0 };
+    NoiseModel {
+        offset: mv - slope * ma,
+        slope,
+        floor: 0.01 * mv,
+    }
+}

@@ -1,0 +1,287 @@
+//! The tests of the stack check (docs/design.md §6b): between groups (motion, light steps),
+//! per frame (light changes, jolts, another frame's pattern, unexplained disturbance), and
+//! clipping; each finding sized in the unit its threshold is set in.
+
+mod groups;
+mod lit;
+mod per_frame;
+mod phases;
+
+use super::fit::{robust_noise, GroupFits, PixelFit};
+use super::{CheckFigures, CheckParams, StackFault, StackNote, StackSampler, StackVerdict};
+use crate::phase::NoiseModel;
+use nalgebra::{SMatrix, SVector};
+use rayon::prelude::*;
+
+/// Spatial shapes of the regressions: offset, ambient image, mean image, its x and y
+/// gradients.
+const SHAPES: usize = 5;
+
+/// A block's shapes, noise and fit summary.
+struct Block {
+    /// The shapes at the block: [1, ambient, level, ∂x level, ∂y level] (DN, DN/px).
+    shapes: [f64; SHAPES],
+    /// Per-pixel noise σ_I² at the block's level (DN²).
+    var: f64,
+}
+
+impl StackVerdict {
+    /// The verdict on a stack that could not be checked (a sequence that leaves nothing
+    /// to test).
+    pub fn unchecked() -> StackVerdict {
+        unchecked(0)
+    }
+}
+
+/// The verdict of a sequence that leaves nothing to test (`blocks` sampled).
+pub(super) fn unchecked(blocks: usize) -> StackVerdict {
+    StackVerdict {
+        faults: Vec::new(),
+        notes: vec![StackNote::Unchecked],
+        figures: CheckFigures {
+            samples: 4 * blocks,
+            noise: NoiseModel {
+                offset: 0.0,
+                slope: 0.0,
+                floor: 0.0,
+            },
+            displacement: Vec::new(),
+            disturbance: Vec::new(),
+            clipped: 0.0,
+        },
+    }
+}
+
+/// Everything the tests share: the fits per pixel, the noise model, the blocks.
+struct Stack<'a> {
+    model: &'a GroupFits,
+    /// Residuals, pixel-major ([i·K + k]).
+    residuals: Vec<f32>,
+    fits: Vec<PixelFit>,
+    /// Per block: whether it clips.
+    clipped: Vec<bool>,
+    noise: NoiseModel,
+    /// Per unclipped block index, its shapes (`None` for clipped blocks).
+    blocks: Vec<Option<Block>>,
+    frames: usize,
+}
+
+/// The verdict on a sampled stack.
+pub(super) fn judge(
+    sampler: &StackSampler,
+    model: &GroupFits,
+    params: &CheckParams,
+) -> StackVerdict {
+    let stack = Stack::fit(sampler, model);
+    let mut faults = Vec::new();
+    let mut notes = Vec::new();
+    let displacement = stack.between_groups(params, &mut faults, &mut notes);
+    let (within, disturbance) = stack.within_groups(params);
+    let phases = stack.phase_consistency(&sampler.seq, params);
+    faults.extend(merge(within, phases, stack.model.steps));
+    let clipped = stack.clipped_fraction(sampler.full_scale);
+    if clipped > params.clipped {
+        faults.push(StackFault::Clipped { fraction: clipped });
+    }
+    stack.modulation_notes(sampler.full_scale, params, &mut notes);
+    StackVerdict {
+        faults,
+        notes,
+        figures: CheckFigures {
+            samples: stack.fits.len(),
+            noise: stack.noise,
+            displacement,
+            disturbance,
+            clipped,
+        },
+    }
+}
+
+impl<'a> Stack<'a> {
+    /// Fit every sampled pixel (on all cores), measure the noise, form the blocks' shapes.
+    fn fit(sampler: &StackSampler, model: &'a GroupFits) -> Stack<'a> {
+        let k = sampler.seq.frame_count();
+        let mut residuals = sampler.samples.clone();
+        let fits: Vec<PixelFit> = residuals
+            .par_chunks_mut(k)
+            .map(|series| model.fit(series))
+            .collect();
+        let mut dof = 1.0;
+        let mut pairs = Vec::new();
+        for (_, f) in fits
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| !sampler.clipped[i / 4])
+        {
+            let (vars, nu) = f.variances(model.dof(), model.steps);
+            dof = nu;
+            pairs.extend(vars.into_iter().map(|v| (f.level(), v)));
+        }
+        let noise = robust_noise(pairs, dof);
+        let blocks = (0..sampler.blocks.len())
+            .map(|b| (!sampler.clipped[b]).then(|| block(&fits[4 * b..4 * b + 4], model, &noise)))
+            .collect();
+        Stack {
+            model,
+            residuals,
+            fits,
+            clipped: sampler.clipped.clone(),
+            noise,
+            blocks,
+            frames: k,
+        }
+    }
+
+    /// The unclipped blocks with their index.
+    fn usable(&self) -> impl Iterator<Item = (usize, &Block)> {
+        self.blocks
+            .iter()
+            .enumerate()
+            .filter_map(|(b, x)| x.as_ref().map(|x| (b, x)))
+    }
+
+    /// Regress a per-block target on the shapes with per-block variances: the coefficients,
+    /// their covariance, and the sum of squares they explain (in units of the variances).
+    fn regress(&self, target: impl Fn(usize) -> f64, var: impl Fn(&Block) -> f64) -> Fit {
+        let mut ata = SMatrix::<f64, SHAPES, SHAPES>::zeros();
+        let mut atb = SVector::<f64, SHAPES>::zeros();
+        for (b, blk) in self.usable() {
+            let x = SVector::<f64, SHAPES>::from(blk.shapes);
+            let w = 1.0 / var(blk);
+            ata += w * x * x.transpose();
+            atb += w * target(b) * x;
+        }
+        // Scale to unit diagonal, then a pseudo-inverse: shapes the image cannot tell
+        // apart (no unlit region, a flat image) get no coefficient rather than a wild one.
+        let d = SVector::<f64, SHAPES>::from_fn(|i, _| 1.0 / ata[(i, i)].max(1e-300).sqrt());
+        let scaled = SMatrix::<f64, SHAPES, SHAPES>::from_fn(|i, j| ata[(i, j)] * d[i] * d[j]);
+        let cov_s = scaled
+            .pseudo_inverse(1e-9)
+            .unwrap_or_else(|_| SMatrix::zeros());
+        let cov = SMatrix::<f64, SHAPES, SHAPES>::from_fn(|i, j| cov_s[(i, j)] * d[i] * d[j]);
+        let coef = cov * atb;
+        Fit {
+            explained: coef.dot(&atb),
+            coef,
+            cov,
+        }
+    }
+}
+
+/// A regression's result.
+struct Fit {
+    coef: SVector<f64, SHAPES>,
+    cov: SMatrix<f64, SHAPES, SHAPES>,
+    /// Sum of squares explained (χ² units).
+    explained: f64,
+}
+
+impl Fit {
+    /// The displacement it implies (the image moved by d: Δ ≈ −∇A·d) and its standard
+    /// error (camera px).
+    fn displacement(&self) -> ([f64; 2], [f64; 2]) {
+        (
+            [-self.coef[3], -self.coef[4]],
+            [self.cov[(3, 3)].sqrt(), self.cov[(4, 4)].sqrt()],
+        )
+    }
+
+    /// The light part (offset, ambient, level) at a block (DN).
+    fn light(&self, blk: &Block) -> f64 {
+        (0..3).map(|i| self.coef[i] * blk.shapes[i]).sum()
+    }
+
+    /// The motion part (gradients) at a block (DN).
+    fn motion(&self, blk: &Block) -> f64 {
+        (3..5).map(|i| self.coef[i] * blk.shapes[i]).sum()
+    }
+}
+
+/// A block's shapes from its four pixels' fits (corners (0,0), (1,0), (0,1), (1,1)).
+fn block(fits: &[PixelFit], model: &GroupFits, noise: &NoiseModel) -> Block {
+    let levels: Vec<f64> = fits.iter().map(PixelFit::level).collect();
+    let level = levels.iter().sum::<f64>() / 4.0;
+    let lit: f64 = (0..model.projectors)
+        .map(|p| {
+            let b = fits
+                .iter()
+                .map(|f| f.modulation(p, model.projectors))
+                .sum::<f64>()
+                / 4.0;
+            model.mean_ratio[p] * b
+        })
+        .sum();
+    let gx = 0.5 * ((levels[1] + levels[3]) - (levels[0] + levels[2]));
+    let gy = 0.5 * ((levels[2] + levels[3]) - (levels[0] + levels[1]));
+    let sigma = noise.sigma(level);
+    Block {
+        shapes: [1.0, (level - lit).max(0.0), level, gx, gy],
+        var: sigma * sigma,
+    }
+}
+
+impl Block {
+    /// Whether the block is away from albedo edges (its level changes by under 2 % per
+    /// pixel): there every group's phase is the pixel centre's, not a mix of differently
+    /// bright neighbours'.
+    fn interior(&self) -> bool {
+        let level = self.shapes[2];
+        self.shapes[3].hypot(self.shapes[4]) < 0.02 * level
+    }
+}
+
+/// The within-group faults (from the residuals) and the phase faults (group, fault) as one
+/// list, one name per disturbance: a light change or jolt the residuals name explains its
+/// group's phase disagreement; a phase fault names what the residuals only call disturbed.
+fn merge(
+    within: Vec<StackFault>,
+    phases: Vec<(usize, StackFault)>,
+    steps: usize,
+) -> Vec<StackFault> {
+    let in_group = |f: &StackFault, g: usize| {
+        let frames = match *f {
+            StackFault::LightChange {
+                first_frame,
+                last_frame,
+                ..
+            }
+            | StackFault::Jolt {
+                first_frame,
+                last_frame,
+                ..
+            }
+            | StackFault::Disturbed {
+                first_frame,
+                last_frame,
+                ..
+            } => first_frame..=last_frame,
+            _ => return false,
+        };
+        frames.start() / steps <= g && g <= frames.end() / steps
+    };
+    let named = |g: usize| {
+        within.iter().any(|f| {
+            matches!(f, StackFault::LightChange { .. } | StackFault::Jolt { .. }) && in_group(f, g)
+        })
+    };
+    let kept: Vec<(usize, StackFault)> = phases.into_iter().filter(|(g, _)| !named(*g)).collect();
+    let explained = |f: &StackFault| {
+        matches!(f, StackFault::Disturbed { .. }) && kept.iter().any(|(g, _)| in_group(f, *g))
+    };
+    let mut out: Vec<StackFault> = within.iter().filter(|f| !explained(f)).cloned().collect();
+    out.extend(kept.into_iter().map(|(_, f)| f));
+    out
+}
+
+/// Consecutive runs of equal keys: (first, last, key) for indices with `Some(key)`.
+pub(super) fn runs<K: PartialEq + Copy>(keys: &[Option<K>]) -> Vec<(usize, usize, K)> {
+    let mut out: Vec<(usize, usize, K)> = Vec::new();
+    for (i, k) in keys.iter().enumerate() {
+        let Some(k) = *k else { continue };
+        match out.last_mut() {
+            Some(last) if last.1 + 1 == i && last.2 == k => last.1 = i,
+            _ => out.push((i, i, k)),
+        }
+    }
+    out
+}

@@ -1,0 +1,218 @@
+//! The stack check against rendered stacks with known faults (docs/design.md §6b): clean
+//! stacks pass with no note, each fault is named with its size.
+
+use super::*;
+use crate::phase::{DecodedStack, Decoder, FrameRef};
+use hexcal_core::pattern::{ProjectorResponse, ProjectorSetup};
+use hexcal_sim::fringe::{Disturbance, FringeScene, Renderer};
+
+fn sequence(p: usize, response: ProjectorResponse) -> Sequence {
+    let setups = vec![
+        ProjectorSetup {
+            width: 1920,
+            height: 1080,
+            response,
+        };
+        p
+    ];
+    Sequence::default_for(&setups).unwrap()
+}
+
+const GAMMA: ProjectorResponse = ProjectorResponse::Gamma { gamma: 2.2 };
+
+/// Decode a `width` × `height` stack of the standard scene whose frame k is disturbed as
+/// `fault(k)` says.
+fn decode(
+    seq: &Sequence,
+    (width, height): (u32, u32),
+    seed: u64,
+    fault: impl Fn(usize) -> Disturbance,
+) -> DecodedStack {
+    let setups: Vec<ProjectorSetup> = seq
+        .projectors()
+        .iter()
+        .map(|c| ProjectorSetup {
+            width: c.width,
+            height: c.height,
+            response: c.response,
+        })
+        .collect();
+    let scene = FringeScene::standard(width, height, &setups, seed);
+    let mut renderer = Renderer::new(&scene, seq);
+    let mut decoder = Decoder::<u8>::new(seq, "cam0", width, height, 255.0).unwrap();
+    for k in 0..seq.frame_count() {
+        let frame = renderer.frame_with(k, &fault(k));
+        decoder.push_frame(k, FrameRef::from(&frame)).unwrap();
+    }
+    decoder.finish().unwrap()
+}
+
+fn clean(p: usize) -> impl Fn(usize) -> Disturbance {
+    move |_| Disturbance::none(p)
+}
+
+fn show(v: &StackVerdict) -> String {
+    format!(
+        "faults: [{}]; notes: [{}]; disturbance max {:.3}; displacement {:?}",
+        v.summary(),
+        v.notes
+            .iter()
+            .map(StackNote::describe)
+            .collect::<Vec<_>>()
+            .join("; "),
+        v.figures.disturbance.iter().cloned().fold(0.0, f64::max),
+        v.figures.displacement
+    )
+}
+
+#[test]
+fn clean_stacks_pass_without_a_note() {
+    for (p, response, seed) in [
+        (3, GAMMA, 1),
+        (3, ProjectorResponse::Linearised { gamma: 2.2 }, 2),
+        (2, ProjectorResponse::Linear, 3),
+        (1, GAMMA, 4),
+    ] {
+        let seq = sequence(p, response);
+        let d = decode(&seq, (480, 384), seed, clean(p));
+        eprintln!("P {p} {response:?}: {}", show(&d.verdict));
+        assert!(d.verdict.passed(), "{}", show(&d.verdict));
+        assert!(d.verdict.notes.is_empty(), "{}", show(&d.verdict));
+    }
+}
+
+#[test]
+fn a_projector_one_frame_late_is_named() {
+    let seq = sequence(3, GAMMA);
+    let d = decode(&seq, (480, 384), 5, |k| {
+        let mut d = Disturbance::none(3);
+        if (31..=33).contains(&k) {
+            d.shown[1] = Some(k - 1);
+        }
+        d
+    });
+    eprintln!("{}", show(&d.verdict));
+    assert_eq!(
+        d.verdict.faults,
+        vec![StackFault::WrongPattern {
+            projector: 1,
+            group: 2,
+            frames: [30, 44],
+            count: 3,
+            offset: -1
+        }],
+        "{}",
+        show(&d.verdict)
+    );
+}
+
+#[test]
+fn a_drifting_board_is_named() {
+    let seq = sequence(3, GAMMA);
+    let k = seq.frame_count() as f64;
+    let d = decode(&seq, (480, 384), 6, |f| Disturbance {
+        shift: [0.2 * f as f64 / k, 0.0],
+        ..Disturbance::none(3)
+    });
+    eprintln!("{}", show(&d.verdict));
+    assert!(
+        d.verdict
+            .faults
+            .iter()
+            .any(|f| matches!(f, StackFault::Motion { px, .. } if (0.1..0.3).contains(px))),
+        "{}",
+        show(&d.verdict)
+    );
+}
+
+#[test]
+fn a_jolt_is_named() {
+    let seq = sequence(3, GAMMA);
+    let d = decode(&seq, (480, 384), 7, |f| Disturbance {
+        shift: [0.0, if f >= 50 { 0.2 } else { 0.0 }],
+        ..Disturbance::none(3)
+    });
+    eprintln!("{}", show(&d.verdict));
+    assert!(!d.verdict.passed(), "{}", show(&d.verdict));
+    assert!(
+        d.verdict
+            .faults
+            .iter()
+            .any(|f| matches!(f, StackFault::Motion { .. } | StackFault::Jolt { .. })),
+        "{}",
+        show(&d.verdict)
+    );
+}
+
+#[test]
+fn flickering_room_light_is_named() {
+    let seq = sequence(3, GAMMA);
+    let d = decode(&seq, (480, 384), 8, |f| Disturbance {
+        ambient: 1.0 + 0.1 * (std::f64::consts::TAU * f as f64 / 7.0).sin(),
+        ..Disturbance::none(3)
+    });
+    eprintln!("{}", show(&d.verdict));
+    assert!(
+        d.verdict
+            .faults
+            .iter()
+            .any(|f| matches!(f, StackFault::LightChange { .. })),
+        "{}",
+        show(&d.verdict)
+    );
+}
+
+#[test]
+fn a_light_step_inside_a_group_fails_and_between_groups_is_a_note() {
+    let seq = sequence(3, GAMMA);
+    let inside = decode(&seq, (480, 384), 9, |f| Disturbance {
+        ambient: if f >= 50 { 1.05 } else { 1.0 },
+        ..Disturbance::none(3)
+    });
+    eprintln!("inside: {}", show(&inside.verdict));
+    assert!(
+        inside
+            .verdict
+            .faults
+            .iter()
+            .any(|f| matches!(f, StackFault::LightChange { .. })),
+        "{}",
+        show(&inside.verdict)
+    );
+    let between = decode(&seq, (480, 384), 9, |f| Disturbance {
+        ambient: if f >= 45 { 1.3 } else { 1.0 },
+        ..Disturbance::none(3)
+    });
+    eprintln!("between: {}", show(&between.verdict));
+    assert!(between.verdict.passed(), "{}", show(&between.verdict));
+    assert!(
+        matches!(
+            between.verdict.notes[..],
+            [StackNote::LightStep {
+                from_group: 2,
+                to_group: 3,
+                ..
+            }]
+        ),
+        "{}",
+        show(&between.verdict)
+    );
+}
+
+#[test]
+fn clipping_is_named() {
+    let seq = sequence(3, GAMMA);
+    let d = decode(&seq, (480, 384), 10, |_| Disturbance {
+        gain: 1.5,
+        ..Disturbance::none(3)
+    });
+    eprintln!("{}", show(&d.verdict));
+    assert!(
+        d.verdict
+            .faults
+            .iter()
+            .any(|f| matches!(f, StackFault::Clipped { fraction } if *fraction > 0.1)),
+        "{}",
+        show(&d.verdict)
+    );
+}
