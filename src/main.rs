@@ -230,6 +230,9 @@ enum Command {
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
+        /// Exit 0 even when the stack fails the stack check (its maps are written either way).
+        #[arg(long)]
+        keep: bool,
     },
     /// Speed benchmarks that print figures (built with `--features bench`).
     #[cfg(feature = "bench")]
@@ -555,10 +558,16 @@ fn execute_other(command: Command) -> anyhow::Result<()> {
             poses,
             auto,
         } => capture(&rig, &out, poses, auto)?,
-        Command::Decode { stack, out } => {
+        Command::Decode { stack, out, keep } => {
             let done = hexcal::app::jobs::decode(&stack, &out)?;
             print!("{done}");
             println!("wrote {} files to {}", done.files.len(), out.display());
+            if !keep && !done.summary.verdict.passed() {
+                anyhow::bail!(
+                    "{}: the stack failed the stack check; capture it again (--keep accepts it)",
+                    stack.display()
+                );
+            }
         }
         Command::Devices => {
             let (all, notes) = hexcal::app::jobs::devices();

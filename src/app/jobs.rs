@@ -92,6 +92,13 @@ impl std::fmt::Display for Decoded {
                 p.noise.sigma_v
             )?;
         }
+        match s.verdict.passed() {
+            true => writeln!(f, "stack check: passed")?,
+            false => writeln!(f, "stack check: FAILED: {}", s.verdict.summary())?,
+        }
+        for note in &s.verdict.notes {
+            writeln!(f, "note: {}", note.describe())?;
+        }
         Ok(())
     }
 }

@@ -15,6 +15,7 @@ use crate::images::{CameraFrame, FloatImage, Pixels};
 use crate::invalid::{Invalid, ValidationError};
 use crate::observations::CameraView;
 use crate::pattern::Sequence;
+use crate::phase::check::StackVerdict;
 use crate::phase::files::decode_dir;
 use crate::phase::{CompactStack, DecodedStack, Decoder, FrameRef};
 use crossbeam_channel::Receiver;
@@ -35,8 +36,11 @@ pub struct StackResult {
     pub projector_points: Vec<usize>,
     /// Why the stack gave nothing, if it did not.
     pub error: Option<String>,
-    /// The labelled view (none when the board was not found).
+    /// The labelled view (none when the board was not found or the stack was refused).
     pub view: Option<CameraView>,
+    /// The stack check's verdict (docs/design.md §6b); none for a camera-only pose.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub verdict: Option<StackVerdict>,
 }
 
 impl StackResult {
@@ -50,8 +54,22 @@ impl StackResult {
             projector_points: vec![0; projectors],
             error: Some(error),
             view: None,
+            verdict: None,
         }
     }
+
+    /// The stack of camera `camera` that failed the stack check: not used.
+    fn refused(camera: &str, projectors: usize, verdict: &StackVerdict) -> StackResult {
+        StackResult {
+            verdict: Some(verdict.clone()),
+            ..StackResult::failed(camera, projectors, refusal(verdict))
+        }
+    }
+}
+
+/// The reason a refused stack gives: its faults, one line.
+pub fn refusal(verdict: &StackVerdict) -> String {
+    format!("stack refused: {}", verdict.summary())
 }
 
 /// The stored plain frame of a camera-only pose (`frame-000.png` in `dir`) as a float image.
@@ -156,7 +174,25 @@ pub fn process_decoded(
         pose,
         first_projector,
     };
-    process_image(&decoded.ambient, &decoded.camera, board, &maps, at)
+    checked(&decoded.verdict, &decoded.camera, maps.len(), || {
+        process_image(&decoded.ambient, &decoded.camera, board, &maps, at)
+    })
+}
+
+/// The stack processed when it passed the stack check (its verdict recorded), else refused.
+fn checked(
+    verdict: &StackVerdict,
+    camera: &str,
+    projectors: usize,
+    process: impl FnOnce() -> StackResult,
+) -> StackResult {
+    if !verdict.passed() {
+        return StackResult::refused(camera, projectors, verdict);
+    }
+    StackResult {
+        verdict: Some(verdict.clone()),
+        ..process()
+    }
 }
 
 /// Detection, grid and projector fits on one camera's compactly held stack: each
@@ -178,7 +214,9 @@ pub fn process_compact(
         pose,
         first_projector,
     };
-    process_image(&stack.ambient, &stack.camera, board, &maps, at)
+    checked(&stack.verdict, &stack.camera, maps.len(), || {
+        process_image(&stack.ambient, &stack.camera, board, &maps, at)
+    })
 }
 
 /// Where a processed image belongs: the camera's device index, the pose, and the device
@@ -234,6 +272,7 @@ pub fn process_image(
         projector_points,
         error: None,
         view,
+        verdict: None,
     }
 }
 
@@ -294,9 +333,10 @@ pub(crate) struct StackJob {
     pub(crate) first_projector: usize,
     /// The pose's turns: one stack at a time finishes its decoder, one at a time is processed.
     pub(crate) turns: std::sync::Arc<Turns>,
-    /// Dropped once the stack is compact (its decoder freed), or on failure: the run waits
-    /// for every camera's before the next pose's decoders fill.
-    pub(crate) decoded: crossbeam_channel::Sender<()>,
+    /// Hears the stack check's verdict once the stack is compact (its decoder freed), then
+    /// dropped (or dropped on failure): the run waits for every camera's before the next
+    /// pose's decoders fill, and captures the pose again when a verdict fails.
+    pub(crate) decoded: crossbeam_channel::Sender<(usize, StackVerdict)>,
 }
 
 /// Decode one camera's stack as its frames arrive on `frames`, then process it.
@@ -368,6 +408,9 @@ pub(crate) fn stack_worker(frames: Receiver<CameraFrame>, job: StackJob) -> Stac
             None => return failed("empty sequence".into()),
         }
     };
+    if let Ok(d) = &decoded {
+        let _ = decoded_signal.send((camera, d.verdict.clone()));
+    }
     drop(decoded_signal);
     let _turn = turns.process.lock().unwrap_or_else(|e| e.into_inner());
     match decoded {

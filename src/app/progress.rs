@@ -64,6 +64,19 @@ pub enum Event {
         /// Why.
         reason: String,
     },
+    /// A camera's stack failed the stack check: the pose is captured again.
+    StackRefused {
+        /// Pose index.
+        pose: usize,
+        /// Camera.
+        camera: String,
+        /// What the check found and what to do.
+        reason: String,
+        /// The capture about to start (2 for the first recapture).
+        attempt: u32,
+        /// Captures in all at most.
+        of: u32,
+    },
     /// A captured pose whose stacks were on disk but not yet processed: processed now.
     Recovered {
         /// Pose index.
@@ -151,6 +164,16 @@ impl std::fmt::Display for Event {
                 camera,
                 reason,
             } => write!(f, "pose {pose}, camera {camera}: {reason}"),
+            Event::StackRefused {
+                pose,
+                camera,
+                reason,
+                attempt,
+                of,
+            } => write!(
+                f,
+                "{camera}, pose {pose}: {reason}; capturing again ({attempt} of {of})"
+            ),
             Event::Recovered { pose } => {
                 write!(
                     f,

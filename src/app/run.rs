@@ -10,7 +10,9 @@
 
 use super::calibrate::{devices_of, finish, Collected};
 use super::capture::{prepare, LoadedRig, PlaceBoard, Prepared};
-use super::process::{process_stored, stack_worker, PoseViews, StackJob, StackResult, Turns};
+use super::process::{
+    process_stored, refusal, stack_worker, PoseViews, StackJob, StackResult, Turns,
+};
 use super::progress::{Event, Outcome};
 use super::truth::{check_truth, format_truth};
 use super::AppError;
@@ -158,6 +160,13 @@ impl Coverage {
     }
 }
 
+/// A camera's stack that failed the stack check, as `refused.json` records it.
+#[derive(Clone, Debug, serde::Serialize)]
+struct RefusedStack {
+    camera: String,
+    verdict: crate::phase::check::StackVerdict,
+}
+
 /// What the background processing of one pose sends back.
 struct Processed {
     views: PoseViews,
@@ -193,6 +202,7 @@ pub fn run(
     let world = opened.world.clone();
     let mut stream = Stream::new(data, &opened, poses, held_from, events);
     stream.views_tap = options.views_tap.clone();
+    stream.retries = rig.timing.stack_retries;
     stream.resume()?;
     let mut session = Session::start(opened.devices, &opened.sequence)?;
     stream.data.record_formats(&session.pixel_formats())?;
@@ -363,7 +373,7 @@ fn preview_rounds(session: &mut Session, tap: &PreviewFn, quit: &AtomicBool) {
 type StackWorkers = (
     Vec<Sender<CameraFrame>>,
     Vec<JoinHandle<StackResult>>,
-    Receiver<()>,
+    Receiver<(usize, crate::phase::check::StackVerdict)>,
 );
 
 /// A run between poses: the dataset, every pose's views so far, and the one pose whose
@@ -378,6 +388,8 @@ struct Stream<'e> {
     warnings: Vec<String>,
     events: &'e mut dyn FnMut(&Event),
     views_tap: Option<ViewsTap>,
+    /// Recaptures of a pose whose stack fails the stack check.
+    retries: u32,
     done_tx: Sender<Result<Processed, AppError>>,
     done_rx: Receiver<Result<Processed, AppError>>,
     in_flight: Option<JoinHandle<()>>,
@@ -416,6 +428,7 @@ impl<'e> Stream<'e> {
             warnings: Vec::new(),
             events,
             views_tap: None,
+            retries: 0,
             done_tx,
             done_rx,
             in_flight: None,
@@ -471,14 +484,56 @@ impl<'e> Stream<'e> {
         Ok(())
     }
 
-    /// Capture pose `k`, every frame going to its camera's decoding thread (and to disk with
-    /// `keep_stacks`); then hand the pose over to processing while the next is captured.
+    /// Capture pose `k` and hand it over to processing while the next is captured; a pose
+    /// with a stack that fails the stack check is set aside (`pose-KKK.refused-N`) and
+    /// captured again, up to `[timing] stack_retries` times, then kept without that stack.
     fn capture_pose(
         &mut self,
         session: &mut Session,
         k: usize,
         options: &RunOptions,
     ) -> Result<Timeline, AppError> {
+        let mut attempt = 1;
+        loop {
+            let (timeline, workers, info, refused) = self.capture_once(session, k, options)?;
+            if refused.is_empty() || attempt > self.retries {
+                self.hand_over(k, workers, info)?;
+                return Ok(timeline);
+            }
+            attempt += 1;
+            for w in workers {
+                w.join().map_err(|_| AppError::Thread("a stack thread"))?;
+            }
+            for r in &refused {
+                (self.events)(&Event::StackRefused {
+                    pose: k,
+                    camera: r.camera.clone(),
+                    reason: refusal(&r.verdict),
+                    attempt,
+                    of: self.retries + 1,
+                });
+            }
+            self.data.refuse(k, &refused)?;
+        }
+    }
+
+    /// Capture pose `k` once, every frame going to its camera's decoding thread (and to
+    /// disk with `keep_stacks`); gives the timeline, the stack threads, the pose's record
+    /// and the stacks whose check failed.
+    fn capture_once(
+        &mut self,
+        session: &mut Session,
+        k: usize,
+        options: &RunOptions,
+    ) -> Result<
+        (
+            Timeline,
+            Vec<JoinHandle<StackResult>>,
+            PoseInfo,
+            Vec<RefusedStack>,
+        ),
+        AppError,
+    > {
         // A camera-only pose is one frame per camera: always kept (docs/dataset.md).
         let keep_stacks = options.keep_stacks || self.sequence.is_camera_only();
         let (senders, workers, decoded) = self.spawn_stack_workers(k)?;
@@ -518,9 +573,15 @@ impl<'e> Stream<'e> {
         });
         // The next pose's decoders start filling only once this pose's are compact: the
         // capture of pose k + 1 overlaps the processing of pose k, not its decoding.
-        while decoded.recv().is_ok() {}
-        self.hand_over(k, workers, info)?;
-        Ok(timeline)
+        let refused = decoded
+            .iter()
+            .filter(|(_, v)| !v.passed())
+            .map(|(c, verdict)| RefusedStack {
+                camera: self.data.info.cameras[c].name.clone(),
+                verdict,
+            })
+            .collect();
+        Ok((timeline, workers, info, refused))
     }
 
     /// One decoding thread per camera for pose `k`, fed frame by frame.

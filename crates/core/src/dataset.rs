@@ -853,6 +853,22 @@ impl Dataset {
         Ok(Leftover::Unsaved { kept: Some(kept) })
     }
 
+    /// Set aside the captured pose `pose` whose stacks failed the stack check: `refused`
+    /// (the verdicts) is written into its folder as `refused.json`, and the folder moved
+    /// whole to `pose-KKK.refused-N` (kept, never overwritten), so the pose can be captured
+    /// again into an empty folder. Gives where it went.
+    pub fn refuse<T: Serialize>(&self, pose: usize, refused: &T) -> Result<PathBuf, DatasetError> {
+        let dir = self.pose_dir(pose);
+        std::fs::create_dir_all(&dir).map_err(io(&dir))?;
+        self.write_pose_file(pose, "refused.json", refused)?;
+        let kept = (1..)
+            .map(|n| dir.with_file_name(format!("pose-{pose:03}.refused-{n}")))
+            .find(|p| !p.exists())
+            .expect("a free name");
+        std::fs::rename(&dir, &kept).map_err(io(&dir))?;
+        Ok(kept)
+    }
+
     /// Remove temporary files a killed writer left (`.NAME.tmpPID` of another process) in
     /// the pose folders; they never held a finished file. Gives how many were removed.
     pub fn remove_stale_temporaries(&self) -> Result<usize, DatasetError> {

@@ -343,13 +343,18 @@ impl StackRenderer {
         &self.truth[p]
     }
 
-    /// The projectors' noise-free irradiance of frame k inside `lit_box` (DN, before the
-    /// sensor; box-sized, row-major).
-    fn projector_irradiance(&self, k: usize, [x0, y0, x1, y1]: [usize; 4]) -> Vec<f32> {
-        let frame = self
-            .sequence
-            .frame(k)
-            .expect("frame index within the sequence");
+    /// The projectors' noise-free irradiance inside `lit_box` when projector p shows pattern
+    /// `shown[p]` (all of one fringe group) (DN, before the sensor; box-sized, row-major).
+    fn projector_irradiance(&self, shown: &[usize], [x0, y0, x1, y1]: [usize; 4]) -> Vec<f32> {
+        let frames: Vec<_> = shown
+            .iter()
+            .map(|&k| {
+                self.sequence
+                    .frame(k)
+                    .expect("frame index within the sequence")
+            })
+            .collect();
+        let frame = frames[0];
         let n = self.sequence.steps();
         let mut cache = self.phases.lock().unwrap_or_else(|e| e.into_inner());
         if cache.group != Some(frame.group) {
@@ -361,7 +366,8 @@ impl StackRenderer {
             .sequence
             .projectors()
             .iter()
-            .map(|code| {
+            .zip(&frames)
+            .map(|(code, frame)| {
                 let shift = 2.0 * std::f64::consts::PI * f64::from(code.frequency * frame.step % n)
                     / f64::from(n);
                 (
@@ -402,8 +408,20 @@ impl StackRenderer {
 
     /// Frame k of the stack.
     pub fn frame(&self, k: usize) -> Frame {
+        self.frame_showing(k, &vec![k; self.truth.len()])
+    }
+
+    /// Frame k of the stack with projector p showing pattern `shown[p]` instead (a display
+    /// lag, a dropped or repeated frame); the patterns must be of frame k's fringe group.
+    pub fn frame_showing(&self, k: usize, shown: &[usize]) -> Frame {
+        let group = |j: usize| self.sequence.frame(j).map(|f| f.group);
+        let own = |j: &usize| group(*j) == group(k);
+        let shown: Vec<usize> = match shown.len() == self.truth.len() && shown.iter().all(own) {
+            true => shown.to_vec(),
+            false => vec![k; self.truth.len()],
+        };
         self.expose(
-            |b| self.projector_irradiance(k, b),
+            |b| self.projector_irradiance(&shown, b),
             self.seed.wrapping_add(1 + k as u64),
         )
     }

@@ -249,11 +249,22 @@ pub struct TimingSpec {
     /// Repeats of every frame (averaged).
     #[serde(default = "default_repeats")]
     pub repeats: u32,
+    /// How many times `run` captures a pose again when a camera's stack fails the stack
+    /// check (docs/design.md §6b); then the pose is kept without that camera's stack.
+    #[serde(default = "default_stack_retries")]
+    pub stack_retries: u32,
 }
 
 fn default_repeats() -> u32 {
     1
 }
+
+fn default_stack_retries() -> u32 {
+    2
+}
+
+/// Most recaptures of one pose after a failed stack check.
+pub const MAX_STACK_RETRIES: u32 = 10;
 
 /// Board poses of a simulated rig: `count` poses turned about the vertical by up to ±`yaw`
 /// degrees, tilted and rolled by up to ±`tilt` degrees, moved by up to ±`shift` mm, seeded.
@@ -275,6 +286,41 @@ pub struct PosesSpec {
     /// testing how a run reports a pose nobody saw.
     #[serde(default)]
     pub absent: Vec<usize>,
+    /// Faults the simulator injects into poses' stacks, for testing the stack check.
+    #[serde(default)]
+    pub faults: Vec<SimFault>,
+}
+
+/// A fault the simulated rig shows in one pose's stacks (docs/rig-file.md).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimFault {
+    /// The pose.
+    pub pose: usize,
+    /// How many captures of the pose show it (1: the first; a recapture is clean).
+    #[serde(default = "default_fault_attempts")]
+    pub attempts: u32,
+    /// Every camera's gain multiplied by this (white clips above about 1.1).
+    #[serde(default)]
+    pub gain: Option<f64>,
+    /// A projector one frame late: it shows the previous frame's pattern in these frames
+    /// (first, last; within one fringe group).
+    #[serde(default)]
+    pub lag: Option<LagSpec>,
+}
+
+/// A projector showing the previous frame's pattern over a run of frames.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LagSpec {
+    /// The projector (rig-file order of the simulated projectors).
+    pub projector: usize,
+    /// First and last frame affected.
+    pub frames: [usize; 2],
+}
+
+fn default_fault_attempts() -> u32 {
+    1
 }
 
 /// The console's done rule (`hexcal run --console`, docs/design.md §15).
@@ -607,6 +653,12 @@ impl RigFile {
                 format!("{} repeats: 1 to {}", t.repeats, limits::MAX_REPEATS),
             ));
         }
+        if t.stack_retries > MAX_STACK_RETRIES {
+            return Err(ValidationError::new(
+                at("stack_retries"),
+                format!("{}: at most {MAX_STACK_RETRIES}", t.stack_retries),
+            ));
+        }
         Ok(())
     }
 
@@ -805,8 +857,34 @@ impl RigFile {
                 format!("pose {k} is out of range (count = {})", p.count),
             ));
         }
+        for (i, f) in p.faults.iter().enumerate() {
+            check_fault(f, p.count, self.projectors.len())
+                .map_err(|m| ValidationError::new(format!("poses.faults[{i}]"), m))?;
+        }
         Ok(())
     }
+}
+
+/// A simulated fault: its pose and projector in range, a gain between 0 and 100, frames in
+/// order.
+fn check_fault(f: &SimFault, poses: usize, projectors: usize) -> Result<(), String> {
+    if f.pose >= poses {
+        return Err(format!("pose {} is out of range (count = {poses})", f.pose));
+    }
+    if let Some(g) = f.gain {
+        if !(g.is_finite() && g > 0.0 && g <= 100.0) {
+            return Err(format!("gain {g}: a factor between 0 and 100"));
+        }
+    }
+    if let Some(l) = f.lag {
+        if l.projector >= projectors {
+            return Err(format!("lag.projector {} of {projectors}", l.projector));
+        }
+        if l.frames[0] > l.frames[1] {
+            return Err(format!("lag.frames {:?}: first after last", l.frames));
+        }
+    }
+    Ok(())
 }
 
 /// A simulated device's ground truth: intrinsics and distortion as [`Intrinsics::check`]

@@ -86,6 +86,8 @@ pub struct SimWorld {
     pub board_poses: Vec<Isometry3<f64>>,
     /// What each simulated camera delivers, in the order of `cameras`.
     pub formats: Vec<SimFormat>,
+    /// Faults injected into poses' stacks.
+    pub faults: Vec<super::file::SimFault>,
     imaging: Imaging,
     state: Mutex<State>,
     /// Trigger pulses on the cameras' lines so far (see [`WiredTrigger`]).
@@ -206,6 +208,10 @@ impl SimWorld {
         };
         Ok(SimWorld {
             board,
+            faults: rig
+                .poses
+                .as_ref()
+                .map_or_else(Vec::new, |p| p.faults.clone()),
             board_poses: poses,
             state: Mutex::new(State {
                 pose: 0,
@@ -279,6 +285,7 @@ impl SimWorld {
                 pulses_seen: 0,
                 faults: Faults::default(),
                 balance: BayerBalance::default(),
+                attempts: Default::default(),
             })
             .collect();
         let projs = (0..self.projectors.len())
@@ -395,6 +402,8 @@ pub struct SimCamera {
     faults: Faults,
     /// White balance of a Bayer camera, held from `start` to `stop` as the drivers do.
     balance: BayerBalance,
+    /// Per pose, the captures of its sequence begun so far (for [`SimWorld::faults`]).
+    attempts: std::collections::BTreeMap<usize, u32>,
 }
 
 impl SimCamera {
@@ -613,11 +622,24 @@ impl SimCamera {
         let Some((_, _, renderer)) = &self.renderer else {
             unreachable!("set above")
         };
+        if what == Showing::Pattern(0) {
+            *self.attempts.entry(state.pose).or_default() += 1;
+        }
+        let attempt = self.attempts.get(&state.pose).copied().unwrap_or(0);
+        let faults: Vec<&super::file::SimFault> = (self.world.faults.iter())
+            .filter(|f| f.pose == state.pose && attempt <= f.attempts)
+            .collect();
         let mut frame = match what {
-            Showing::Pattern(k) => renderer.frame(k),
+            Showing::Pattern(k) => renderer.frame_showing(k, &lagged(k, &faults, &sequence)),
             Showing::Flat(white) => renderer.flat_frame(white, self.counter),
         };
         self.brighten(&mut frame.data, frame.bits);
+        if let Some(gain) = faults.iter().find_map(|f| f.gain) {
+            let full = f64::from((1u32 << frame.bits) - 1);
+            for v in &mut frame.data {
+                *v = (f64::from(*v) * gain).round().min(full) as u16;
+            }
+        }
         let counter = self.counter;
         self.counter += 1;
         if self.faults.drop_every.is_some_and(|n| counter % n == n - 1) {
@@ -676,6 +698,20 @@ impl SimCamera {
             }
         }
     }
+}
+
+/// The pattern each projector shows in frame k under `faults`: the previous frame's for a
+/// lagged projector in its frames, else frame k's.
+fn lagged(k: usize, faults: &[&super::file::SimFault], sequence: &Sequence) -> Vec<usize> {
+    let mut shown = vec![k; sequence.projectors().len()];
+    for lag in faults.iter().filter_map(|f| f.lag) {
+        if (lag.frames[0]..=lag.frames[1]).contains(&k) && k > 0 {
+            if let Some(p) = shown.get_mut(lag.projector) {
+                *p = k - 1;
+            }
+        }
+    }
+    shown
 }
 
 /// The relative response to the simulator's white light of a Bayer sensor's red, green

@@ -81,6 +81,8 @@ pub struct DecodeSummary {
     pub saturated_fraction: f64,
     /// Per projector.
     pub projectors: Vec<ProjectorSummary>,
+    /// The stack check's verdict (docs/design.md §6b).
+    pub verdict: super::check::StackVerdict,
 }
 
 impl DecodeSummary {
@@ -104,6 +106,7 @@ impl DecodeSummary {
                     noise: m.noise,
                 })
                 .collect(),
+            verdict: decoded.verdict.clone(),
         }
     }
 }
