@@ -153,6 +153,15 @@ pub enum Bench {
         #[arg(long, default_value_t = 2)]
         poses: usize,
     },
+    /// The stack check's false alarms on clean simulated stacks of varied scenes.
+    Check {
+        /// Stacks to decode.
+        #[arg(long, default_value_t = 1000)]
+        stacks: usize,
+        /// Seed of the scenes.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// Decode one camera's default phase-shift stack (synthetic scene, gamma 2.2).
     Decode {
         /// Camera width (px).
@@ -296,6 +305,20 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
                 None => {}
             }
         }
+        Bench::Check { stacks, seed } => {
+            let r = hexcal::bench::check::bench_check(stacks, seed);
+            for line in r.refused.iter().chain(&r.noted).take(20) {
+                println!("{line}");
+            }
+            println!(
+                "stack check on {} clean stacks: {} refused, {} with a note; {:.1} s ({:.2} s per stack)",
+                r.stacks,
+                r.refused.len(),
+                r.noted.len(),
+                r.seconds,
+                r.seconds / r.stacks.max(1) as f64
+            );
+        }
         Bench::Decode {
             width,
             height,
@@ -340,6 +363,18 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
                     a.valid, a.compared, a.rms_u, a.rms_v, a.predicted_u, a.predicted_v, a.gross
                 );
             }
+            let mut walls: Vec<f64> = r.runs.iter().map(|run| run.wall_seconds).collect();
+            walls.sort_by(f64::total_cmp);
+            let median = walls[walls.len() / 2];
+            println!(
+                "stack check {:.3} s alone ({:.1} % of the median decode {median:.3} s, which includes it); verdict: {}",
+                r.check_seconds,
+                100.0 * r.check_seconds / median,
+                match r.verdict.passed() {
+                    true => "passed".to_string(),
+                    false => r.verdict.summary(),
+                }
+            );
         }
     }
     Ok(())

@@ -128,6 +128,7 @@ fn dataset_files(corpus: &Path) -> io::Result<()> {
                 projector_points: vec![POINTS_PER_VIEW; info.projectors.len()],
                 error: None,
                 view,
+                verdict: Some(hexcal::phase::check::StackVerdict::unchecked()),
             }
         })
         .collect();

@@ -128,6 +128,9 @@ impl crate::dataset::PoseFile for PoseViews {
                     ),
                 ));
             }
+            if let Some(v) = &s.verdict {
+                v.check().map_err(|e| e.within(format!("stacks[{c}]")))?;
+            }
             let Some(view) = &s.view else { continue };
             let camera = |i: usize| match i == c {
                 true => Ok(()),

@@ -167,6 +167,15 @@ struct RefusedStack {
     verdict: crate::phase::check::StackVerdict,
 }
 
+/// One capture of a pose: its timeline, its stack threads, its record and the stacks whose
+/// check failed.
+struct Attempt {
+    timeline: Timeline,
+    workers: Vec<JoinHandle<StackResult>>,
+    info: PoseInfo,
+    refused: Vec<RefusedStack>,
+}
+
 /// What the background processing of one pose sends back.
 struct Processed {
     views: PoseViews,
@@ -495,7 +504,12 @@ impl<'e> Stream<'e> {
     ) -> Result<Timeline, AppError> {
         let mut attempt = 1;
         loop {
-            let (timeline, workers, info, refused) = self.capture_once(session, k, options)?;
+            let Attempt {
+                timeline,
+                workers,
+                info,
+                refused,
+            } = self.capture_once(session, k, options)?;
             if refused.is_empty() || attempt > self.retries {
                 self.hand_over(k, workers, info)?;
                 return Ok(timeline);
@@ -525,15 +539,7 @@ impl<'e> Stream<'e> {
         session: &mut Session,
         k: usize,
         options: &RunOptions,
-    ) -> Result<
-        (
-            Timeline,
-            Vec<JoinHandle<StackResult>>,
-            PoseInfo,
-            Vec<RefusedStack>,
-        ),
-        AppError,
-    > {
+    ) -> Result<Attempt, AppError> {
         // A camera-only pose is one frame per camera: always kept (docs/dataset.md).
         let keep_stacks = options.keep_stacks || self.sequence.is_camera_only();
         let (senders, workers, decoded) = self.spawn_stack_workers(k)?;
@@ -581,7 +587,12 @@ impl<'e> Stream<'e> {
                 verdict,
             })
             .collect();
-        Ok((timeline, workers, info, refused))
+        Ok(Attempt {
+            timeline,
+            workers,
+            info,
+            refused,
+        })
     }
 
     /// One decoding thread per camera for pose `k`, fed frame by frame.

@@ -3,6 +3,7 @@
 
 use crate::pattern::{ProjectorResponse, ProjectorSetup, Sequence};
 use crate::phase::accuracy::{accuracy, ProjectorAccuracy};
+use crate::phase::check::{CheckParams, StackSampler};
 use crate::phase::{Decoder, FrameRef};
 use crate::sim::fringe::{FringeScene, Renderer};
 
@@ -37,6 +38,11 @@ pub struct DecodeBench {
     pub peak_growth_bytes: Option<usize>,
     /// Accuracy of the last decode against the ground truth.
     pub accuracy: Vec<ProjectorAccuracy>,
+    /// Seconds the stack check takes alone (its frame sampling and its verdict), which
+    /// each decode above includes.
+    pub check_seconds: f64,
+    /// The last decode's verdict on the (clean) stack.
+    pub verdict: crate::phase::check::StackVerdict,
 }
 
 /// CPU time of this process so far, user + system (Linux only).
@@ -109,6 +115,13 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
         }
     }
     let decoded = last.expect("at least one decode");
+    let t2 = std::time::Instant::now();
+    let mut sampler = StackSampler::new(&seq, width, height, 255.0);
+    for (k, f) in frames.iter().enumerate() {
+        sampler.push(k, &FrameRef::from(f));
+    }
+    drop(sampler.verdict(&CheckParams::default()));
+    let check_seconds = t2.elapsed().as_secs_f64();
     let npx = width as usize * height as usize;
     let output_bytes = npx * (4 + 1 + projectors * (4 * 4 + 1));
     let truth = renderer.truth();
@@ -121,5 +134,7 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
         output_bytes,
         peak_growth_bytes,
         accuracy: accuracy(&decoded, &truth, &seq),
+        check_seconds,
+        verdict: decoded.verdict,
     }
 }

@@ -3,6 +3,7 @@
 
 pub mod calib;
 pub mod capture;
+pub mod check;
 pub mod decode;
 pub mod detect;
 pub mod detect_grid;

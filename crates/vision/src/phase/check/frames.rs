@@ -84,15 +84,21 @@ pub(super) fn judge(
         faults.push(StackFault::Clipped { fraction: clipped });
     }
     stack.modulation_notes(sampler.full_scale, params, &mut notes);
+    // A figure of a stack with nothing usable (every block clipped) may be 0/0: kept as 0.
+    let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
     StackVerdict {
         faults,
         notes,
         figures: CheckFigures {
             samples: stack.fits.len(),
-            noise: stack.noise,
-            displacement,
-            disturbance,
-            clipped,
+            noise: NoiseModel {
+                offset: finite(stack.noise.offset),
+                slope: finite(stack.noise.slope),
+                floor: finite(stack.noise.floor),
+            },
+            displacement: displacement.iter().map(|d| d.map(finite)).collect(),
+            disturbance: disturbance.into_iter().map(finite).collect(),
+            clipped: finite(clipped),
         },
     }
 }

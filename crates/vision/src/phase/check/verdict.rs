@@ -256,6 +256,23 @@ impl StackVerdict {
         self.faults.is_empty()
     }
 
+    /// Every figure finite (a verdict read back from a file).
+    pub fn check(&self) -> Result<(), hexcal_core::ValidationError> {
+        let f = &self.figures;
+        let n = [f.noise.offset, f.noise.slope, f.noise.floor, f.clipped];
+        let all = n
+            .iter()
+            .chain(f.displacement.iter().flatten())
+            .chain(&f.disturbance);
+        match all.clone().all(|v| v.is_finite()) {
+            true => Ok(()),
+            false => Err(hexcal_core::ValidationError::new(
+                "verdict.figures",
+                "a figure is not a finite number",
+            )),
+        }
+    }
+
     /// The faults, one line each joined by "; " (empty when it passed).
     pub fn summary(&self) -> String {
         self.faults

@@ -1,7 +1,7 @@
-//! Per frame (docs/design.md §6b, eq. 6b.4–6b.6): the residual of the group's phase-shift
-//! model, regressed on the shapes (light changing or the board jolting within a group); what
-//! stays unexplained is tested against "projector p shows frame j's pattern"; a group whose
-//! frames are disturbed by more than the budget fails.
+//! Per frame (docs/design.md §6b, eq. 6b.4): the residual of the group's phase-shift
+//! model, regressed on the shapes (light changing or the board jolting within a group), and
+//! what stays unexplained measured against the median frame's; a group whose frames are
+//! disturbed by more than the budget fails.
 
 use super::{runs, Stack, StackFault};
 use crate::phase::check::CheckParams;
