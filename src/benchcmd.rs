@@ -161,6 +161,9 @@ pub enum Bench {
         /// Seed of the scenes.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// The first stack decoded (the scenes before it are drawn, not decoded).
+        #[arg(long, default_value_t = 0)]
+        from: usize,
     },
     /// Decode one camera's default phase-shift stack (synthetic scene, gamma 2.2).
     Decode {
@@ -305,8 +308,8 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
                 None => {}
             }
         }
-        Bench::Check { stacks, seed } => {
-            let r = hexcal::bench::check::bench_check(stacks, seed);
+        Bench::Check { stacks, seed, from } => {
+            let r = hexcal::bench::check::bench_check(stacks, seed, from);
             for line in r.refused.iter().chain(&r.noted).take(20) {
                 println!("{line}");
             }
@@ -366,10 +369,19 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
             let mut walls: Vec<f64> = r.runs.iter().map(|run| run.wall_seconds).collect();
             walls.sort_by(f64::total_cmp);
             let median = walls[walls.len() / 2];
+            let mut cpus: Vec<f64> = (r.runs.iter())
+                .filter_map(|run| Some(run.push_cpu_seconds? + run.finish_cpu_seconds?))
+                .collect();
+            cpus.sort_by(f64::total_cmp);
+            let cpu_median = cpus.get(cpus.len() / 2).copied();
             println!(
-                "stack check {:.3} s alone ({:.1} % of the median decode {median:.3} s, which includes it); verdict: {}",
+                "stack check {:.3} s wall alone ({:.1} % of the median decode {median:.3} s, which includes it); CPU {} ({} of a decode's median CPU); verdict: {}",
                 r.check_seconds,
                 100.0 * r.check_seconds / median,
+                r.check_cpu_seconds.map_or("n/a".into(), |c| format!("{c:.2} s")),
+                r.check_cpu_seconds
+                    .zip(cpu_median)
+                    .map_or("n/a".into(), |(c, d)| format!("{:.1} %", 100.0 * c / d)),
                 match r.verdict.passed() {
                     true => "passed".to_string(),
                     false => r.verdict.summary(),

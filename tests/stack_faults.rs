@@ -25,6 +25,7 @@ fn a_run_names_spoiled_stacks_captures_them_again_and_calibrates() {
         &out,
         &RunOptions {
             held_out: 1,
+            keep_stacks: true,
             ..RunOptions::default()
         },
         &mut |k, world| {
@@ -81,4 +82,42 @@ fn a_run_names_spoiled_stacks_captures_them_again_and_calibrates() {
         };
         assert!(row.rms <= limit, "{}: RMS {} px", row.name, row.rms);
     }
+    for t in &outcome.truth {
+        assert!(
+            t.focal_error <= 1e-3,
+            "{}: focal error {}",
+            t.name,
+            t.focal_error
+        );
+    }
+    let length = hexcal::report::verification_rms(&outcome.verification).unwrap();
+    assert!(length <= 0.1, "held-out length RMS {length} mm");
+    // `hexcal decode` on the refused capture of the late projector names it and exits 1;
+    // with --keep it accepts it.
+    let stack = out.join("pose-001.refused-1/cam2");
+    let d = cli::hexcal(&[
+        "decode",
+        stack.to_str().unwrap(),
+        "--out",
+        dir.join("d").to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&d.stdout);
+    assert_eq!(d.status.code(), Some(1), "{stdout}");
+    assert!(
+        stdout.contains("stack check: FAILED: projector 1 showed"),
+        "{stdout}"
+    );
+    let kept = cli::hexcal(&[
+        "decode",
+        stack.to_str().unwrap(),
+        "--out",
+        dir.join("k").to_str().unwrap(),
+        "--keep",
+    ]);
+    assert!(
+        kept.status.success(),
+        "{}",
+        String::from_utf8_lossy(&kept.stderr)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }

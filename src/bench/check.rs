@@ -20,13 +20,18 @@ pub struct CheckBench {
     pub seconds: f64,
 }
 
-/// Decode `stacks` clean stacks of scenes drawn from `seed` and count the check's verdicts.
-pub fn bench_check(stacks: usize, seed: u64) -> CheckBench {
+/// Decode `stacks` clean stacks of scenes drawn from `seed`, from stack `from` on (the scenes
+/// before it drawn, not decoded: one stack can be looked at again alone), and count the
+/// check's verdicts.
+pub fn bench_check(stacks: usize, seed: u64, from: usize) -> CheckBench {
     let t = std::time::Instant::now();
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let mut out = CheckBench::default();
-    for i in 0..stacks {
+    for i in 0..from + stacks {
         let (scene, seq, label) = draw(&mut rng, i as u64);
+        if i < from {
+            continue;
+        }
         let mut renderer = Renderer::new(&scene, &seq);
         let mut decoder = Decoder::<u8>::new(&seq, "bench", scene.width, scene.height, 255.0)
             .expect("a valid frame format");

@@ -41,6 +41,8 @@ pub struct DecodeBench {
     /// Seconds the stack check takes alone (its frame sampling and its verdict), which
     /// each decode above includes.
     pub check_seconds: f64,
+    /// CPU seconds of the same (all threads; Linux).
+    pub check_cpu_seconds: Option<f64>,
     /// The last decode's verdict on the (clean) stack.
     pub verdict: crate::phase::check::StackVerdict,
 }
@@ -115,6 +117,7 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
         }
     }
     let decoded = last.expect("at least one decode");
+    let cpu0 = process_cpu_seconds();
     let t2 = std::time::Instant::now();
     let mut sampler = StackSampler::new(&seq, width, height, 255.0);
     for (k, f) in frames.iter().enumerate() {
@@ -122,6 +125,7 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
     }
     drop(sampler.verdict(&CheckParams::default()));
     let check_seconds = t2.elapsed().as_secs_f64();
+    let check_cpu_seconds = cpu0.zip(process_cpu_seconds()).map(|(a, b)| b - a);
     let npx = width as usize * height as usize;
     let output_bytes = npx * (4 + 1 + projectors * (4 * 4 + 1));
     let truth = renderer.truth();
@@ -135,6 +139,7 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
         peak_growth_bytes,
         accuracy: accuracy(&decoded, &truth, &seq),
         check_seconds,
+        check_cpu_seconds,
         verdict: decoded.verdict,
     }
 }

@@ -107,7 +107,7 @@ impl<'a> Stack<'a> {
     /// Fit every sampled pixel (on all cores), measure the noise, form the blocks' shapes.
     fn fit(sampler: &StackSampler, model: &'a GroupFits) -> Stack<'a> {
         let k = sampler.seq.frame_count();
-        let mut residuals = sampler.samples.clone();
+        let mut residuals = sampler.series();
         let fits: Vec<PixelFit> = residuals
             .par_chunks_mut(k)
             .map(|series| model.fit(series))
@@ -149,28 +149,28 @@ impl<'a> Stack<'a> {
     /// Regress a per-block target on the shapes with per-block variances: the coefficients,
     /// their covariance, and the sum of squares they explain (in units of the variances).
     fn regress(&self, target: impl Fn(usize) -> f64, var: impl Fn(&Block) -> f64) -> Fit {
-        let mut ata = SMatrix::<f64, SHAPES, SHAPES>::zeros();
         let mut atb = SVector::<f64, SHAPES>::zeros();
         for (b, blk) in self.usable() {
-            let x = SVector::<f64, SHAPES>::from(blk.shapes);
-            let w = 1.0 / var(blk);
-            ata += w * x * x.transpose();
-            atb += w * target(b) * x;
+            atb += target(b) / var(blk) * SVector::<f64, SHAPES>::from(blk.shapes);
         }
-        // Scale to unit diagonal, then a pseudo-inverse: shapes the image cannot tell
-        // apart (no unlit region, a flat image) get no coefficient rather than a wild one.
+        Fit::new(self.covariance(var), atb)
+    }
+
+    /// (Σ_b x_b x_bᵀ / var_b)⁻¹ over the usable blocks' shapes x_b: scaled to unit diagonal,
+    /// then a pseudo-inverse, so shapes the image cannot tell apart (no unlit region, a flat
+    /// image) get no coefficient rather than a wild one.
+    fn covariance(&self, var: impl Fn(&Block) -> f64) -> SMatrix<f64, SHAPES, SHAPES> {
+        let mut ata = SMatrix::<f64, SHAPES, SHAPES>::zeros();
+        for (_, blk) in self.usable() {
+            let x = SVector::<f64, SHAPES>::from(blk.shapes);
+            ata += x * x.transpose() / var(blk);
+        }
         let d = SVector::<f64, SHAPES>::from_fn(|i, _| 1.0 / ata[(i, i)].max(1e-300).sqrt());
         let scaled = SMatrix::<f64, SHAPES, SHAPES>::from_fn(|i, j| ata[(i, j)] * d[i] * d[j]);
         let cov_s = scaled
             .pseudo_inverse(1e-9)
             .unwrap_or_else(|_| SMatrix::zeros());
-        let cov = SMatrix::<f64, SHAPES, SHAPES>::from_fn(|i, j| cov_s[(i, j)] * d[i] * d[j]);
-        let coef = cov * atb;
-        Fit {
-            explained: coef.dot(&atb),
-            coef,
-            cov,
-        }
+        SMatrix::<f64, SHAPES, SHAPES>::from_fn(|i, j| cov_s[(i, j)] * d[i] * d[j])
     }
 }
 
@@ -183,6 +183,16 @@ struct Fit {
 }
 
 impl Fit {
+    /// The fit of right-hand side Σ_b x_b·target_b/var_b with covariance `cov`.
+    fn new(cov: SMatrix<f64, SHAPES, SHAPES>, atb: SVector<f64, SHAPES>) -> Fit {
+        let coef = cov * atb;
+        Fit {
+            explained: coef.dot(&atb),
+            coef,
+            cov,
+        }
+    }
+
     /// The displacement it implies (the image moved by d: Δ ≈ −∇A·d) and its standard
     /// error (camera px).
     fn displacement(&self) -> ([f64; 2], [f64; 2]) {

@@ -2,7 +2,7 @@
 //! phase-shift model and noise, on the decoder's pass over the frames.
 //!
 //! Takes the frames as the decoder receives them; keeps every sample of a sparse set of
-//! 2 × 2 pixel blocks on a grid (at most [`MAX_BLOCKS`]: ≈ 23 MB for 90 frames); gives a
+//! 2 × 2 pixel blocks on a grid (at most [`MAX_BLOCKS`]: ≈ 12 MB for 90 frames); gives a
 //! [`StackVerdict`]: the faults that make the stack unusable (motion, a projector showing
 //! another frame's pattern, light changing within a group, unexplained disturbance,
 //! clipping), each named with its size, and harmless notes (a light step between groups,
@@ -34,7 +34,7 @@ use fit::GroupFits;
 use hexcal_core::pattern::Sequence;
 
 /// Most 2 × 2 blocks sampled.
-pub const MAX_BLOCKS: usize = 16_384;
+pub const MAX_BLOCKS: usize = 8_192;
 
 /// The check's thresholds (docs/design.md §6b derives them).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -80,7 +80,8 @@ pub struct StackSampler {
     full_scale: f32,
     /// Top-left pixel of each block.
     blocks: Vec<[u32; 2]>,
-    /// Pixel-major samples: pixel i (block i / 4, corner i % 4) at [i·K + k].
+    /// Frame-major samples as they arrive: pixel i (block i / 4, corner i % 4) of frame k at
+    /// [k·4B + i] (contiguous writes; [`Self::series`] turns them pixel-major).
     samples: Vec<f32>,
     /// Blocks with a sample at full scale.
     clipped: Vec<bool>,
@@ -128,17 +129,43 @@ impl StackSampler {
 
     /// Take frame k's samples (the decoder has checked its size and order).
     pub fn push<T: Sample>(&mut self, k: usize, frame: &FrameRef<'_, T>) {
-        let frames = self.seq.frame_count();
         let w = self.width;
-        for (b, &[x, y]) in self.blocks.iter().enumerate() {
+        let m = 4 * self.blocks.len();
+        let out = &mut self.samples[k * m..(k + 1) * m];
+        for ((&[x, y], o), clipped) in self
+            .blocks
+            .iter()
+            .zip(out.chunks_exact_mut(4))
+            .zip(&mut self.clipped)
+        {
             let at = y as usize * w + x as usize;
-            let corners = [at, at + 1, at + w, at + w + 1];
-            for (j, &i) in corners.iter().enumerate() {
-                let v = frame.pixels[i].value();
-                self.samples[(4 * b + j) * frames + k] = v;
-                self.clipped[b] |= v >= self.full_scale;
+            for (o, i) in o.iter_mut().zip([at, at + 1, at + w, at + w + 1]) {
+                *o = frame.pixels[i].value();
+                *clipped |= *o >= self.full_scale;
             }
         }
+    }
+
+    /// The samples pixel-major (pixel i's frames at [i·K + k]), transposed in tiles of 16
+    /// pixels (one cache line of each frame) on all cores.
+    fn series(&self) -> Vec<f32> {
+        use rayon::prelude::*;
+        let k = self.seq.frame_count();
+        let m = 4 * self.blocks.len();
+        let mut out = vec![0f32; m * k];
+        out.par_chunks_mut(16 * k)
+            .enumerate()
+            .for_each(|(t, tile)| {
+                let first = 16 * t;
+                let n = tile.len() / k;
+                for f in 0..k {
+                    let row = &self.samples[f * m + first..f * m + first + n];
+                    for (i, &v) in row.iter().enumerate() {
+                        tile[i * k + f] = v;
+                    }
+                }
+            });
+        out
     }
 
     /// The verdict on the stack (every frame pushed).

@@ -5,6 +5,8 @@
 
 use super::{runs, Stack, StackFault};
 use crate::phase::check::CheckParams;
+use nalgebra::SVector;
+use rayon::prelude::*;
 
 /// The cause of a frame's disturbance.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -34,11 +36,12 @@ impl Stack<'_> {
         }
         let m = self.model;
         let shrink = m.dof() as f64 / m.steps as f64;
-        let energy: Vec<f64> = (0..self.frames)
-            .map(|k| self.energy(k) / used as f64)
-            .collect();
-        let fits: Vec<_> = (0..self.frames)
-            .map(|k| self.frame_fit(k, shrink))
+        let (rhs, energy) = self.frame_sums(shrink);
+        let energy: Vec<f64> = energy.iter().map(|e| e / used as f64).collect();
+        let cov = self.covariance(|blk| blk.var / 4.0 * shrink);
+        let fits: Vec<_> = rhs
+            .into_iter()
+            .map(|atb| super::Fit::new(cov, atb))
             .collect();
         let mut rest: Vec<f64> = (0..self.frames)
             .map(|k| energy[k] - fits[k].explained / used as f64)
@@ -72,29 +75,36 @@ impl Stack<'_> {
         (faults, sigma)
     }
 
-    /// Σ over the usable pixels of frame k's residual² / (σ_I²·(N − q)/N): its expected value
-    /// per pixel is 1 in a clean stack.
-    fn energy(&self, k: usize) -> f64 {
-        let shrink = self.model.dof() as f64 / self.model.steps as f64;
-        self.usable()
-            .map(|(b, blk)| {
-                (0..4)
-                    .map(|j| f64::from(self.residuals[(4 * b + j) * self.frames + k]).powi(2))
-                    .sum::<f64>()
-                    / (blk.var * shrink)
+    /// Per frame, in one pass over the residuals in memory order (pixel by pixel, on all
+    /// cores): the right-hand side Σ_b x_b·R_b/var_b of its block residuals R_b regressed on
+    /// the shapes (var_b = σ_I²/4·(N − q)/N), and Σ over the usable pixels of residual² /
+    /// (σ_I²·(N − q)/N), whose expected value per pixel is 1 in a clean stack.
+    fn frame_sums(&self, shrink: f64) -> (Vec<SVector<f64, 5>>, Vec<f64>) {
+        let k = self.frames;
+        let zero = || (vec![SVector::<f64, 5>::zeros(); k], vec![0.0; k]);
+        let blocks: Vec<(usize, &super::Block)> = self.usable().collect();
+        blocks
+            .par_iter()
+            .fold(zero, |(mut rhs, mut energy), &(b, blk)| {
+                let x = SVector::<f64, 5>::from(blk.shapes);
+                let pixels = &self.residuals[4 * b * k..(4 * b + 4) * k];
+                for f in 0..k {
+                    let r = [0, 1, 2, 3].map(|j| f64::from(pixels[j * k + f]));
+                    let mean = r.iter().sum::<f64>() / 4.0;
+                    rhs[f] += mean / (blk.var / 4.0 * shrink) * x;
+                    energy[f] += r.iter().map(|v| v * v).sum::<f64>() / (blk.var * shrink);
+                }
+                (rhs, energy)
             })
-            .sum()
-    }
-
-    /// Frame k's block residuals regressed on the shapes.
-    fn frame_fit(&self, k: usize, shrink: f64) -> super::Fit {
-        let target = |b: usize| {
-            (0..4)
-                .map(|j| f64::from(self.residuals[(4 * b + j) * self.frames + k]))
-                .sum::<f64>()
-                / 4.0
-        };
-        self.regress(target, |blk| blk.var / 4.0 * shrink)
+            .reduce(zero, |(mut r1, mut e1), (r2, e2)| {
+                for (a, b) in r1.iter_mut().zip(r2) {
+                    *a += b;
+                }
+                for (a, b) in e1.iter_mut().zip(e2) {
+                    *a += b;
+                }
+                (r1, e1)
+            })
     }
 
     /// Light change or jolt, whichever explains more of a frame's residual.

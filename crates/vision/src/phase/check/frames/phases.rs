@@ -21,6 +21,9 @@ const CHI2_1_MEDIAN: f64 = 0.454_936;
 /// so a quarter more variance is harmless; more says the group is not what it should be.
 const SCATTER: f64 = 0.25;
 
+/// Modulation (σ_I units) every group of a pixel needs for its phases to be tested.
+const MIN_SNR: f64 = 6.0;
+
 /// Pattern offsets tried: up to two frames late or early.
 const OFFSETS: [i32; 4] = [-1, 1, -2, 2];
 
@@ -30,8 +33,9 @@ struct Disagreement {
     /// Σ e/σ², Σ 1/σ² (e in rad).
     sum_e: f64,
     sum_w: f64,
-    /// Σ B_j / B̄ and the count.
-    sum_ratio: f64,
+    /// Σ of C_j/C_pred = (B_j/B̄)·e^{−ie} (re, im): its mean is 1 + w, the oscillating
+    /// part averaging out linearly; and the count.
+    sum_ratio: [f64; 2],
     count: f64,
     /// Σ of the leverages n_j²B_j²/Σn²B².
     sum_h: f64,
@@ -105,12 +109,16 @@ impl Stack<'_> {
             for f in &self.fits[4 * blk..4 * blk + 4] {
                 for (j, &g) in groups.iter().enumerate() {
                     let [re, im] = f.fundamentals[g * np + p];
-                    b[j] = f64::from(re).hypot(f64::from(im));
+                    // |C|² = B² + 4σ_I²/N on average: B without the noise's share.
+                    let c2 = f64::from(re).powi(2) + f64::from(im).powi(2);
+                    b[j] = (c2 - 2.0 * phase_var * block.var).max(0.0).sqrt();
                     // C = B·e^{−iφ}: the phase in cycles is arg(C̄)/2π.
                     psi[j] = (f64::from(-im).atan2(f64::from(re)) / TAU).rem_euclid(1.0) as f32;
                     weight[j] = (b[j] * b[j]) as f32;
                 }
-                if b.iter().any(|&bj| bj < 5.0 * block.var.sqrt()) {
+                // Phases of B ≥ 6σ_I are Gaussian to the test's precision (σ_φ ≤ 0.09 rad
+                // for N = 7; lower, the noise's own B biases the measured spread).
+                if b.iter().any(|&bj| bj < MIN_SNR * block.var.sqrt()) {
                     continue;
                 }
                 let un = cons.unwrap(&psi, &weight);
@@ -128,7 +136,8 @@ impl Stack<'_> {
                     let s = &mut sums[j];
                     s.sum_e += e / var;
                     s.sum_w += 1.0 / var;
-                    s.sum_ratio += b[j] / mean_b;
+                    s.sum_ratio[0] += b[j] / mean_b * e.cos();
+                    s.sum_ratio[1] -= b[j] / mean_b * e.sin();
                     s.sum_h += h;
                     s.count += 1.0;
                     s.scaled.push(e * e / (var * (1.0 - h)));
@@ -170,12 +179,15 @@ impl Stack<'_> {
         if !(coherent || incoherent) {
             return None;
         }
-        let rho = d.sum_ratio / d.count;
+        // The mean of C_j/C_pred; its angle is −(1 − h)·δ (the fusion holds the group), its
+        // size (1 + a)/(1 + a/M) (B̄ holds B_j): C_j/C_true = (1 + a)·e^{−iδ}.
+        let [re, im] = d.sum_ratio.map(|v| v / d.count);
+        let rho = re.hypot(im);
         let a = (rho - 1.0) / (1.0 - rho / m as f64);
-        // C_j/C_true = (1 + a)·e^{−iδ}.
-        let w = [(1.0 + a) * bias.cos() - 1.0, -(1.0 + a) * bias.sin()];
+        let delta = -im.atan2(re) / (1.0 - leverage);
+
         let score = (excess.max(0.0) + (bias / sigma_phi).powi(2)).sqrt();
-        let fault = match coherent.then(|| self.lag(p, w)).flatten() {
+        let fault = match coherent.then(|| self.lag(p, delta, a)).flatten() {
             Some((count, offset)) => StackFault::WrongPattern {
                 projector: p,
                 group: g,
@@ -193,22 +205,33 @@ impl Stack<'_> {
         Some((score, fault))
     }
 
-    /// The lag (frames F of N, offset o) whose w = (F/N)·(e^{iθo} − 1) is nearest the
-    /// measured `w`, if within a third of |w|.
-    fn lag(&self, p: usize, w: [f64; 2]) -> Option<(usize, i32)> {
+    /// The lag (frames F of N, offset o) whose group phase bias δ = −arg(1 + (F/N)·(e^{iθo} − 1))
+    /// is nearest the measured `delta`, within a third of it, and whose modulation change
+    /// |1 + …| − 1 is within 0.15 or half of itself of the measured `a` (a quarter weight in
+    /// the choice: the patterns' harmonics, leaking through the F-frame window, change the
+    /// modulation more than the phase). A lag always lowers the modulation
+    /// (|1 + k·(e^{iθo} − 1)| < 1 for 0 < k ≤ 1); another projector's lag leaking into this
+    /// one's bins biases its phase as much but leaves its modulation unchanged or higher.
+    fn lag(&self, p: usize, delta: f64, a: f64) -> Option<(usize, i32)> {
         let n = self.model.steps;
         let theta = self.model.theta(p);
-        let size = w[0].hypot(w[1]);
         (1..=n)
             .flat_map(|f| OFFSETS.map(|o| (f, o)))
             .map(|(f, o)| {
                 let k = f as f64 / n as f64;
-                let a = theta * f64::from(o);
-                let pred = [k * (a.cos() - 1.0), k * a.sin()];
-                ((f, o), (w[0] - pred[0]).hypot(w[1] - pred[1]))
+                let (re, im) = (
+                    1.0 + k * ((theta * f64::from(o)).cos() - 1.0),
+                    k * (theta * f64::from(o)).sin(),
+                );
+                let (d_pred, a_pred) = (-im.atan2(re), re.hypot(im) - 1.0);
+                let fits = (delta - d_pred).abs() < delta.abs() / 3.0
+                    && a < 0.0
+                    && (a - a_pred).abs() < f64::max(0.15, 0.5 * a_pred.abs());
+                let score = (delta - d_pred).abs() + 0.25 * (a - a_pred).abs();
+                ((f, o), fits, score)
             })
-            .min_by(|x, y| x.1.total_cmp(&y.1))
-            .filter(|(_, dist)| *dist < size / 3.0)
-            .map(|(lag, _)| lag)
+            .filter(|(_, fits, _)| *fits)
+            .min_by(|x, y| x.2.total_cmp(&y.2))
+            .map(|(lag, _, _)| lag)
     }
 }
