@@ -1448,6 +1448,67 @@ fn coarse_descent(p: &Problem, l: &Layout, o: &Options) -> (State, f64, usize) {
     (phase.state, lambda, phase.iterations)
 }
 
+/// An eigenvalue of the scaled reduced system below this (relative to its unit diagonal)
+/// marks a direction the data do not determine ([`Scaled::null_columns`]).
+const NULL_TOL: f64 = 1e-9;
+
+/// The name of device-parameter column `c` of layout `l`: "cam1 lens", "cam1 pose",
+/// "front→back transform" or "board bend".
+fn column_name(p: &Problem, l: &Layout, c: usize) -> String {
+    for (d, (&(at, params), pose)) in l.lens.iter().zip(&l.pose).enumerate() {
+        if (at..at + params.len()).contains(&c) {
+            return format!("{} lens", p.devices[d].name);
+        }
+        if pose.is_some_and(|at| (at..at + 6).contains(&c)) {
+            return format!("{} pose", p.devices[d].name);
+        }
+    }
+    if l.side.is_some_and(|at| (at..at + 6).contains(&c)) {
+        "front→back transform".into()
+    } else {
+        "board bend".into()
+    }
+}
+
+/// The normal equations at the minimum are singular. When the directions the data do not
+/// determine ([`Scaled::null_columns`]) lie in the side transform or the bend only, those
+/// are held at their priors (the board file's transform, a flat board) and the adjustment
+/// is run again, a note each in [`Solution::held`]; otherwise the error names what is not
+/// determined (docs/design.md §8, "Observability").
+fn hold_null_space(
+    p: &Problem,
+    o: &Options,
+    l: &Layout,
+    sys: &Scaled,
+    mut unobserved: Vec<Unobserved>,
+) -> Result<Solution, CalibError> {
+    let cols = sys.null_columns(NULL_TOL).unwrap_or_default();
+    let mut names: Vec<String> = cols.iter().map(|&c| column_name(p, l, c)).collect();
+    names.dedup();
+    let side = names.iter().any(|n| n.starts_with("front→back"));
+    let bend = names.iter().any(|n| n == "board bend");
+    if names.is_empty() || names.len() > usize::from(side) + usize::from(bend) {
+        return Err(CalibError::NotDetermined(if names.is_empty() {
+            "a board pose".into()
+        } else {
+            names.join(", ")
+        }));
+    }
+    let mut o = o.clone();
+    if side {
+        o.refine_side_transform = false;
+        unobserved.push(Unobserved::SideTransformInformation);
+    }
+    if bend {
+        o.refine_flatness = false;
+        unobserved.push(Unobserved::Bend);
+    }
+    let mut sol = adjust(p, &o)?;
+    unobserved.append(&mut sol.held);
+    sol.held = unobserved;
+    Ok(sol)
+}
+
 /// Run the adjustment: coarse descent, robust phase, outlier rejection per device, plain
 /// phase, covariance.
 pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
@@ -1483,12 +1544,10 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         .count();
     let sigma = (cost / (n.saturating_sub(free)).max(1) as f64).sqrt();
     // Cov(θ) ≈ σ²(JᵀJ)⁻¹ (§8, (38)); held parameters get zero rows and columns.
-    let covariance = sys
-        .covariance()
-        .ok_or(CalibError::Degenerate(
-            "normal equations are singular: a device or pose is not constrained",
-        ))?
-        .times(sigma * sigma);
+    let covariance = match sys.covariance() {
+        Some(c) => c.times(sigma * sigma),
+        None => return hold_null_space(p, o, &l, &sys, unobserved),
+    };
     let std = |i: usize| covariance.variance(i).max(0.0).sqrt();
     let intrinsic_std = l
         .lens
@@ -1987,5 +2046,57 @@ mod tests {
         );
         assert!(out <= bound, "{out} of {n} held out");
         assert!(worst <= z_bound, "{name}: {worst}σ");
+    }
+
+    #[test]
+    fn the_information_matrix_finds_a_side_transform_the_views_leave_free_and_holds_it() {
+        // Two cameras on one side, the board turned over between poses, the front→back
+        // transform left free (as if the structural check had not seen it): the normal
+        // equations are singular, their null space lies in that transform (the back poses,
+        // eliminated, take up the rest), and holding it gives the truth again.
+        let rig = SyntheticRig::one_sided(2, 0, 6, 0.1, 7);
+        let p = truth_problem(&rig);
+        let o = Options::default();
+        let l = Layout::new(&p, &o);
+        let s = State::start(&p);
+        let all = vec![true; p.observations.len()];
+        let (sys, _, _) = linear_system(
+            &p,
+            &s,
+            &l,
+            &anchors(&p, &s, &o),
+            &all,
+            None,
+            &group_by_pose(&p),
+        );
+        let sys = sys.scaled();
+        assert!(
+            sys.covariance().is_none(),
+            "singular with the transform free"
+        );
+        let names: Vec<String> = sys
+            .null_columns(NULL_TOL)
+            .expect("every board pose determined")
+            .into_iter()
+            .map(|c| column_name(&p, &l, c))
+            .collect();
+        assert!(
+            !names.is_empty() && names.iter().all(|n| n == "front→back transform"),
+            "{names:?}"
+        );
+        let sol = hold_null_space(&p, &o, &l, &sys, Vec::new()).expect("adjusts");
+        assert_eq!(sol.held, [Unobserved::SideTransformInformation]);
+        let devices: Vec<_> = rig.devices.iter().collect();
+        let boards: Vec<_> = rig.boards.iter().collect();
+        let fb = rig.board.side_transform(Side::Back);
+        let ((worst, name), m) =
+            crate::calib::synthetic::worst_deviation(&sol, &devices, &boards, &fb);
+        let bound = crate::calib::synthetic::bonferroni_bound(m);
+        eprintln!(
+            "σ̂ {:.4}, worst {worst:.2}σ ({name}), bound {bound:.2}",
+            sol.sigma
+        );
+        assert!((sol.sigma / 0.1 - 1.0).abs() < 0.02, "σ̂ {}", sol.sigma);
+        assert!(worst <= bound, "{name}: {worst}σ");
     }
 }

@@ -69,6 +69,10 @@ pub enum CalibError {
         /// The views needed.
         needed: usize,
     },
+    /// The normal equations are singular in parameters that cannot be held at a prior:
+    /// what the data do not determine (devices' lenses or poses, by name; or a board pose).
+    #[error("degenerate data: the views do not determine {0}")]
+    NotDetermined(String),
     /// The reference device could not be calibrated.
     #[error("the reference device {name} cannot be calibrated: {reason}")]
     Reference {

@@ -27,6 +27,12 @@ pub enum Unobserved {
     /// Only one side of the board is seen: no observation depends on the front→back
     /// transform. Held at the board file's value.
     SideTransformOneSideSeen,
+    /// Poses show both sides, but the information matrix is singular in the front→back
+    /// transform (found after the adjustment, [`super::schur::Scaled::null_columns`]).
+    /// Held at the board file's value.
+    SideTransformInformation,
+    /// The information matrix is singular in the board bend (29). Held flat.
+    Bend,
 }
 
 impl fmt::Display for Unobserved {
@@ -41,6 +47,16 @@ impl fmt::Display for Unobserved {
                 f,
                 "front→back transform not observed: only one side of the board is seen; held \
                  at the board file's value"
+            ),
+            Unobserved::SideTransformInformation => write!(
+                f,
+                "front→back transform not determined by the views that show both sides; held \
+                 at the board file's value — add poses seen from both sides at other angles"
+            ),
+            Unobserved::Bend => write!(
+                f,
+                "board bend not determined by the views; held flat — add poses at other \
+                 tilts and distances to measure it"
             ),
         }
     }
