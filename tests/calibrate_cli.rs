@@ -182,3 +182,39 @@ fn bad_input_names_the_file() {
     assert!(err.contains("broken.json"), "{err}");
     assert!(!dir.join("out").exists());
 }
+
+/// Issue 32: one camera seeing the board's front in some poses and its back in others
+/// calibrates (it failed with singular normal equations), and the summary says in one line
+/// that the front→back transform was held.
+#[test]
+fn one_camera_turning_the_board_over_calibrates_and_says_what_was_held() {
+    let dir = scratch("calibrate-one-camera");
+    let rig = SyntheticRig::one_sided(1, 0, 11, 0.1, 5);
+    let c = Correspondences {
+        board: "hex600".into(),
+        devices: rig.device_infos(),
+        poses: rig.boards.len(),
+        views: rig.views(),
+    };
+    let input = dir.join("correspondences.json");
+    std::fs::write(&input, serde_json::to_string(&c).unwrap()).unwrap();
+    let out = dir.join("out");
+    let run = hexcal(&[
+        "calibrate",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let held: Vec<&str> = stdout.lines().filter(|l| l.starts_with("held: ")).collect();
+    assert_eq!(held.len(), 1, "{stdout}");
+    assert!(
+        held[0].contains("front→back transform not observed: no pose is seen from both sides"),
+        "{stdout}"
+    );
+}

@@ -14,7 +14,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// The parts every calibration's summary opens with: the residual table and lens models,
-/// the devices left out and the views not registered.
+/// the devices left out, what the data could not determine and the views not registered.
 fn calibration_lines(
     s: &mut String,
     cal: &Calibration,
@@ -25,6 +25,9 @@ fn calibration_lines(
     s.push_str(&crate::report::format_lens_models(cal));
     for e in &cal.excluded {
         let _ = writeln!(s, "not calibrated: {}: {}", e.name, e.reason);
+    }
+    for h in &cal.solution.held {
+        let _ = writeln!(s, "held: {h}");
     }
     let reg = &cal.registration;
     if reg.unanchored > 0 {

@@ -13,6 +13,7 @@
 //! until they hold; covariance σ²(JᵀJ)⁻¹ at the end.
 
 use super::circle::ellipse_bias_px;
+use super::observability::{hold_unobservable, Unobserved};
 use super::schur::{BlockSystem, Covariance, PoseBlock, Scaled, Step};
 use super::CalibError;
 use hexcal_core::board::{Board, Hex, Side};
@@ -23,6 +24,7 @@ use nalgebra::{
     MatrixView, Point2, Point3, Translation3, UnitQuaternion, Vector2, Vector3, Vector6,
 };
 use rayon::prelude::*;
+use std::collections::BTreeMap;
 
 /// Whether a device records images or casts them.
 /// One device's model and pose, as a start or as a result.
@@ -204,6 +206,9 @@ pub struct Solution {
     pub coarse_iterations: usize,
     /// Whether the final (plain) phase stopped at its minimum, not at the iteration limit.
     pub converged: bool,
+    /// What the data could not determine, held at its prior and absent from `covariance`
+    /// ([`super::observability`]), one note each.
+    pub held: Vec<Unobserved>,
 }
 
 /// Apply a left increment (ω, τ) to a pose: T ← (exp(ω), τ)·T.
@@ -1272,24 +1277,57 @@ fn robust_sigma(norms: &mut [f64]) -> f64 {
     *median / (2.0 * std::f64::consts::LN_2).sqrt()
 }
 
+/// The board poses that exactly one camera observed: no second camera's view can tell
+/// whether that camera's view there is off or its pose is.
+fn single_camera_poses(p: &Problem) -> Vec<bool> {
+    let mut camera = vec![None; p.boards.len()];
+    let mut single = vec![true; p.boards.len()];
+    for ob in p.observations.iter().filter(|ob| ob.via.is_none()) {
+        match camera[ob.pose] {
+            None => camera[ob.pose] = Some(ob.device),
+            Some(c) if c != ob.device => single[ob.pose] = false,
+            Some(_) => {}
+        }
+    }
+    single
+}
+
+/// `o.outlier_sigmas` robust σ of the residual norms `norms` (31).
+fn limit(o: &Options, norms: &mut [f64]) -> f64 {
+    o.outlier_sigmas * robust_sigma(norms).max(1e-9)
+}
+
 /// Per device, the observations within `o.outlier_sigmas` robust σ of their residuals (31),
-/// from the residual norms `res` (NaN where not predicted).
+/// from the residual norms `res` (NaN where not predicted). In a board pose seen by one
+/// camera only, a view (device, pose) is judged against its own robust σ where that is
+/// the larger: nothing there contradicts a view that is off as a whole (its pose still
+/// moving), so it is never removed whole for lack of a second opinion (docs/design.md §8,
+/// "Observability").
 fn inliers<T: Copy + Into<f64>>(p: &Problem, res: &[T], o: &Options) -> Vec<bool> {
+    let single = single_camera_poses(p);
     let mut norms = vec![Vec::new(); p.devices.len()];
+    let mut views: BTreeMap<(usize, usize), Vec<f64>> = BTreeMap::new();
     for (ob, r) in p.observations.iter().zip(res) {
         let r: f64 = (*r).into();
         if !r.is_nan() {
             norms[ob.device].push(r);
+            if single[ob.pose] {
+                views.entry((ob.device, ob.pose)).or_default().push(r);
+            }
         }
     }
-    let limits: Vec<f64> = norms
-        .iter_mut()
-        .map(|n| o.outlier_sigmas * robust_sigma(n).max(1e-9))
+    let limits: Vec<f64> = norms.iter_mut().map(|n| limit(o, n)).collect();
+    let views: BTreeMap<(usize, usize), f64> = views
+        .into_iter()
+        .map(|(k, mut n)| (k, limit(o, &mut n)))
         .collect();
     p.observations
         .iter()
         .zip(res)
-        .map(|(ob, r)| (*r).into() <= limits[ob.device])
+        .map(|(ob, r)| {
+            let own = views.get(&(ob.device, ob.pose)).copied().unwrap_or(0.0);
+            (*r).into() <= limits[ob.device].max(own)
+        })
         .collect()
 }
 
@@ -1410,10 +1448,73 @@ fn coarse_descent(p: &Problem, l: &Layout, o: &Options) -> (State, f64, usize) {
     (phase.state, lambda, phase.iterations)
 }
 
+/// An eigenvalue of the scaled reduced system below this (relative to its unit diagonal)
+/// marks a direction the data do not determine ([`Scaled::null_columns`]).
+const NULL_TOL: f64 = 1e-9;
+
+/// The name of device-parameter column `c` of layout `l`: "cam1 lens", "cam1 pose",
+/// "front→back transform" or "board bend".
+fn column_name(p: &Problem, l: &Layout, c: usize) -> String {
+    for (d, (&(at, params), pose)) in l.lens.iter().zip(&l.pose).enumerate() {
+        if (at..at + params.len()).contains(&c) {
+            return format!("{} lens", p.devices[d].name);
+        }
+        if pose.is_some_and(|at| (at..at + 6).contains(&c)) {
+            return format!("{} pose", p.devices[d].name);
+        }
+    }
+    if l.side.is_some_and(|at| (at..at + 6).contains(&c)) {
+        "front→back transform".into()
+    } else {
+        "board bend".into()
+    }
+}
+
+/// The normal equations at the minimum are singular. When the directions the data do not
+/// determine ([`Scaled::null_columns`]) lie in the side transform or the bend only, those
+/// are held at their priors (the board file's transform, a flat board) and the adjustment
+/// is run again, a note each in [`Solution::held`]; otherwise the error names what is not
+/// determined (docs/design.md §8, "Observability").
+fn hold_null_space(
+    p: &Problem,
+    o: &Options,
+    l: &Layout,
+    sys: &Scaled,
+    mut unobserved: Vec<Unobserved>,
+) -> Result<Solution, CalibError> {
+    let cols = sys.null_columns(NULL_TOL).unwrap_or_default();
+    let mut names: Vec<String> = cols.iter().map(|&c| column_name(p, l, c)).collect();
+    names.dedup();
+    let side = names.iter().any(|n| n.starts_with("front→back"));
+    let bend = names.iter().any(|n| n == "board bend");
+    if names.is_empty() || names.len() > usize::from(side) + usize::from(bend) {
+        return Err(CalibError::NotDetermined(if names.is_empty() {
+            "a board pose".into()
+        } else {
+            names.join(", ")
+        }));
+    }
+    let mut o = o.clone();
+    if side {
+        o.refine_side_transform = false;
+        unobserved.push(Unobserved::SideTransformInformation);
+    }
+    if bend {
+        o.refine_flatness = false;
+        unobserved.push(Unobserved::Bend);
+    }
+    let mut sol = adjust(p, &o)?;
+    unobserved.append(&mut sol.held);
+    sol.held = unobserved;
+    Ok(sol)
+}
+
 /// Run the adjustment: coarse descent, robust phase, outlier rejection per device, plain
 /// phase, covariance.
 pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     check_problem(p, o)?;
+    let (o, unobserved) = hold_unobservable(p, o)?;
+    let o = &o;
     let l = Layout::new(p, o);
     let by_pose = group_by_pose(p);
     let (start, lambda, coarse_iterations) = coarse_descent(p, &l, o);
@@ -1443,12 +1544,10 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         .count();
     let sigma = (cost / (n.saturating_sub(free)).max(1) as f64).sqrt();
     // Cov(θ) ≈ σ²(JᵀJ)⁻¹ (§8, (38)); held parameters get zero rows and columns.
-    let covariance = sys
-        .covariance()
-        .ok_or(CalibError::Degenerate(
-            "normal equations are singular: a device or pose is not constrained",
-        ))?
-        .times(sigma * sigma);
+    let covariance = match sys.covariance() {
+        Some(c) => c.times(sigma * sigma),
+        None => return hold_null_space(p, o, &l, &sys, unobserved),
+    };
     let std = |i: usize| covariance.variance(i).max(0.0).sqrt();
     let intrinsic_std = l
         .lens
@@ -1495,6 +1594,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         iterations,
         coarse_iterations,
         converged: plain.converged,
+        held: unobserved,
     })
 }
 
@@ -1907,5 +2007,96 @@ mod tests {
             "the turn holds out only {} first",
             first[1]
         );
+    }
+
+    #[test]
+    fn a_view_alone_in_its_pose_is_not_rejected_whole_while_its_pose_is_off() {
+        // Issue 32: a pose seen by one camera only had its whole view (778 points) flagged
+        // as outliers. Here board 2 of a six-camera ring is seen by one camera and starts
+        // 1° off about the board's x and 4 mm off along its x and y (residuals of 5–15 px,
+        // all beyond 4σ of that camera's other views), everything else at the truth. Nothing contradicts the
+        // view: at the end it must hold out only what the noise puts beyond 4σ (e⁻⁸ of
+        // its observations, as in the test above), and every parameter lie within its
+        // Bonferroni bound of the truth.
+        let mut rig = SyntheticRig::ring(6, 0, 6, 0.1, 5);
+        rig.keep_one_camera(|k| k == 2);
+        let mut p = truth_problem(&rig);
+        let turn = UnitQuaternion::from_scaled_axis(Vector3::new(1f64.to_radians(), 0.0, 0.0));
+        p.boards[2] *= Isometry3::from_parts(Translation3::new(4.0, 4.0, 0.0), turn);
+        let sol = adjust(&p, &Options::default()).expect("adjusts");
+        let (n, out) = p
+            .observations
+            .iter()
+            .zip(&sol.residuals)
+            .filter(|(ob, _)| ob.pose == 2)
+            .fold((0.0, 0.0), |(n, k), (_, r)| {
+                (n + 1.0, k + f64::from(u8::from(r.outlier)))
+            });
+        let expected = n * (-8.0f64).exp();
+        let bound = expected + 4.0 * expected.sqrt() + 3.0;
+        let devices: Vec<_> = rig.devices.iter().collect();
+        let boards: Vec<_> = rig.boards.iter().collect();
+        let fb = rig.board.side_transform(Side::Back);
+        let ((worst, name), m) =
+            crate::calib::synthetic::worst_deviation(&sol, &devices, &boards, &fb);
+        let z_bound = crate::calib::synthetic::bonferroni_bound(m);
+        eprintln!(
+            "board 2: {n} observations, {out} held out (bound {bound:.1}); worst {worst:.2}σ \
+             ({name}), bound {z_bound:.2}"
+        );
+        assert!(out <= bound, "{out} of {n} held out");
+        assert!(worst <= z_bound, "{name}: {worst}σ");
+    }
+
+    #[test]
+    fn the_information_matrix_finds_a_side_transform_the_views_leave_free_and_holds_it() {
+        // Two cameras on one side, the board turned over between poses, the front→back
+        // transform left free (as if the structural check had not seen it): the normal
+        // equations are singular, their null space lies in that transform (the back poses,
+        // eliminated, take up the rest), and holding it gives the truth again.
+        let rig = SyntheticRig::one_sided(2, 0, 6, 0.1, 7);
+        let p = truth_problem(&rig);
+        let o = Options::default();
+        let l = Layout::new(&p, &o);
+        let s = State::start(&p);
+        let all = vec![true; p.observations.len()];
+        let (sys, _, _) = linear_system(
+            &p,
+            &s,
+            &l,
+            &anchors(&p, &s, &o),
+            &all,
+            None,
+            &group_by_pose(&p),
+        );
+        let sys = sys.scaled();
+        assert!(
+            sys.covariance().is_none(),
+            "singular with the transform free"
+        );
+        let names: Vec<String> = sys
+            .null_columns(NULL_TOL)
+            .expect("every board pose determined")
+            .into_iter()
+            .map(|c| column_name(&p, &l, c))
+            .collect();
+        assert!(
+            !names.is_empty() && names.iter().all(|n| n == "front→back transform"),
+            "{names:?}"
+        );
+        let sol = hold_null_space(&p, &o, &l, &sys, Vec::new()).expect("adjusts");
+        assert_eq!(sol.held, [Unobserved::SideTransformInformation]);
+        let devices: Vec<_> = rig.devices.iter().collect();
+        let boards: Vec<_> = rig.boards.iter().collect();
+        let fb = rig.board.side_transform(Side::Back);
+        let ((worst, name), m) =
+            crate::calib::synthetic::worst_deviation(&sol, &devices, &boards, &fb);
+        let bound = crate::calib::synthetic::bonferroni_bound(m);
+        eprintln!(
+            "σ̂ {:.4}, worst {worst:.2}σ ({name}), bound {bound:.2}",
+            sol.sigma
+        );
+        assert!((sol.sigma / 0.1 - 1.0).abs() < 0.02, "σ̂ {}", sol.sigma);
+        assert!(worst <= bound, "{name}: {worst}σ");
     }
 }

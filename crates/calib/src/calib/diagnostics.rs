@@ -499,11 +499,12 @@ pub fn verification_warnings(
     out
 }
 
-/// The report's own warnings: few poses, high RMS, many outliers (absolute and against
-/// peers), coverage holes, extrapolated corners, poorly determined terms, excluded devices,
-/// unregistered views.
+/// The report's own warnings: what the data could not determine (one line each,
+/// [`crate::calib::observability`]), few poses, high RMS, many outliers (absolute and
+/// against peers), coverage holes, extrapolated corners, poorly determined terms, excluded
+/// devices, unregistered views.
 pub fn warnings(cal: &Calibration, rows: &[ResidualRow]) -> Vec<String> {
-    let mut w = Vec::new();
+    let mut w: Vec<String> = cal.solution.held.iter().map(ToString::to_string).collect();
     lens_warnings(cal, &mut w);
     outlier_warnings(cal, rows, &mut w);
     let expected = expected_rms(cal);
@@ -672,6 +673,28 @@ mod tests {
         figures(&cal);
         let w = warnings(&cal, &residual_table(&cal));
         assert!(w.is_empty(), "{w:#?}");
+    }
+
+    /// Two cameras on one side, the board turned over between poses: the front→back
+    /// transform is held, and said so in one line.
+    #[test]
+    fn a_side_transform_held_is_said_once() {
+        let rig = SyntheticRig::one_sided(2, 0, 8, 0.1, 12);
+        let cal = calibrate(
+            &rig.board,
+            &rig.device_infos(),
+            rig.boards.len(),
+            &rig.views(),
+            &Default::default(),
+        )
+        .expect("a one-sided rig calibrates");
+        let w = warnings(&cal, &residual_table(&cal));
+        let held: Vec<_> = w.iter().filter(|w| w.contains("front→back")).collect();
+        assert_eq!(held.len(), 1, "{w:#?}");
+        assert!(
+            held[0].contains("no pose is seen from both sides"),
+            "{w:#?}"
+        );
     }
 
     #[test]

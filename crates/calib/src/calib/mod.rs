@@ -13,6 +13,7 @@ pub mod circle;
 pub mod diagnostics;
 pub mod geometric;
 pub mod lens_model;
+pub mod observability;
 pub mod posegraph;
 pub mod schur;
 pub mod solve;
@@ -54,6 +55,24 @@ pub enum CalibError {
     /// The data do not determine the quantity (e.g. parallel views, collinear points).
     #[error("degenerate data: {0}")]
     Degenerate(&'static str),
+    /// A device's observations lie in too few board-plane views (pose, side) to determine
+    /// its lens (docs/design.md §8, "Observability").
+    #[error(
+        "{name} cannot be calibrated: it is seen in {views} board views (pose and side), at \
+         least {needed} needed"
+    )]
+    DeviceNotObserved {
+        /// Its name.
+        name: String,
+        /// The views it is seen in.
+        views: usize,
+        /// The views needed.
+        needed: usize,
+    },
+    /// The normal equations are singular in parameters that cannot be held at a prior:
+    /// what the data do not determine (devices' lenses or poses, by name; or a board pose).
+    #[error("degenerate data: the views do not determine {0}")]
+    NotDetermined(String),
     /// The reference device could not be calibrated.
     #[error("the reference device {name} cannot be calibrated: {reason}")]
     Reference {

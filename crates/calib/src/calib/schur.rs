@@ -223,6 +223,29 @@ impl Scaled {
         })
     }
 
+    /// The device-parameter columns the data do not determine: those with a weight above
+    /// 0.1 in an eigenvector of the reduced system S (36, undamped, scaled to a unit
+    /// diagonal) whose eigenvalue is below `tol` of that diagonal, ascending
+    /// (docs/design.md §8, "Observability"). `None` when a board pose's own block is
+    /// singular (that pose is not determined).
+    pub fn null_columns(&self, tol: f64) -> Option<Vec<usize>> {
+        let (s, _, _) = self.reduce(0.0)?;
+        let eigen = s.symmetric_eigen();
+        let mut cols = Vec::new();
+        for (j, _) in eigen
+            .eigenvalues
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| **v < tol)
+        {
+            let v = eigen.eigenvectors.column(j);
+            cols.extend((0..v.len()).filter(|&i| v[i].abs() > 0.1));
+        }
+        cols.sort_unstable();
+        cols.dedup();
+        Some(cols)
+    }
+
     /// The covariance of the parameters up to the factor σ² (38): S⁻¹ for the device
     /// parameters, with each pose's blocks kept to give any other entry. `None` when the
     /// normal equations are singular.

@@ -400,6 +400,78 @@ impl SyntheticRig {
         Self::observed(board, &bend, devices, boards, sigma, &mut rng)
     }
 
+    /// Every device on one side: `cameras` at azimuths over ±30° (elevations over ±15°),
+    /// `projectors` over ±25° (+7°), `poses` board poses as [`SyntheticRig::build`]'s, every
+    /// odd one turned over (180° about the board's y): each pose shows every device one
+    /// side, the front in the even poses, the back in the odd ones, never both (issue 32).
+    pub fn one_sided(
+        cameras: usize,
+        projectors: usize,
+        poses: usize,
+        sigma: f64,
+        seed: u64,
+    ) -> SyntheticRig {
+        let spread = |i: usize, n: usize, half: f64| {
+            if n > 1 {
+                -half + 2.0 * half * i as f64 / (n - 1) as f64
+            } else {
+                0.0
+            }
+        };
+        let cams: Vec<(f64, f64)> = (0..cameras)
+            .map(|i| (spread(i, cameras, 30.0), 15.0 * ((i % 3) as f64 - 1.0)))
+            .collect();
+        let projs: Vec<f64> = (0..projectors)
+            .map(|i| spread(i, projectors, 25.0) + 7.0)
+            .collect();
+        let mut rng = StdRng::seed_from_u64(seed);
+        let board = Board::hex600();
+        let (devices, ref_from_world) = place_devices(&cams, &projs, &mut rng);
+        let over = Isometry3::rotation(Vector3::y() * std::f64::consts::PI);
+        let boards = board_poses(poses, &ref_from_world, &mut rng)
+            .into_iter()
+            .enumerate()
+            .map(|(k, b)| if k % 2 == 1 { b * over } else { b })
+            .collect();
+        let bend = Bend::flat(&board);
+        Self::observed(board, &bend, devices, boards, sigma, &mut rng)
+    }
+
+    /// Keeps in every board pose `k` with `which(k)` one camera's observations only (and
+    /// the projectors' found through it): of the cameras that see it, the (k mod their
+    /// count)-th, so the single views go round the cameras.
+    pub fn keep_one_camera(&mut self, which: impl Fn(usize) -> bool) {
+        let mut seen = vec![std::collections::BTreeSet::new(); self.boards.len()];
+        for ob in self.observations.iter().filter(|ob| ob.via.is_none()) {
+            seen[ob.pose].insert(ob.device);
+        }
+        let keep: Vec<Option<usize>> = seen
+            .iter()
+            .enumerate()
+            .map(|(k, s)| {
+                (which(k) && !s.is_empty()).then(|| *s.iter().nth(k % s.len()).expect("k mod len"))
+            })
+            .collect();
+        self.observations.retain(|ob| match keep[ob.pose] {
+            Some(c) => ob.via.map_or(ob.device, |v| v.camera) == c,
+            None => true,
+        });
+    }
+
+    /// Keeps device `device`'s observations (and those found through it) in the first
+    /// `poses` board poses it sees only: a weakly seen device.
+    pub fn keep_device_in(&mut self, device: usize, poses: usize) {
+        let mut seen = std::collections::BTreeSet::new();
+        for ob in self.observations.iter().filter(|ob| ob.device == device) {
+            seen.insert(ob.pose);
+        }
+        let kept: Vec<usize> = seen.into_iter().take(poses).collect();
+        self.observations.retain(|ob| {
+            let involves = ob.device == device || ob.via.is_some_and(|v| v.camera == device);
+            !involves || kept.contains(&ob.pose)
+        });
+    }
+
     /// Cameras at (azimuth, elevation) in degrees at 1500 mm, projectors at azimuths at
     /// 1300 mm and 5° elevation, all looking at the origin.
     fn build(
@@ -577,6 +649,67 @@ impl Case {
     }
 }
 
+/// A rig of the observability grid (issue 32; docs/design.md §8, "Observability"): the
+/// shapes whose parameters the data do not all determine.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Shape {
+    /// [`SyntheticRig::one_sided`]: every device on one side, the board turned over between
+    /// poses (one camera and no projector: a single-camera calibration).
+    OneSided {
+        /// Cameras.
+        cameras: usize,
+        /// Projectors.
+        projectors: usize,
+        /// Board poses.
+        poses: usize,
+    },
+    /// [`SyntheticRig::ring`] without projectors, every other pose seen by one camera only
+    /// ([`SyntheticRig::keep_one_camera`]).
+    SingleCameraPoses {
+        /// Cameras.
+        cameras: usize,
+        /// Board poses.
+        poses: usize,
+    },
+    /// [`SyntheticRig::one_sided`] with its last camera kept in 3 poses only
+    /// ([`SyntheticRig::keep_device_in`]).
+    FewPoses {
+        /// Cameras.
+        cameras: usize,
+        /// Projectors.
+        projectors: usize,
+        /// Board poses.
+        poses: usize,
+    },
+}
+
+impl Shape {
+    /// The rig of this shape with noise `sigma` from `seed`.
+    pub fn rig(&self, sigma: f64, seed: u64) -> SyntheticRig {
+        match *self {
+            Shape::OneSided {
+                cameras,
+                projectors,
+                poses,
+            } => SyntheticRig::one_sided(cameras, projectors, poses, sigma, seed),
+            Shape::SingleCameraPoses { cameras, poses } => {
+                let mut rig = SyntheticRig::ring(cameras, 0, poses, sigma, seed);
+                rig.keep_one_camera(|k| k % 2 == 1);
+                rig
+            }
+            Shape::FewPoses {
+                cameras,
+                projectors,
+                poses,
+            } => {
+                let mut rig = SyntheticRig::one_sided(cameras, projectors, poses, sigma, seed);
+                rig.keep_device_in(cameras - 1, 3);
+                rig
+            }
+        }
+    }
+}
+
 /// Figures of one adjustment of a synthetic rig against its truth (`hexcal bench calib`,
 /// the convergence grid).
 #[derive(Clone, Debug)]
@@ -605,6 +738,9 @@ pub struct CaseResult {
     pub worst_z: (f64, String),
     /// The bound on |error|/σ for this many parameters: Bonferroni at 10⁻³ (4.6 for 200).
     pub z_bound: f64,
+    /// What the data could not determine, held at its prior and not compared
+    /// ([`Solution::held`]).
+    pub held: Vec<super::observability::Unobserved>,
 }
 
 impl CaseResult {
@@ -682,17 +818,26 @@ pub fn worst_deviation(
 
 /// Build the case's rig, adjust it from the case's start and compare with the truth.
 pub fn run_case(case: &Case) -> Result<CaseResult, super::CalibError> {
-    let mut rig = case.rig();
+    run_rig(case.rig(), case.start, case.seed)
+}
+
+/// Adjust `rig` from `start` (the perturbed truth from `seed` + 1) and compare with the
+/// truth: every estimated parameter, none held (docs/design.md §8, "Observability").
+pub fn run_rig(
+    mut rig: SyntheticRig,
+    start: Start,
+    seed: u64,
+) -> Result<CaseResult, super::CalibError> {
     let observations = rig.observations.len();
     let t = std::time::Instant::now();
-    let (sol, device_index, pose_index, excluded) = match case.start {
+    let (sol, device_index, pose_index, excluded) = match start {
         Start::Perturbed => {
             // The start takes the observations over (millions on the largest rigs: never
             // two copies at once).
             let observations = std::mem::take(&mut rig.observations);
             let start = Problem {
                 observations,
-                ..rig.perturbed_start(case.seed + 1)
+                ..rig.perturbed_start(seed + 1)
             };
             let sol = super::bundle::adjust(&start, &super::bundle::Options::default())?;
             let n = (rig.devices.len(), rig.boards.len());
@@ -745,6 +890,7 @@ pub fn run_case(case: &Case) -> Result<CaseResult, super::CalibError> {
         worst_focal_error,
         worst_z,
         z_bound: bonferroni_bound(m),
+        held: sol.held,
     })
 }
 
