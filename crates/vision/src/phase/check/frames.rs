@@ -7,7 +7,7 @@ mod lit;
 mod per_frame;
 mod phases;
 
-use super::fit::{robust_noise, GroupFits, PixelFit};
+use super::fit::{chi2_median_ratio, means_median_ratio, robust_noise, GroupFits, PixelFit};
 use super::{CheckFigures, CheckParams, StackFault, StackNote, StackSampler, StackVerdict};
 use crate::phase::NoiseModel;
 use nalgebra::{SMatrix, SVector};
@@ -79,6 +79,22 @@ pub(super) fn judge(
     let (within, disturbance) = stack.within_groups(params);
     let phases = stack.phase_consistency(&sampler.seq, params);
     faults.extend(merge(within, phases, stack.model.steps));
+    // A lag changes its group's mean image too (by (1/N)·Σ of the pattern change), which the
+    // gradient shapes partly take for motion: the lag is the cause.
+    let lagged: Vec<usize> = (faults.iter())
+        .filter_map(|f| match f {
+            StackFault::WrongPattern { group, .. } => Some(*group),
+            _ => None,
+        })
+        .collect();
+    faults.retain(|f| match f {
+        StackFault::Motion {
+            from_group,
+            to_group,
+            ..
+        } => !lagged.contains(from_group) && !lagged.contains(to_group),
+        _ => true,
+    });
     let clipped = stack.clipped_fraction(sampler.full_scale);
     if clipped > params.clipped {
         faults.push(StackFault::Clipped { fraction: clipped });
@@ -112,18 +128,24 @@ impl<'a> Stack<'a> {
             .par_chunks_mut(k)
             .map(|series| model.fit(series))
             .collect();
-        let mut dof = 1.0;
         let mut pairs = Vec::new();
         for (_, f) in fits
             .iter()
             .enumerate()
             .filter(|(i, _)| !sampler.clipped[i / 4])
         {
-            let (vars, nu) = f.variances(model.dof(), model.steps);
-            dof = nu;
-            pairs.extend(vars.into_iter().map(|v| (f.level(), v)));
+            let level = f.level();
+            pairs.extend(
+                f.variances(model.dof(), model.steps)
+                    .into_iter()
+                    .map(|v| (level, v)),
+            );
         }
-        let noise = robust_noise(pairs, dof);
+        let ratio = match model.dof() >= 2 {
+            true => chi2_median_ratio(model.dof() as f64),
+            false => means_median_ratio(model.groups),
+        };
+        let noise = robust_noise(pairs, ratio);
         let blocks = (0..sampler.blocks.len())
             .map(|b| (!sampler.clipped[b]).then(|| block(&fits[4 * b..4 * b + 4], model, &noise)))
             .collect();

@@ -216,3 +216,44 @@ fn clipping_is_named() {
         show(&d.verdict)
     );
 }
+
+#[test]
+fn lags_are_named_in_a_linearised_sequence_and_for_every_projector() {
+    // N = 7 for three linearised projectors: the model takes every step, so only the phases
+    // across groups can tell.
+    let seq = sequence(3, ProjectorResponse::Linearised { gamma: 2.2 });
+    let d = decode(&seq, (480, 384), 11, |k| {
+        let mut d = Disturbance::none(3);
+        if (16..=18).contains(&k) {
+            d.shown[0] = Some(k - 1);
+        }
+        d
+    });
+    eprintln!("one late: {}", show(&d.verdict));
+    assert!(
+        d.verdict.faults.iter().any(|f| matches!(
+            f,
+            StackFault::WrongPattern {
+                projector: 0,
+                group: 2,
+                offset: -1,
+                ..
+            }
+        )),
+        "{}",
+        show(&d.verdict)
+    );
+    // Every projector one frame late once, in one frame each of another group.
+    let seq = sequence(3, GAMMA);
+    let d = decode(&seq, (480, 384), 12, |k| {
+        let mut d = Disturbance::none(3);
+        for (p, frame) in [(0, 62), (1, 63), (2, 64)] {
+            if k == frame {
+                d.shown[p] = Some(k - 1);
+            }
+        }
+        d
+    });
+    eprintln!("every one late once: {}", show(&d.verdict));
+    assert!(!d.verdict.passed(), "{}", show(&d.verdict));
+}
