@@ -20,15 +20,17 @@ pub fn float_rows<'py>(
             let converted = numpy
                 .call_method1("asarray", (obj, "float64"))
                 .map_err(|e| error(format!("{what}: not an array of numbers: {e}")))?;
-            converted.extract::<PyReadonlyArray2<'py, f64>>().map_err(|_| {
-                error(format!(
-                    "{what}: expected an N×{cols} array, got {} dimension(s)",
-                    converted
-                        .getattr("ndim")
-                        .and_then(|n| n.extract::<usize>())
-                        .unwrap_or(0)
-                ))
-            })?
+            converted
+                .extract::<PyReadonlyArray2<'py, f64>>()
+                .map_err(|_| {
+                    error(format!(
+                        "{what}: expected an N×{cols} array, got {} dimension(s)",
+                        converted
+                            .getattr("ndim")
+                            .and_then(|n| n.extract::<usize>())
+                            .unwrap_or(0)
+                    ))
+                })?
         }
     };
     let shape = array.shape();
@@ -42,11 +44,7 @@ pub fn float_rows<'py>(
 }
 
 /// Rows of `cols` values as an N × `cols` numpy array (the buffer is handed over).
-pub fn rows_array<'py>(
-    py: Python<'py>,
-    rows: Vec<f64>,
-    cols: usize,
-) -> Bound<'py, PyArray2<f64>> {
+pub fn rows_array<'py>(py: Python<'py>, rows: Vec<f64>, cols: usize) -> Bound<'py, PyArray2<f64>> {
     let n = rows.len() / cols;
     Array2::from_shape_vec((n, cols), rows)
         .expect("whole rows")
@@ -82,7 +80,6 @@ pub fn correspondences(
     let (text, origin) = json_input(obj, "correspondences")?;
     let c: hexcal_core::observations::Correspondences = serde_json::from_str(&text)
         .map_err(|e| error(format!("{origin}: not a correspondences file: {e}")))?;
-    c.check()
-        .map_err(|e| error(e.in_file(origin.clone())))?;
+    c.check().map_err(|e| error(e.in_file(origin.clone())))?;
     Ok((c, origin))
 }

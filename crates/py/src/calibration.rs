@@ -80,10 +80,7 @@ impl Device {
             })
             .collect();
         let n = r.lens_params.len();
-        Ok((
-            free,
-            DMatrix::from_fn(n, n, |i, j| r.lens_covariance[i][j]),
-        ))
+        Ok((free, DMatrix::from_fn(n, n, |i, j| r.lens_covariance[i][j])))
     }
 }
 
@@ -197,9 +194,9 @@ impl Device {
     /// in a file of an older build that holds none.
     #[getter]
     fn lens_covariance<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray2<f64>>> {
-        self.lens_covariance_matrix().ok().map(|(_, c)| {
-            Array2::from_shape_fn(c.shape(), |(i, j)| c[(i, j)]).into_pyarray(py)
-        })
+        self.lens_covariance_matrix()
+            .ok()
+            .map(|(_, c)| Array2::from_shape_fn(c.shape(), |(i, j)| c[(i, j)]).into_pyarray(py))
     }
 
     /// Standard deviations of a left increment of the pose: (ω rad, τ mm), zero for the
@@ -294,7 +291,8 @@ impl Device {
             let px = float_rows(pixels, 2, "pixels")?;
             let device = self.posed();
             let n = px.shape()[0];
-            let (mut origins, mut directions) = (Vec::with_capacity(3 * n), Vec::with_capacity(3 * n));
+            let (mut origins, mut directions) =
+                (Vec::with_capacity(3 * n), Vec::with_capacity(3 * n));
             for row in px.as_array().rows() {
                 match ray(&device, Point2::new(row[0], row[1])) {
                     Some((o, d)) => {

@@ -10,12 +10,12 @@
 //! Depends on `hexcal-core`, `hexcal-vision` and `hexcal-calib` only: no driver, no server.
 #![warn(missing_docs)]
 
-pub mod error;
 pub mod arrays;
+pub mod calibrate;
 pub mod calibration;
+pub mod error;
 pub mod triangulate;
 pub mod vision;
-pub mod calibrate;
 
 use pyo3::prelude::*;
 

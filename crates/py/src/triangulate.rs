@@ -189,9 +189,7 @@ pub fn triangulate<'py>(
             return Ok(points.into_any());
         };
         if !(sigma.is_finite() && sigma >= 0.0) {
-            return Err(error(format!(
-                "pixel_sigma {sigma}: a finite σ ≥ 0 (px)"
-            )));
+            return Err(error(format!("pixel_sigma {sigma}: a finite σ ≥ 0 (px)")));
         }
         let (ua, ub) = (Uncertain::new(da)?, Uncertain::new(db)?);
         let mut cov = Vec::with_capacity(9 * pairs.len());

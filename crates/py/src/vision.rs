@@ -155,7 +155,7 @@ fn mask_array<'py>(py: Python<'py>, m: &Mask) -> Bound<'py, PyArray2<bool>> {
 }
 
 /// Decodes one camera's phase-shift stack, as `hexcal decode` does: `frames` is a K × H × W
-/// numpy array (uint8, uint16 or float32; frame k of the sequence at [k]) or a list of K
+/// numpy array (uint8, uint16 or float32; frame k of the sequence at index k) or a list of K
 /// H × W arrays (stacked, which copies them); `sequence` the sequence the projectors showed
 /// (a dict of the dataset's `sequence` layout, docs/dataset.md, or the path of a JSON file
 /// holding one). `full_scale` is the saturation level: by default 255 for uint8 and 65535
@@ -180,7 +180,9 @@ pub fn decode<'py>(
         let (text, origin) = json_input(sequence, "sequence")?;
         let seq: Sequence = serde_json::from_str(&text)
             .map_err(|e| error(format!("{origin}: not a sequence: {e}")))?;
-        let frames = if frames.is_instance_of::<PyList>() || frames.is_instance_of::<pyo3::types::PyTuple>() {
+        let frames = if frames.is_instance_of::<PyList>()
+            || frames.is_instance_of::<pyo3::types::PyTuple>()
+        {
             py.import("numpy")?.call_method1("stack", (frames,))?
         } else {
             frames.clone()

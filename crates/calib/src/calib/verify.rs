@@ -46,7 +46,10 @@ pub fn ray(device: &Device, pixel: Point2<f64>) -> Option<(Point3<f64>, Vector3<
 
 /// Midpoint of the shortest segment between two rays (origin, unit direction); `None` when
 /// they are parallel.
-pub fn midpoint(a: (Point3<f64>, Vector3<f64>), b: (Point3<f64>, Vector3<f64>)) -> Option<Point3<f64>> {
+pub fn midpoint(
+    a: (Point3<f64>, Vector3<f64>),
+    b: (Point3<f64>, Vector3<f64>),
+) -> Option<Point3<f64>> {
     let w = a.0 - b.0;
     let (p, q, r) = (a.1.dot(&b.1), a.1.dot(&w), b.1.dot(&w));
     let den = 1.0 - p * p;
