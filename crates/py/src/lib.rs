@@ -1,4 +1,4 @@
-//! hexcal-py: hexcal from Python (the `hexcal` package, docs in `crates/py/README.md`).
+//! hexcal-py: hexcal from Python (the `hexcal` package; README.md, "Python").
 //!
 //! Takes what the command line takes — `calibration.json`, correspondences, images, decoded
 //! stacks — as Python objects and numpy arrays; gives calibrations whose devices project,

@@ -2,13 +2,15 @@
 sample images and a simulated phase-shift stack (crates/py/tests/conftest.py)."""
 
 import json
+import subprocess
+import sys
 
 import cv2
 import numpy as np
 import pytest
 
 import hexcal
-from conftest import SAMPLES
+from conftest import REPO, SAMPLES
 
 
 def test_calibrate_recovers_the_rig(rig, calibrated):
@@ -238,3 +240,15 @@ def test_bad_calibration_input_raises(calibrated, tmp_path):
     path.write_text("{")
     with pytest.raises(hexcal.Error, match="calibration.json"):
         hexcal.load(path)
+
+
+def test_the_example_triangulates_a_calibration_folder(rig, calibrated, tmp_path):
+    calibrated.save(tmp_path / "calibration.json")
+    (tmp_path / "held-out.json").write_text(json.dumps(rig.correspondences([5])))
+    script = REPO / "examples" / "triangulate.py"
+    run = subprocess.run([sys.executable, str(script), str(tmp_path)],
+                         capture_output=True, text=True, check=True)
+    rows = [line.split() for line in run.stdout.splitlines()[1:4]]
+    assert [r[:2] for r in rows] == [["cam0", "cam1"], ["cam0", "proj0"], ["cam1", "proj0"]]
+    assert all(float(r[4]) < 0.2 for r in rows)
+    assert "hexcal verify" in run.stdout
