@@ -113,11 +113,11 @@ fn decode_frames<T: Sample + numpy::Element>(
     camera: &str,
     full_scale: f32,
 ) -> Result<DecodedStack, DecodeError> {
-    let (k, h, w) = frames.dim();
+    let (_, h, w) = frames.dim();
     let (width, height) = (w as u32, h as u32);
     let mut decoder = Decoder::<T>::new(seq, camera, width, height, full_scale)?;
     let mut copy = Vec::new();
-    for (i, frame) in frames.outer_iter().enumerate().take(k) {
+    for (i, frame) in frames.outer_iter().enumerate() {
         let pixels = match frame.as_slice() {
             Some(s) => s,
             None => {
