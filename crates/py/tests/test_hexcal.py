@@ -252,3 +252,15 @@ def test_the_example_triangulates_a_calibration_folder(rig, calibrated, tmp_path
     assert [r[:2] for r in rows] == [["cam0", "cam1"], ["cam0", "proj0"], ["cam1", "proj0"]]
     assert all(float(r[4]) < 0.2 for r in rows)
     assert "hexcal verify" in run.stdout
+
+
+def test_the_stubs_name_what_the_module_has():
+    import ast
+
+    stub = ast.parse((REPO / "crates/py/python/hexcal/_hexcal.pyi").read_text())
+    top = {n.name: n for n in stub.body if isinstance(n, (ast.ClassDef, ast.FunctionDef))}
+    assert set(top) == set(hexcal.__all__)
+    for cls in ("Device", "Calibration"):
+        stubbed = {n.name for n in top[cls].body if isinstance(n, ast.FunctionDef)}
+        public = {m for m in dir(getattr(hexcal, cls)) if not m.startswith("_")}
+        assert public <= stubbed, public - stubbed
