@@ -42,6 +42,11 @@ const CRATES: &[(&str, &[&str])] = &[
             "hexcal-simulator",
         ],
     ),
+    // The Python package: the camera model, calibration files, image stages, no driver.
+    (
+        "hexcal-py",
+        &["hexcal-core", "hexcal-vision", "hexcal-calib"],
+    ),
     (
         "hexcal-fuzz",
         &["hexcal", "hexcal-firmware-protocol", "hexcal-simulator"],
@@ -377,6 +382,17 @@ const MODULES: &[(&str, &[&str])] = &[
     ("crates/vision", &["phase", "detect", "grid", "correspond"]),
     ("crates/rig", &["rig", "capture"]),
     ("crates/calib", &["calib", "report"]),
+    (
+        "crates/py",
+        &[
+            "error",
+            "arrays",
+            "calibration",
+            "triangulate",
+            "vision",
+            "calibrate",
+        ],
+    ),
     (".", &["app", "bench"]),
 ];
 

@@ -36,15 +36,20 @@ pub struct PairCheck {
     pub flatness_rms: f64,
 }
 
-/// One device's ray through a pixel, in the reference frame: origin and unit direction.
-fn ray(device: &Device, pixel: Point2<f64>) -> Option<(Point3<f64>, Vector3<f64>)> {
+/// One device's ray through a pixel, in the reference frame: origin and unit direction;
+/// `None` where the lens model cannot be inverted.
+pub fn ray(device: &Device, pixel: Point2<f64>) -> Option<(Point3<f64>, Vector3<f64>)> {
     let d = device.model.ray(pixel)?;
     let inv = device.pose.inverse();
     Some((inv * Point3::origin(), (inv.rotation * d).normalize()))
 }
 
-/// Midpoint of the shortest segment between two rays.
-fn midpoint(a: (Point3<f64>, Vector3<f64>), b: (Point3<f64>, Vector3<f64>)) -> Option<Point3<f64>> {
+/// Midpoint of the shortest segment between two rays (origin, unit direction); `None` when
+/// they are parallel.
+pub fn midpoint(
+    a: (Point3<f64>, Vector3<f64>),
+    b: (Point3<f64>, Vector3<f64>),
+) -> Option<Point3<f64>> {
     let w = a.0 - b.0;
     let (p, q, r) = (a.1.dot(&b.1), a.1.dot(&w), b.1.dot(&w));
     let den = 1.0 - p * p;
