@@ -16,9 +16,10 @@ use std::f64::consts::TAU;
 /// Median of χ²₁: a clean group's median scaled disagreement.
 const CHI2_1_MEDIAN: f64 = 0.454_936;
 
-/// Extra phase scatter of a group (its median scaled e² − 1) that fails when significant: a
-/// scatter that varies from pixel to pixel averages down over a circle like the noise does,
-/// so a quarter more variance is harmless; more says the group is not what it should be.
+/// Extra phase scatter of a group (its median scaled e² over that of the direction's quietest
+/// other group, or over χ²₁'s if that is lower, − 1) that fails when significant: a scatter
+/// that varies from pixel to pixel averages down over a circle like the noise does, so a
+/// quarter more variance is harmless; more says the group is not what it should be.
 const SCATTER: f64 = 0.25;
 
 /// Modulation (σ_I units) every group of a pixel needs for its phases to be tested.
@@ -43,6 +44,19 @@ struct Disagreement {
     scaled: Vec<f64>,
 }
 
+impl Disagreement {
+    /// The median of the scaled disagreements over that of χ²₁: 1 for a clean group whose
+    /// noise model is right.
+    fn median(&self) -> f64 {
+        let mut scaled = self.scaled.clone();
+        if scaled.is_empty() {
+            return 1.0;
+        }
+        let mid = scaled.len() / 2;
+        *scaled.select_nth_unstable_by(mid, f64::total_cmp).1 / CHI2_1_MEDIAN
+    }
+}
+
 impl Stack<'_> {
     /// Faults of the groups whose phases disagree with their direction's other groups, with
     /// the group each names.
@@ -62,11 +76,20 @@ impl Stack<'_> {
                 };
                 // One fault per projector and direction: the fusion spreads one group's
                 // bias over the others (−δ·n_j·n_k/Σn²), so the worst group is the cause.
+                let medians: Vec<f64> = sums.iter().map(Disagreement::median).collect();
                 let worst = sums
                     .iter()
                     .enumerate()
                     .filter_map(|(j, d)| {
-                        let (score, f) = self.judge_group(p, groups[j], counts.len(), d, params)?;
+                        // The scatter of the direction's quietest other group: a noise model
+                        // a little off shifts every group's alike.
+                        let reference = (medians.iter().enumerate())
+                            .filter(|&(k, _)| k != j)
+                            .map(|(_, &m)| m)
+                            .fold(f64::INFINITY, f64::min)
+                            .max(1.0);
+                        let (score, f) =
+                            self.judge_group(p, groups[j], counts.len(), d, reference, params)?;
                         Some((score, groups[j], f))
                     })
                     .max_by(|a, b| a.0.total_cmp(&b.0));
@@ -156,6 +179,7 @@ impl Stack<'_> {
         g: usize,
         m: usize,
         d: &Disagreement,
+        reference: f64,
         params: &CheckParams,
     ) -> Option<(f64, StackFault)> {
         if d.count < 100.0 {
@@ -170,11 +194,9 @@ impl Stack<'_> {
         let sigma_phi = (d.count / d.sum_w).sqrt();
         let bias = mean_e / (1.0 - leverage);
         let coherent = mean_e.abs() > params.z * se && bias.abs() > params.phase_bias * sigma_phi;
-        let mut scaled = d.scaled.clone();
-        let mid = scaled.len() / 2;
-        let median = *scaled.select_nth_unstable_by(mid, f64::total_cmp).1 / CHI2_1_MEDIAN;
+        let median = d.median();
         // The sample median's standard error is ≈ 1.6× the mean's (χ²₁).
-        let excess = median - 1.0;
+        let excess = median / reference - 1.0;
         let incoherent = excess > SCATTER && excess > params.z * 1.6 * (2.0 / d.count).sqrt();
         if !(coherent || incoherent) {
             return None;
