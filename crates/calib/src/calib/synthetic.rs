@@ -401,7 +401,7 @@ impl SyntheticRig {
     }
 
     /// Every device on one side: `cameras` at azimuths over ±30° (elevations over ±15°),
-    /// `projectors` over ±25° (+7°), `poses` board poses as [`SyntheticRig::build`]'s, every
+    /// `projectors` over ±25° (+7°), `poses` board poses as `SyntheticRig::build`'s, every
     /// odd one turned over (180° about the board's y): each pose shows every device one
     /// side, the front in the even poses, the back in the odd ones, never both (issue 32).
     pub fn one_sided(
