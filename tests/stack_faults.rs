@@ -47,11 +47,13 @@ fn a_run_names_spoiled_stacks_captures_them_again_and_calibrates() {
             eprintln!("{e}");
         }
     }
-    // The late projector is named in pose 1, the clipping in pose 3, nothing else.
+    // The late projector is named in pose 1 (as a lag when its phases and modulation fit
+    // one; here, seen by one camera over a few hundred sampled pixels at the board's edge, as
+    // its group disagreeing), the clipping in pose 3, nothing else.
     assert!(
-        refused
-            .iter()
-            .any(|(k, r)| *k == 1 && r.contains("projector 1 showed the previous frame's pattern")),
+        refused.iter().any(|(k, r)| *k == 1
+            && (r.contains("projector 1 showed")
+                || r.contains("projector 1's phases in fringe group 4"))),
         "{refused:?}"
     );
     assert!(
@@ -104,7 +106,7 @@ fn a_run_names_spoiled_stacks_captures_them_again_and_calibrates() {
     let stdout = String::from_utf8_lossy(&d.stdout);
     assert_eq!(d.status.code(), Some(1), "{stdout}");
     assert!(
-        stdout.contains("stack check: FAILED: projector 1 showed"),
+        stdout.contains("stack check: FAILED: projector 1"),
         "{stdout}"
     );
     let kept = cli::hexcal(&[
