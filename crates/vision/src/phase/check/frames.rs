@@ -17,6 +17,10 @@ use rayon::prelude::*;
 /// gradients.
 const SHAPES: usize = 5;
 
+/// Smallest per-pixel variance used as a weight (DN²): far below any sensor's, it only keeps
+/// the weights of a noise-free stack finite.
+const MIN_VAR: f64 = 1e-9;
+
 /// A block's shapes, noise and fit summary.
 struct Block {
     /// The shapes at the block: [1, ambient, level, ∂x level, ∂y level] (DN, DN/px).
@@ -187,6 +191,9 @@ impl<'a> Stack<'a> {
             let x = SVector::<f64, SHAPES>::from(blk.shapes);
             ata += x * x.transpose() / var(blk);
         }
+        if !ata.iter().all(|v| v.is_finite()) {
+            return SMatrix::zeros();
+        }
         let d = SVector::<f64, SHAPES>::from_fn(|i, _| 1.0 / ata[(i, i)].max(1e-300).sqrt());
         let scaled = SMatrix::<f64, SHAPES, SHAPES>::from_fn(|i, j| ata[(i, j)] * d[i] * d[j]);
         let cov_s = scaled
@@ -254,7 +261,8 @@ fn block(fits: &[PixelFit], model: &GroupFits, noise: &NoiseModel) -> Block {
     let sigma = noise.sigma(level);
     Block {
         shapes: [1.0, (level - lit).max(0.0), level, gx, gy],
-        var: sigma * sigma,
+        // A noise-free stack (rendered without noise) still gets finite weights.
+        var: (sigma * sigma).max(MIN_VAR),
     }
 }
 
