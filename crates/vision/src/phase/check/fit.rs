@@ -185,12 +185,11 @@ impl GroupFits {
 
 /// median_g (x_g − median x)² of `x` (reordered).
 fn median_square_deviation(x: &mut [f64]) -> f64 {
-    let mid = x.len() / 2;
-    let centre = *x.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let centre = median(x);
     for v in x.iter_mut() {
         *v = (*v - centre).powi(2);
     }
-    *x.select_nth_unstable_by(mid, f64::total_cmp).1
+    median(x)
 }
 
 /// The median of χ²_ν/ν (Wilson–Hilferty): a residual variance statistic's median over σ_I².
@@ -213,11 +212,14 @@ pub(super) fn means_median_ratio(groups: usize) -> f64 {
             median_square_deviation(&mut z)
         })
         .collect();
-    median_of(&mut stats)
+    median(&mut stats)
 }
 
-/// The median of `x` (reordered).
-fn median_of(x: &mut [f64]) -> f64 {
+/// The median of `x` (reordered; 0 when empty).
+pub(super) fn median(x: &mut [f64]) -> f64 {
+    if x.is_empty() {
+        return 0.0;
+    }
     let mid = x.len() / 2;
     *x.select_nth_unstable_by(mid, f64::total_cmp).1
 }

@@ -4,6 +4,7 @@
 //! disturbed by more than the budget fails.
 
 use super::{runs, Stack, StackFault};
+use crate::phase::check::fit::median;
 use crate::phase::check::CheckParams;
 use nalgebra::SVector;
 use rayon::prelude::*;
@@ -190,13 +191,4 @@ impl CauseKey {
             },
         }
     }
-}
-
-/// The median of `v` (reordered).
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, f64::total_cmp).1
 }

@@ -8,6 +8,7 @@
 //! which names the lag.
 
 use super::{Stack, StackFault};
+use crate::phase::check::fit::median;
 use crate::phase::check::CheckParams;
 use crate::phase::Constellation;
 use hexcal_core::pattern::{Direction, Sequence};
@@ -48,12 +49,10 @@ impl Disagreement {
     /// The median of the scaled disagreements over that of χ²₁: 1 for a clean group whose
     /// noise model is right.
     fn median(&self) -> f64 {
-        let mut scaled = self.scaled.clone();
-        if scaled.is_empty() {
-            return 1.0;
+        match self.scaled.is_empty() {
+            true => 1.0,
+            false => median(&mut self.scaled.clone()) / CHI2_1_MEDIAN,
         }
-        let mid = scaled.len() / 2;
-        *scaled.select_nth_unstable_by(mid, f64::total_cmp).1 / CHI2_1_MEDIAN
     }
 }
 
