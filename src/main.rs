@@ -294,10 +294,7 @@ fn main() -> ExitCode {
         }
         Err(e) => {
             eprintln!("error: {}", one_line(&e));
-            let interrupted = matches!(
-                e.downcast_ref::<AppError>(),
-                Some(AppError::Interrupted { .. })
-            );
+            let interrupted = e.downcast_ref::<AppError>().is_some_and(AppError::stopped);
             ExitCode::from(if interrupted {
                 EXIT_INTERRUPTED
             } else {
@@ -507,6 +504,7 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             stereo,
         } => {
             let mut options = CalibrateOptions::default();
+            options.bundle.stop = hexcal::app::session::stop_on_signals()?;
             options.bundle.fix_k3 = fix_k3;
             options.bundle.refine_flatness = refine_flatness;
             let mut printer = printer(Progress::Human);

@@ -367,6 +367,7 @@ const MODULES: &[(&str, &[&str])] = &[
         "crates/core",
         &[
             "atomic",
+            "stop",
             "lock",
             "tomlspan",
             "invalid",

@@ -242,6 +242,9 @@ pub fn calibrate_dataset(
     let mut all = Vec::new();
     let mut warnings = Vec::new();
     for (i, &k) in poses.iter().enumerate() {
+        if options.bundle.stop.requested() {
+            return Err(crate::calib::CalibError::Stopped.into());
+        }
         let views = match data.read_pose_file::<PoseViews>(k, "views.json")? {
             Some(v) => v,
             None => process_stored(&data, &board, k),

@@ -91,6 +91,18 @@ pub enum AppError {
         /// The pose to place again.
         place_again: usize,
     },
+    /// Ctrl-C after the capture: the run stopped while processing or calibrating, keeping
+    /// every complete pose.
+    #[error(
+        "stopped while {during}: complete poses {kept:?} are kept; run the same command to \
+         resume (the poses still missing are captured, then everything is calibrated)"
+    )]
+    Stopped {
+        /// What the run was doing.
+        during: &'static str,
+        /// Complete poses in the dataset.
+        kept: Vec<usize>,
+    },
     /// A capture script's step (told in one line: not a source of this error).
     #[error("script: {0}")]
     Script(script::ScriptError),
@@ -118,6 +130,16 @@ pub enum AppError {
 }
 
 impl AppError {
+    /// Whether the job ended because Ctrl-C (or SIGTERM) stopped it.
+    pub fn stopped(&self) -> bool {
+        matches!(
+            self,
+            AppError::Interrupted { .. }
+                | AppError::Stopped { .. }
+                | AppError::Calibration(crate::calib::CalibError::Stopped)
+        )
+    }
+
     /// An I/O error on `path`.
     pub fn io(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> AppError + '_ {
         move |source| AppError::Io {

@@ -18,11 +18,13 @@ use super::truth::{check_truth, format_truth};
 use super::AppError;
 use crate::board::Board;
 use crate::calib::solve::CalibrateOptions;
+use crate::calib::CalibError;
 use crate::capture::Session;
 use crate::dataset::{Dataset, Leftover, PoseInfo, Timeline};
 use crate::images::CameraFrame;
 use crate::pattern::Sequence;
 use crate::rig::OpenedRig;
+use crate::stop::Stop;
 use crossbeam_channel::{bounded, unbounded, Receiver, Sender};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -241,6 +243,7 @@ pub fn run(
         all,
         warnings,
         events,
+        data,
         ..
     } = stream;
     let collected = Collected {
@@ -251,13 +254,26 @@ pub fn run(
         stereo: &options.stereo,
     };
     let dir = out.join("calibration");
-    let mut outcome = finish(
-        collected,
-        &dir,
-        &CalibrateOptions::default(),
-        &warnings,
-        events,
-    )?;
+    let stopped = |during: &'static str| -> Result<AppError, AppError> {
+        Ok(AppError::Stopped {
+            during,
+            kept: data.completed()?,
+        })
+    };
+    if options.stopped() {
+        // Ctrl-C after the last capture: the poses in processing were finished above.
+        return Err(stopped("processing the captured poses")?);
+    }
+    let mut calibrate = CalibrateOptions::default();
+    calibrate.bundle.stop = options.stop.clone().map(Stop::on).unwrap_or_default();
+    let mut outcome = match finish(collected, &dir, &calibrate, &warnings, events) {
+        Err(AppError::Calibration(CalibError::Stopped)) => {
+            return Err(stopped(
+                "calibrating (nothing of the calibration was written)",
+            )?)
+        }
+        done => done?,
+    };
     outcome.timelines = captured.timelines;
     if let Some(w) = &world {
         outcome.truth = check_truth(&outcome.calibration, w);

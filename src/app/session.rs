@@ -41,17 +41,48 @@ pub struct Voice<'a> {
 }
 
 /// A flag that Ctrl-C (or SIGTERM) sets: the run stops capturing, finishes every pose
-/// already captured and ends. A second one exits at once (code 130); every file written so
-/// far is whole, since every write is atomic.
+/// already captured and ends, or stops its calibration within an iteration; each signal is
+/// answered at once on stderr. A second one exits at once (code 130), saying so; every
+/// file written so far is whole, since every write is atomic.
 pub fn stop_flag() -> Result<Arc<AtomicBool>, AppError> {
     use signal_hook::consts::{SIGINT, SIGTERM};
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [SIGINT, SIGTERM] {
-        signal_hook::flag::register_conditional_shutdown(signal, 130, Arc::clone(&stop))
-            .map_err(AppError::Signals)?;
-        signal_hook::flag::register(signal, Arc::clone(&stop)).map_err(AppError::Signals)?;
+        let flag = Arc::clone(&stop);
+        let handler = move || {
+            let again = flag.swap(true, Ordering::SeqCst);
+            say_raw(if again { SECOND_STOP } else { FIRST_STOP });
+            if again {
+                signal_hook::low_level::exit(130);
+            }
+        };
+        // SAFETY: the handler only swaps an atomic flag, write(2)s a static message and
+        // _exit(2)s: all async-signal-safe, no allocation, no lock.
+        unsafe { signal_hook::low_level::register(signal, handler) }.map_err(AppError::Signals)?;
     }
     Ok(stop)
+}
+
+/// [`stop_flag`] as the stages poll it (`hexcal calibrate`'s adjustment).
+pub fn stop_on_signals() -> Result<crate::stop::Stop, AppError> {
+    Ok(crate::stop::Stop::on(stop_flag()?))
+}
+
+/// Told on the first Ctrl-C.
+const FIRST_STOP: &[u8] = b"\nhexcal: stopping (Ctrl-C): finishing what is captured, then \
+    saying what is kept; Ctrl-C again to stop at once\n";
+
+/// Told on the second Ctrl-C, just before the exit.
+const SECOND_STOP: &[u8] = b"\nhexcal: stopped at once (second Ctrl-C): every file written \
+    is whole; run the same command to resume\n";
+
+/// `message` on stderr from a signal handler (write(2), no lock, no allocation).
+fn say_raw(message: &[u8]) {
+    // SAFETY: a valid buffer of its own length; write(2) is async-signal-safe. A short
+    // or failed write only shortens the message.
+    unsafe {
+        libc::write(2, message.as_ptr().cast(), message.len());
+    }
 }
 
 /// The operator's lines (`true` per line, `false` at the end of input), read in a thread of

@@ -19,6 +19,7 @@ use super::CalibError;
 use hexcal_core::board::{Board, Hex, Side};
 use hexcal_core::camera::{CameraModel, LensJacobian, LensParam, LensParams, UndistortedPixel};
 use hexcal_core::observations::DeviceKind;
+use hexcal_core::stop::Stop;
 use nalgebra::{
     DMatrix, DMatrixView, DVector, DVectorView, Dyn, Isometry3, Matrix2x3, Matrix3, Matrix6,
     MatrixView, Point2, Point3, Translation3, UnitQuaternion, Vector2, Vector3, Vector6,
@@ -89,6 +90,9 @@ pub struct Options {
     pub fixed: Vec<Vec<LensParam>>,
     /// Maximum LM iterations per phase.
     pub max_iterations: usize,
+    /// Polled before every LM iteration: once set, the adjustment ends with
+    /// [`CalibError::Stopped`].
+    pub stop: Stop,
 }
 
 impl Default for Options {
@@ -103,6 +107,7 @@ impl Default for Options {
             fix_k3: false,
             fixed: Vec::new(),
             max_iterations: 50,
+            stop: Stop::default(),
         }
     }
 }
@@ -1118,6 +1123,18 @@ fn levenberg_marquardt(
     let mut frozen: Option<(f64, Vec<bool>)> = None;
     let mut an = held_anchors.unwrap_or_default();
     for iteration in 1..=o.max_iterations {
+        if o.stop.requested() {
+            // Not converged: [`adjust`] sees the stop and ends the adjustment.
+            return Phase {
+                state: s,
+                iterations: iteration,
+                converged: false,
+                system: None,
+                lambda,
+                anchors: None,
+                norms: None,
+            };
+        }
         // After a step within ~0.3σ the bias has moved by far less than its rounding.
         if an.is_empty() || (iteration > 1 && !small_drop) {
             an = anchors(p, &s, o);
@@ -1509,6 +1526,14 @@ fn hold_null_space(
     Ok(sol)
 }
 
+/// [`CalibError::Stopped`] once a stop is requested.
+fn stopped(o: &Options) -> Result<(), CalibError> {
+    match o.stop.requested() {
+        true => Err(CalibError::Stopped),
+        false => Ok(()),
+    }
+}
+
 /// Run the adjustment: coarse descent, robust phase, outlier rejection per device, plain
 /// phase, covariance.
 pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
@@ -1518,6 +1543,7 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
     let l = Layout::new(p, o);
     let by_pose = group_by_pose(p);
     let (start, lambda, coarse_iterations) = coarse_descent(p, &l, o);
+    stopped(o)?;
     let all = vec![true; p.observations.len()];
     let robust = levenberg_marquardt(
         p,
@@ -1529,7 +1555,9 @@ pub fn adjust(p: &Problem, o: &Options) -> Result<Solution, CalibError> {
         &by_pose,
         lambda,
     );
+    stopped(o)?;
     let (plain, active, iterations) = plain_phase(p, &l, o, &by_pose, robust);
+    stopped(o)?;
     let s = plain.state;
     let (sys, cost, res) = plain.system.unwrap_or_else(|| {
         let (sys, cost, res) =

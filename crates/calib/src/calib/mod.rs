@@ -81,6 +81,9 @@ pub enum CalibError {
         /// Why (which views it has, what they lack).
         reason: String,
     },
+    /// A stop was requested (Ctrl-C) before the calibration finished.
+    #[error("stopped (Ctrl-C) before the calibration finished; nothing of it was written")]
+    Stopped,
     /// The input refers to what is not there (a device, pose or index out of range, a
     /// duplicate name or view, a value that is not finite): the JSON path of the offending
     /// value (e.g. `views[3].camera`) and what is wrong.
