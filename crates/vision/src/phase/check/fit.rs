@@ -25,19 +25,35 @@ pub(super) struct GroupFits {
     pub(super) mean_ratio: Vec<f64>,
 }
 
-/// What the fit keeps of one pixel.
+/// What the fit keeps of one pixel, in one allocation: per group the mean level (DN), per
+/// group Σ of the squared residuals over its frames, and per group and projector the
+/// fundamental's complex amplitude C = (2/N)·Σ_s I_s·e^{−i2πf_p s/N} (the contribution at
+/// step s is Re(C·e^{i2πf_p s/N})).
 #[derive(Clone, Debug, Default)]
 pub(super) struct PixelFit {
-    /// Per group, the mean level (DN).
-    pub(super) means: Vec<f32>,
-    /// Per group and projector ([g·P + p]), the fundamental's complex amplitude
-    /// C = (2/N)·Σ_s I_s·e^{−i2πf_p s/N}: the contribution at step s is Re(C·e^{i2πf_p s/N}).
-    pub(super) fundamentals: Vec<[f32; 2]>,
-    /// Per group, Σ of the squared residuals over its frames.
-    pub(super) rss: Vec<f32>,
+    /// Groups G.
+    groups: usize,
+    /// [means (G) | rss (G) | fundamentals (2·G·P, re and im at [g·P + p])].
+    data: Vec<f32>,
 }
 
 impl PixelFit {
+    /// Per group, the mean level (DN).
+    pub(super) fn means(&self) -> &[f32] {
+        &self.data[..self.groups]
+    }
+
+    /// Per group, Σ of the squared residuals over its frames.
+    fn rss(&self) -> &[f32] {
+        &self.data[self.groups..2 * self.groups]
+    }
+
+    /// Group g's fundamental of projector p of `projectors` (re, im).
+    pub(super) fn fundamental(&self, g: usize, p: usize, projectors: usize) -> [f32; 2] {
+        let at = 2 * self.groups + 2 * (g * projectors + p);
+        [self.data[at], self.data[at + 1]]
+    }
+
     /// The per-frame noise variance statistic: one value per group from its residuals when
     /// the model leaves `dof` ≥ 2 (σ_I²·χ²_dof/dof), else one from the group means (N
     /// `steps`): N·median_g (m_g − median m)², robust to a group that differs from the others
@@ -45,30 +61,29 @@ impl PixelFit {
     pub(super) fn variances(&self, dof: usize, steps: usize) -> Vec<f64> {
         if dof >= 2 {
             return self
-                .rss
+                .rss()
                 .iter()
                 .map(|&r| f64::from(r) / dof as f64)
                 .collect();
         }
-        let mut m: Vec<f64> = self.means.iter().map(|&m| f64::from(m)).collect();
+        let mut m: Vec<f64> = self.means().iter().map(|&m| f64::from(m)).collect();
         vec![steps as f64 * median_square_deviation(&mut m)]
     }
 
     /// The mean level over the groups (DN).
     pub(super) fn level(&self) -> f64 {
-        self.means.iter().map(|&m| f64::from(m)).sum::<f64>() / self.means.len() as f64
+        self.means().iter().map(|&m| f64::from(m)).sum::<f64>() / self.groups as f64
     }
 
     /// Projector p's modulation: the RMS over groups of |C| (DN).
     pub(super) fn modulation(&self, p: usize, projectors: usize) -> f64 {
-        let g = self.means.len();
-        let s: f64 = (0..g)
+        let s: f64 = (0..self.groups)
             .map(|g| {
-                let [re, im] = self.fundamentals[g * projectors + p];
+                let [re, im] = self.fundamental(g, p, projectors);
                 f64::from(re * re + im * im)
             })
             .sum();
-        (s / g as f64).sqrt()
+        (s / self.groups as f64).sqrt()
     }
 }
 
@@ -135,19 +150,26 @@ impl GroupFits {
         self.steps - self.params
     }
 
-    /// Fit one pixel's series (every frame, in order), replacing it by its residuals.
-    pub(super) fn fit(&self, series: &mut [f32]) -> PixelFit {
-        let n = self.steps;
-        let mut fit = PixelFit {
-            means: Vec::with_capacity(self.groups),
-            fundamentals: Vec::with_capacity(self.groups * self.projectors),
-            rss: Vec::with_capacity(self.groups),
-        };
-        let mut coef = vec![[0f32; 2]; self.bins.len()];
-        for seg in series.chunks_exact_mut(n) {
-            let mut rss = 0f32;
-            let mean = seg.iter().sum::<f32>() / n as f32;
-            for (j, (&b, c)) in self.bins.iter().zip(&mut coef).enumerate() {
+    /// A buffer of the bins' coefficients for [`Self::fit`].
+    pub(super) fn coefficients(&self) -> Vec<[f32; 2]> {
+        vec![[0f32; 2]; self.bins.len()]
+    }
+
+    /// Fit one pixel's series (every frame, in order), replacing it by its residuals;
+    /// `coef` is a buffer of [`Self::coefficients`].
+    pub(super) fn fit(&self, series: &mut [f32], coef: &mut [[f32; 2]]) -> PixelFit {
+        let (n, g) = (self.steps, self.groups);
+        let mut data = vec![0f32; 2 * g + 2 * g * self.projectors];
+        let (sums, fundamentals) = data.split_at_mut(2 * g);
+        let (means, rss) = sums.split_at_mut(g);
+        for (((seg, mean), rss), fund) in series
+            .chunks_exact_mut(n)
+            .zip(means)
+            .zip(rss)
+            .zip(fundamentals.chunks_exact_mut(2 * self.projectors))
+        {
+            *mean = seg.iter().sum::<f32>() / n as f32;
+            for (j, (&b, c)) in self.bins.iter().zip(coef.iter_mut()).enumerate() {
                 let tw = &self.twiddles[j * n..(j + 1) * n];
                 let (re, im) = seg
                     .iter()
@@ -167,14 +189,14 @@ impl GroupFits {
                         re * c - im * sn
                     })
                     .sum();
-                *v -= mean + model;
-                rss += *v * *v;
+                *v -= *mean + model;
+                *rss += *v * *v;
             }
-            fit.rss.push(rss);
-            fit.means.push(mean);
-            fit.fundamentals.extend_from_slice(&coef[..self.projectors]);
+            for (f, c) in fund.chunks_exact_mut(2).zip(coef.iter()) {
+                f.copy_from_slice(c);
+            }
         }
-        fit
+        PixelFit { groups: g, data }
     }
 
     /// Projector p's temporal frequency θ_p = 2π·f_p/N (rad per step).

@@ -130,7 +130,10 @@ impl<'a> Stack<'a> {
         let mut residuals = sampler.series();
         let fits: Vec<PixelFit> = residuals
             .par_chunks_mut(k)
-            .map(|series| model.fit(series))
+            .map_init(
+                || model.coefficients(),
+                |coef, series| model.fit(series, coef),
+            )
             .collect();
         let mut pairs = Vec::new();
         for (_, f) in fits
@@ -173,13 +176,19 @@ impl<'a> Stack<'a> {
     }
 
     /// Regress a per-block target on the shapes with per-block variances: the coefficients,
-    /// their covariance, and the sum of squares they explain (in units of the variances).
-    fn regress(&self, target: impl Fn(usize) -> f64, var: impl Fn(&Block) -> f64) -> Fit {
+    /// their covariance, and the sum of squares they explain (in units of the variances);
+    /// `cov` is [`Self::covariance`] of `var`, computed once for many targets.
+    fn regress(
+        &self,
+        cov: &SMatrix<f64, SHAPES, SHAPES>,
+        target: impl Fn(usize) -> f64,
+        var: impl Fn(&Block) -> f64,
+    ) -> Fit {
         let mut atb = SVector::<f64, SHAPES>::zeros();
         for (b, blk) in self.usable() {
             atb += target(b) / var(blk) * SVector::<f64, SHAPES>::from(blk.shapes);
         }
-        Fit::new(self.covariance(var), atb)
+        Fit::new(*cov, atb)
     }
 
     /// (Σ_b x_b x_bᵀ / var_b)⁻¹ over the usable blocks' shapes x_b: scaled to unit diagonal,

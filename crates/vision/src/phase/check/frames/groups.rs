@@ -1,7 +1,7 @@
 //! Between groups (docs/design.md §6b, eq. 6b.3): each group's mean image minus the overall
 //! mean, regressed on the shapes, gives its light level and the board's displacement.
 
-use super::{Stack, StackFault, StackNote};
+use super::{Block, Stack, StackFault, StackNote};
 use crate::phase::check::CheckParams;
 
 /// Light changes below this fraction of the mean level are not worth a note.
@@ -28,19 +28,19 @@ impl Stack<'_> {
         let m = self.model;
         let (n, g) = (m.steps as f64, m.groups as f64);
         let mean_shapes = self.mean_shapes();
+        let levels: Vec<f64> = self.fits.iter().map(|f| f.level()).collect();
+        // The group mean of a block: σ²/(4N), less the part the overall mean shares.
+        let var = |blk: &Block| blk.var / (4.0 * n) * (1.0 - 1.0 / g);
+        let cov = self.covariance(var);
         let shifts: Vec<GroupShift> = (0..m.groups)
             .map(|grp| {
                 let target = |b: usize| {
                     (0..4)
-                        .map(|j| {
-                            let f = &self.fits[4 * b + j];
-                            f64::from(f.means[grp]) - f.level()
-                        })
+                        .map(|j| f64::from(self.fits[4 * b + j].means()[grp]) - levels[4 * b + j])
                         .sum::<f64>()
                         / 4.0
                 };
-                // The group mean of a block: σ²/(4N), less the part the overall mean shares.
-                let fit = self.regress(target, |blk| blk.var / (4.0 * n) * (1.0 - 1.0 / g));
+                let fit = self.regress(&cov, target, var);
                 let (d, se) = fit.displacement();
                 let light: f64 = (0..3).map(|i| fit.coef[i] * mean_shapes[i]).sum();
                 let light_var: f64 = (0..3)

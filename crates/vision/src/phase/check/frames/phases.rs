@@ -130,7 +130,7 @@ impl Stack<'_> {
             }
             for f in &self.fits[4 * blk..4 * blk + 4] {
                 for (j, &g) in groups.iter().enumerate() {
-                    let [re, im] = f.fundamentals[g * np + p];
+                    let [re, im] = f.fundamental(g, p, np);
                     // |C|² = B² + 4σ_I²/N on average: B without the noise's share.
                     let c2 = f64::from(re).powi(2) + f64::from(im).powi(2);
                     b[j] = (c2 - 2.0 * phase_var * block.var).max(0.0).sqrt();
