@@ -414,16 +414,47 @@ impl StackRenderer {
     /// Frame k of the stack with projector p showing pattern `shown[p]` instead (a display
     /// lag, a dropped or repeated frame); the patterns must be of frame k's fringe group.
     pub fn frame_showing(&self, k: usize, shown: &[usize]) -> Frame {
-        let group = |j: usize| self.sequence.frame(j).map(|f| f.group);
-        let own = |j: &usize| group(*j) == group(k);
-        let shown: Vec<usize> = match shown.len() == self.truth.len() && shown.iter().all(own) {
-            true => shown.to_vec(),
-            false => vec![k; self.truth.len()],
-        };
+        let shown = self.own_group(k, shown);
         self.expose(
             |b| self.projector_irradiance(&shown, b),
             self.seed.wrapping_add(1 + k as u64),
         )
+    }
+
+    /// `shown` when it has a pattern per projector, each of frame k's fringe group; else
+    /// frame k's own patterns.
+    fn own_group(&self, k: usize, shown: &[usize]) -> Vec<usize> {
+        let group = |j: usize| self.sequence.frame(j).map(|f| f.group);
+        let own = |j: &usize| group(*j) == group(k);
+        match shown.len() == self.truth.len() && shown.iter().all(own) {
+            true => shown.to_vec(),
+            false => vec![k; self.truth.len()],
+        }
+    }
+
+    /// Frame k as [`Self::frame_showing`] gives it, with the room's light and the view
+    /// changed: the ambient light times `change.ambient`, and the whole image displaced by
+    /// `change.shift` camera px (the camera or the rig jolted; bilinear, the border repeated).
+    pub fn frame_changed(&self, k: usize, shown: &[usize], change: &FrameChange) -> Frame {
+        if *change == FrameChange::default() {
+            return self.frame_showing(k, shown);
+        }
+        let (w, h) = (self.size.width as usize, self.size.height as usize);
+        let shown = self.own_group(k, shown);
+        let mut signal = self.signal(|b| self.projector_irradiance(&shown, b));
+        let extra = change.ambient - 1.0;
+        for (s, a) in signal.iter_mut().zip(&self.ambient_signal) {
+            *s += extra * a;
+        }
+        let moved = shifted(&signal, w, h, change.shift);
+        let mut data = vec![0u16; w * h];
+        let seed = self.seed.wrapping_add(1 + k as u64);
+        self.sensor.expose_rows(w, 0, &moved, seed, &mut data);
+        Frame {
+            size: self.size,
+            bits: self.sensor.bits,
+            data,
+        }
     }
 
     /// A frame outside the sequence with every projector showing one flat level: full white
@@ -527,9 +558,70 @@ impl StackRenderer {
     }
 }
 
+/// How one frame's light and view differ from the stack's (a simulated fault).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameChange {
+    /// Factor on the ambient light.
+    pub ambient: f32,
+    /// Displacement of the whole image (camera px).
+    pub shift: [f64; 2],
+}
+
+impl Default for FrameChange {
+    fn default() -> Self {
+        FrameChange {
+            ambient: 1.0,
+            shift: [0.0; 2],
+        }
+    }
+}
+
+/// `image` (w × h) displaced by `shift`: out(x, y) = image(x − dx, y − dy), bilinear, the
+/// border repeated.
+fn shifted(image: &[f32], w: usize, h: usize, [dx, dy]: [f64; 2]) -> Vec<f32> {
+    let at = |x: isize, y: isize| {
+        image[y.clamp(0, h as isize - 1) as usize * w + x.clamp(0, w as isize - 1) as usize]
+    };
+    let (fx, fy) = (dx.floor(), dy.floor());
+    let (tx, ty) = ((dx - fx) as f32, (dy - fy) as f32);
+    let (ix, iy) = (fx as isize, fy as isize);
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as isize - ix, (i / w) as isize - iy);
+            let top = (1.0 - tx) * at(x, y) + tx * at(x - 1, y);
+            let bottom = (1.0 - tx) * at(x, y - 1) + tx * at(x - 1, y - 1);
+            (1.0 - ty) * top + ty * bottom
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_shifted_image_moves_by_whole_and_fractional_pixels() {
+        let (w, h) = (7, 5);
+        // A plane a + b·x + c·y: bilinear interpolation is exact on it (inside the border).
+        let plane = |x: f64, y: f64| 3.0 + 2.0 * x - 0.5 * y;
+        let image: Vec<f32> = (0..w * h)
+            .map(|i| plane((i % w) as f64, (i / w) as f64) as f32)
+            .collect();
+        for shift in [[1.0, 0.0], [0.25, -0.5], [-1.75, 1.5]] {
+            let out = shifted(&image, w, h, shift);
+            for y in 2..h - 2 {
+                for x in 2..w - 2 {
+                    let want = plane(x as f64 - shift[0], y as f64 - shift[1]);
+                    let got = f64::from(out[y * w + x]);
+                    assert!(
+                        (got - want).abs() < 1e-5,
+                        "{shift:?} at ({x}, {y}): {got} vs {want}"
+                    );
+                }
+            }
+        }
+        assert_eq!(shifted(&image, w, h, [0.0, 0.0]), image);
+    }
 
     #[test]
     fn truth_is_kept_over_the_lit_rectangle() {

@@ -307,6 +307,50 @@ pub struct SimFault {
     /// (first, last; within one fringe group).
     #[serde(default)]
     pub lag: Option<LagSpec>,
+    /// The view drifts over the sequence: displaced linearly from nothing at the first
+    /// frame to this (camera px, x and y) at the last.
+    #[serde(default)]
+    pub drift_px: Option<[f64; 2]>,
+    /// The view jolts: displaced by `px` from frame `frame` on.
+    #[serde(default)]
+    pub jolt: Option<JoltSpec>,
+    /// The room light steps: the ambient light times `factor` from frame `frame` on.
+    #[serde(default)]
+    pub ambient: Option<AmbientSpec>,
+    /// The room light flickers: the ambient light times 1 + amplitude·sin(2π·k/period) at
+    /// frame k.
+    #[serde(default)]
+    pub flicker: Option<FlickerSpec>,
+}
+
+/// The view displaced from one frame on (a bumped camera or rig).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JoltSpec {
+    /// Displacement (camera px, x and y).
+    pub px: [f64; 2],
+    /// First frame displaced.
+    pub frame: usize,
+}
+
+/// The ambient light changed from one frame on (a door opened, a lamp switched).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AmbientSpec {
+    /// Factor on the ambient light.
+    pub factor: f64,
+    /// First frame changed.
+    pub frame: usize,
+}
+
+/// The ambient light flickering.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlickerSpec {
+    /// Relative amplitude (0.1: ±10 %).
+    pub amplitude: f64,
+    /// Period (frames).
+    pub period: f64,
 }
 
 /// A projector showing the previous frame's pattern over a run of frames.
@@ -874,6 +918,36 @@ fn check_fault(f: &SimFault, poses: usize, projectors: usize) -> Result<(), Stri
     if let Some(g) = f.gain {
         if !(g.is_finite() && g > 0.0 && g <= 100.0) {
             return Err(format!("gain {g}: a factor between 0 and 100"));
+        }
+    }
+    let px_ok = |p: [f64; 2]| p.iter().all(|v| v.is_finite() && v.abs() <= 50.0);
+    if let Some(d) = f.drift_px.filter(|d| !px_ok(*d)) {
+        return Err(format!("drift_px {d:?}: at most 50 px each way"));
+    }
+    if let Some(j) = f.jolt.filter(|j| !px_ok(j.px)) {
+        return Err(format!("jolt.px {:?}: at most 50 px each way", j.px));
+    }
+    if let Some(a) = f
+        .ambient
+        .filter(|a| !(a.factor.is_finite() && (0.0..=100.0).contains(&a.factor)))
+    {
+        return Err(format!(
+            "ambient.factor {}: a factor between 0 and 100",
+            a.factor
+        ));
+    }
+    if let Some(fl) = f.flicker {
+        if !(fl.amplitude.is_finite() && (0.0..=1.0).contains(&fl.amplitude)) {
+            return Err(format!(
+                "flicker.amplitude {}: between 0 and 1",
+                fl.amplitude
+            ));
+        }
+        if !(fl.period.is_finite() && (2.0..=10_000.0).contains(&fl.period)) {
+            return Err(format!(
+                "flicker.period {}: between 2 and 10000 frames",
+                fl.period
+            ));
         }
     }
     if let Some(l) = f.lag {

@@ -15,7 +15,7 @@ use hexcal_core::camera::CameraModel;
 use hexcal_core::images::to_grey::{jpeg_luma, to_pixels, BayerBalance, Cfa};
 use hexcal_core::images::{CameraFrame, Pixels};
 use hexcal_core::pattern::Sequence;
-use hexcal_sim::stack::{StackProjector, StackRenderer};
+use hexcal_sim::stack::{FrameChange, StackProjector, StackRenderer};
 use hexcal_sim::{Imaging, PoseSpec, Scene, SimError};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand::{rngs::StdRng, Rng, SeedableRng};
@@ -630,7 +630,10 @@ impl SimCamera {
             .filter(|f| f.pose == state.pose && attempt <= f.attempts)
             .collect();
         let mut frame = match what {
-            Showing::Pattern(k) => renderer.frame_showing(k, &lagged(k, &faults, &sequence)),
+            Showing::Pattern(k) => {
+                let change = changed(k, &faults, sequence.frame_count());
+                renderer.frame_changed(k, &lagged(k, &faults, &sequence), &change)
+            }
             Showing::Flat(white) => renderer.flat_frame(white, self.counter),
         };
         self.brighten(&mut frame.data, frame.bits);
@@ -712,6 +715,30 @@ fn lagged(k: usize, faults: &[&super::file::SimFault], sequence: &Sequence) -> V
         }
     }
     shown
+}
+
+/// How frame k of a sequence of `frames` differs under `faults` (drift, jolt, ambient
+/// step and flicker).
+fn changed(k: usize, faults: &[&super::file::SimFault], frames: usize) -> FrameChange {
+    let mut c = FrameChange::default();
+    let mut ambient = 1.0;
+    for f in faults {
+        if let Some([dx, dy]) = f.drift_px {
+            let t = k as f64 / frames.saturating_sub(1).max(1) as f64;
+            c.shift = [c.shift[0] + t * dx, c.shift[1] + t * dy];
+        }
+        if let Some(j) = f.jolt.filter(|j| k >= j.frame) {
+            c.shift = [c.shift[0] + j.px[0], c.shift[1] + j.px[1]];
+        }
+        if let Some(a) = f.ambient.filter(|a| k >= a.frame) {
+            ambient *= a.factor;
+        }
+        if let Some(fl) = f.flicker {
+            ambient *= 1.0 + fl.amplitude * (std::f64::consts::TAU * k as f64 / fl.period).sin();
+        }
+    }
+    c.ambient = ambient as f32;
+    c
 }
 
 /// The relative response to the simulator's white light of a Bayer sensor's red, green
