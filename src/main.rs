@@ -140,6 +140,24 @@ enum Command {
         /// (its held-out.json).
         input: PathBuf,
     },
+    /// Draw one device's map from a calibration as SVG: `uncertainty` (projection
+    /// uncertainty over the image, the region within --target outlined) or `distortion`
+    /// (the lens's displacement against a pinhole).
+    Show {
+        /// uncertainty or distortion.
+        map: hexcal::app::show::Map,
+        /// The device's name.
+        device: String,
+        /// A calibration file, or a folder holding one (a calibration folder, a run's).
+        #[arg(long, default_value = "hexcal-run")]
+        calibration: PathBuf,
+        /// The SVG file to write (default: DEVICE-MAP.svg).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// The projection uncertainty you need (px), outlined on the uncertainty map.
+        #[arg(long, default_value_t = 1.0)]
+        target: f64,
+    },
     /// Detect the board's circles in images and label them with lattice positions (JSON).
     Detect {
         /// A built-in board (hex600) or a board file (docs/board-file.md).
@@ -537,6 +555,17 @@ fn execute_other(command: Command) -> anyhow::Result<()> {
         Command::Verify { calibration, input } => {
             let table = hexcal::app::calibrate::verification_table(&input, calibration.as_deref())?;
             print!("{table}");
+        }
+        Command::Show {
+            map,
+            device,
+            calibration,
+            out,
+            target,
+        } => {
+            let out = out.unwrap_or_else(|| PathBuf::from(format!("{device}-{}.svg", map.name())));
+            let written = hexcal::app::show::show(map, &calibration, &device, &out, target)?;
+            println!("wrote {}", written.display());
         }
         Command::Simulate { scene, out, seed } => {
             println!(

@@ -164,6 +164,41 @@ fn calibrate_writes_files_that_opencv_and_yaml_read() {
         stdout.contains("proj0") && stdout.contains("cam1"),
         "{stdout}"
     );
+
+    // `hexcal show`: the maps of a device as SVG; a device that is not there is named
+    // with those that are.
+    for map in ["uncertainty", "distortion"] {
+        let svg = dir.join(format!("proj0-{map}.svg"));
+        let run = hexcal(&[
+            "show",
+            map,
+            "proj0",
+            "--calibration",
+            out.to_str().unwrap(),
+            "--out",
+            svg.to_str().unwrap(),
+        ]);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let text = std::fs::read_to_string(&svg).unwrap();
+        assert!(
+            text.starts_with("<svg") && text.contains("proj0: "),
+            "{text}"
+        );
+    }
+    let run = hexcal(&[
+        "show",
+        "uncertainty",
+        "cam9",
+        "--calibration",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(run.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("no device \"cam9\"; it holds cam0"), "{err}");
 }
 
 #[test]

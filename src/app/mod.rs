@@ -27,6 +27,7 @@ pub mod progress;
 pub mod run;
 pub mod script;
 pub mod session;
+pub mod show;
 pub mod summary;
 pub mod truth;
 

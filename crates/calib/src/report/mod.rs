@@ -9,6 +9,7 @@
 
 pub mod export;
 pub mod html;
+pub mod maps;
 
 use crate::calib::diagnostics::{lens_covariance, valid_region, ResidualRow, VALID_UNCERTAINTY};
 use crate::calib::lens_model::TermChoice;
