@@ -251,6 +251,10 @@ enum Command {
         /// Exit 0 even when the stack fails the stack check (its maps are written either way).
         #[arg(long)]
         keep: bool,
+        /// A built-in board (hex600) or a board file: also detect the board and write the
+        /// stack's circle-centre projector observations (view.json).
+        #[arg(long)]
+        board: Option<String>,
     },
     /// Speed benchmarks that print figures (built with `--features bench`).
     #[cfg(feature = "bench")]
@@ -585,8 +589,13 @@ fn execute_other(command: Command) -> anyhow::Result<()> {
             poses,
             auto,
         } => capture(&rig, &out, poses, auto)?,
-        Command::Decode { stack, out, keep } => {
-            let done = hexcal::app::jobs::decode(&stack, &out)?;
+        Command::Decode {
+            stack,
+            out,
+            keep,
+            board,
+        } => {
+            let done = hexcal::app::jobs::decode(&stack, &out, board.as_deref())?;
             print!("{done}");
             println!("wrote {} files to {}", done.files.len(), out.display());
             if !keep && !done.summary.verdict.passed() {

@@ -115,11 +115,34 @@ fn a_run_names_spoiled_stacks_captures_them_again_and_calibrates() {
         "--out",
         dir.join("k").to_str().unwrap(),
         "--keep",
+        "--board",
+        "hex600",
     ]);
     assert!(
         kept.status.success(),
         "{}",
         String::from_utf8_lossy(&kept.stderr)
+    );
+    // Given the board, it writes the stack's view: the circles with their projector
+    // coordinates, which the late projector's would bias.
+    let stdout = String::from_utf8_lossy(&kept.stdout);
+    assert!(
+        stdout.contains("labelled points; circle centres with projector coordinates: projector 0 "),
+        "{stdout}"
+    );
+    let view: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("k/view.json")).unwrap()).unwrap();
+    assert!(
+        view["view"]["points"]
+            .as_array()
+            .is_some_and(|p| !p.is_empty()),
+        "{view}"
+    );
+    assert!(
+        view["verdict"]["faults"]
+            .as_array()
+            .is_some_and(|f| !f.is_empty()),
+        "{view}"
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -68,6 +68,9 @@ pub struct Decoded {
     pub summary: DecodeSummary,
     /// Time taken (s).
     pub seconds: f64,
+    /// Given the board: the stack's view as a run's `views.json` holds it (detection, grid,
+    /// each projector's circle-centre observations), also written as `view.json`.
+    pub view: Option<super::process::StackResult>,
 }
 
 impl std::fmt::Display for Decoded {
@@ -92,6 +95,19 @@ impl std::fmt::Display for Decoded {
                 p.noise.sigma_v
             )?;
         }
+        if let Some(v) = &self.view {
+            let pairs: Vec<String> = (v.projector_points.iter().enumerate())
+                .map(|(p, n)| format!("projector {p} {n}"))
+                .collect();
+            writeln!(
+                f,
+                "board: {} circles, {} labelled points; circle centres with projector \
+                 coordinates: {}",
+                v.circles,
+                v.points,
+                pairs.join(", ")
+            )?;
+        }
         match s.verdict.passed() {
             true => writeln!(f, "stack check: passed")?,
             false => writeln!(f, "stack check: FAILED: {}", s.verdict.summary())?,
@@ -103,14 +119,28 @@ impl std::fmt::Display for Decoded {
     }
 }
 
-/// `hexcal decode`: one camera's stack folder to maps, images and a summary in `out`.
-pub fn decode(stack: &Path, out: &Path) -> Result<Decoded, AppError> {
+/// `hexcal decode`: one camera's stack folder to maps, images and a summary in `out`;
+/// given `board`, also the stack's view (`view.json`: detection, grid and each projector's
+/// circle-centre observations, as a run's `views.json` holds a stack; the camera as device
+/// 0 of pose 0, projector p as device 1 + p), so one stack can be judged on its own, whether
+/// it passed the stack check or not.
+pub fn decode(stack: &Path, out: &Path, board: Option<&str>) -> Result<Decoded, AppError> {
     let t = std::time::Instant::now();
-    let (files, summary) = crate::phase::files::decode_to_files(stack, out)?;
+    let board = board.map(Board::resolve).transpose()?;
+    let decoded = crate::phase::files::decode_dir(stack)?;
+    let (mut files, summary) = crate::phase::files::write_decoded(stack, &decoded, out)?;
+    let view = board.map(|b| super::process::view_of_decoded(&decoded, &b, 0, 0, 1));
+    if let Some(v) = &view {
+        let path = out.join("view.json");
+        let text = serde_json::to_string_pretty(v).expect("a view serialises");
+        crate::atomic::write(&path, format!("{text}\n").as_bytes()).map_err(AppError::io(&path))?;
+        files.push(path);
+    }
     Ok(Decoded {
         files,
         summary,
         seconds: t.elapsed().as_secs_f64(),
+        view,
     })
 }
 

@@ -166,6 +166,23 @@ pub fn process_decoded(
     pose: usize,
     first_projector: usize,
 ) -> StackResult {
+    checked(
+        &decoded.verdict,
+        &decoded.camera,
+        decoded.projectors.len(),
+        || view_of_decoded(decoded, board, camera, pose, first_projector),
+    )
+}
+
+/// [`process_decoded`] whatever the stack check's verdict (which it records): `hexcal
+/// decode` judging one stack on its own.
+pub fn view_of_decoded(
+    decoded: &DecodedStack,
+    board: &Board,
+    camera: usize,
+    pose: usize,
+    first_projector: usize,
+) -> StackResult {
     let maps: Vec<ProjectorMap> = decoded
         .projectors
         .iter()
@@ -177,9 +194,10 @@ pub fn process_decoded(
         pose,
         first_projector,
     };
-    checked(&decoded.verdict, &decoded.camera, maps.len(), || {
-        process_image(&decoded.ambient, &decoded.camera, board, &maps, at)
-    })
+    StackResult {
+        verdict: Some(decoded.verdict.clone()),
+        ..process_image(&decoded.ambient, &decoded.camera, board, &maps, at)
+    }
 }
 
 /// The stack processed when it passed the stack check (its verdict recorded), else refused.

@@ -184,9 +184,18 @@ pub fn decode_to_files(
     dir: &Path,
     out: &Path,
 ) -> Result<(Vec<PathBuf>, DecodeSummary), DecodeFilesError> {
+    let decoded = decode_dir(dir)?;
+    write_decoded(dir, &decoded, out)
+}
+
+/// The files of [`decode_to_files`] for the stack in `dir` already decoded.
+pub fn write_decoded(
+    dir: &Path,
+    decoded: &DecodedStack,
+    out: &Path,
+) -> Result<(Vec<PathBuf>, DecodeSummary), DecodeFilesError> {
     let stack = StackReader::open(dir)?;
     let full_scale = stack.full_scale();
-    let decoded = decode_dir(dir)?;
     std::fs::create_dir_all(out).map_err(|e| write_err(out)(e.to_string()))?;
     let mut files = Vec::new();
     let (w, h) = decoded.ambient.dimensions();
@@ -215,7 +224,7 @@ pub fn decode_to_files(
             files.push(path);
         }
     }
-    let summary = DecodeSummary::new(&decoded);
+    let summary = DecodeSummary::new(decoded);
     let path = out.join("summary.json");
     let text =
         serde_json::to_string_pretty(&summary).map_err(|e| write_err(&path)(e.to_string()))?;
