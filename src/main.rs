@@ -128,6 +128,14 @@ enum Command {
         /// repeatable.
         #[arg(long, value_name = "FIRST,SECOND")]
         stereo: Vec<String>,
+        /// The projection uncertainty you need (px, 1σ): the report warns where a lens
+        /// misses it.
+        #[arg(long, default_value_t = 1.0)]
+        target_px: f64,
+        /// The held-out length error you need (mm RMS): the report warns when the
+        /// verification misses it, and not about pairs within it.
+        #[arg(long, default_value_t = 0.1)]
+        target_mm: f64,
     },
     /// Check a calibration on held-out board poses: triangulate them from camera pairs and
     /// camera–projector pairs, report length errors and flatness against the board.
@@ -524,7 +532,10 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             refine_flatness,
             held_out,
             stereo,
+            target_px,
+            target_mm,
         } => {
+            let target = hexcal::app::calibrate::target(target_px, target_mm)?;
             let mut options = CalibrateOptions::default();
             options.bundle.stop = hexcal::app::session::stop_on_signals()?;
             options.bundle.fix_k3 = fix_k3;
@@ -535,7 +546,7 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
                 &out,
                 reference.as_deref(),
                 options,
-                (held_out, &stereo),
+                (held_out, &stereo, target),
                 &mut printer,
             )?;
             print!("{}", done.summary);

@@ -91,6 +91,7 @@ fn report_renders_as_a_page_with_figures() {
                 &cal,
                 &checks,
                 &["poses 8 and 9 held out for verification".into()],
+                &Default::default(),
             ),
         },
         &page,

@@ -6,7 +6,7 @@ use super::progress::{Event, Outcome};
 use super::AppError;
 use crate::board::Board;
 use crate::calib::bundle::Device;
-use crate::calib::diagnostics::Diagnosis;
+use crate::calib::diagnostics::{Diagnosis, Target};
 use crate::calib::geometric::{calibrate_registering, GeometricParams};
 pub use crate::calib::solve::CalibrateOptions;
 use crate::calib::solve::Calibration;
@@ -74,6 +74,8 @@ pub(crate) struct Collected<'a> {
     pub(crate) held_from: usize,
     /// Device pairs ("first,second") to export as stereo pairs.
     pub(crate) stereo: &'a [String],
+    /// What the user needs: the warnings are judged against it.
+    pub(crate) target: Target,
 }
 
 /// Calibrate from the views of `all` poses (those from `held_from` on are held out and
@@ -91,6 +93,7 @@ pub(crate) fn finish(
         all,
         held_from,
         stereo,
+        target,
     } = c;
     let views_of = |range: std::ops::Range<usize>| -> Vec<CameraView> {
         all[range]
@@ -106,7 +109,7 @@ pub(crate) fn finish(
     let poses = held_from.min(all.len());
     let cal = calibrate_registering(board, devices, poses, &used, options, &geometric)?;
     let verification = verify_held_out(board, &cal, &held, held_from);
-    let diagnosis = Diagnosis::of(&cal, &verification, warnings);
+    let diagnosis = Diagnosis::of(&cal, &verification, warnings, &target);
     std::fs::create_dir_all(dir).map_err(AppError::io(dir))?;
     let mut files = crate::report::write_outputs(&cal, &diagnosis.rows, dir, stereo)?.files;
     if !held.is_empty() {
@@ -223,7 +226,7 @@ pub fn calibrate_dataset(
     out: &Path,
     held_out: usize,
     options: &CalibrateOptions,
-    stereo: &[String],
+    (stereo, target): (&[String], Target),
     events: &mut dyn FnMut(&Event),
 ) -> Result<Outcome, AppError> {
     let data = Dataset::open(root)?;
@@ -271,6 +274,7 @@ pub fn calibrate_dataset(
             all: &all,
             held_from,
             stereo,
+            target,
         },
         out,
         options,
@@ -338,6 +342,7 @@ pub fn calibrate_file(
     reference: Option<&str>,
     mut options: CalibrateOptions,
     stereo: &[String],
+    target: &Target,
 ) -> Result<FileOutcome, AppError> {
     let c = read_correspondences(input)?;
     let _lock = crate::lock::FolderLock::acquire(out)?;
@@ -348,7 +353,7 @@ pub fn calibrate_file(
     }
     let geometric = GeometricParams::default();
     let cal = calibrate_registering(&board, &c.devices, c.poses, &c.views, &options, &geometric)?;
-    let diagnosis = Diagnosis::of(&cal, &[], &[]);
+    let diagnosis = Diagnosis::of(&cal, &[], &[], target);
     let written = crate::report::write_outputs(&cal, &diagnosis.rows, out, stereo)?;
     let mut files = written.files;
     let html = out.join("report.html");
@@ -468,17 +473,18 @@ pub struct Calibrated {
 
 /// `hexcal calibrate`: a dataset folder (its last `held_out` poses held out; `events` hears
 /// the progress) or a correspondences file to a calibration in `out`; `reference` names the
-/// gauge device, `stereo` the pairs to export.
+/// gauge device, `stereo` the pairs to export, `target` what the user needs (the warnings
+/// are judged against it).
 pub fn calibrate_input(
     input: &Path,
     out: &Path,
     reference: Option<&str>,
     mut options: CalibrateOptions,
-    (held_out, stereo): (usize, &[String]),
+    (held_out, stereo, target): (usize, &[String], Target),
     events: &mut dyn FnMut(&Event),
 ) -> Result<Calibrated, AppError> {
     if !input.is_dir() {
-        let done = calibrate_file(input, out, reference, options, stereo)?;
+        let done = calibrate_file(input, out, reference, options, stereo, &target)?;
         return Ok(Calibrated {
             summary: super::summary::of_file(&done, out),
             uncalibrated: excluded(&done.calibration),
@@ -490,10 +496,28 @@ pub fn calibrate_input(
         let names: Vec<String> = names.collect();
         options.bundle.reference = device_index(input, names.iter().map(String::as_str), name)?;
     }
-    let outcome = calibrate_dataset(input, out, held_out, &options, stereo, events)?;
+    let outcome = calibrate_dataset(input, out, held_out, &options, (stereo, target), events)?;
     Ok(Calibrated {
         summary: super::summary::of_run(&outcome),
         uncalibrated: excluded(&outcome.calibration),
+    })
+}
+
+/// The user's target from `hexcal calibrate --target-px --target-mm`, checked.
+pub fn target(uncertainty_px: f64, length_mm: f64) -> Result<Target, AppError> {
+    if !(uncertainty_px.is_finite() && uncertainty_px > 0.0 && uncertainty_px <= 100.0) {
+        return Err(AppError::Input(format!(
+            "--target-px {uncertainty_px}: a projection uncertainty, 0 < u ≤ 100 px"
+        )));
+    }
+    if !(length_mm.is_finite() && length_mm > 0.0 && length_mm <= 1000.0) {
+        return Err(AppError::Input(format!(
+            "--target-mm {length_mm}: a length error, 0 < t ≤ 1000 mm"
+        )));
+    }
+    Ok(Target {
+        uncertainty_px,
+        length_mm,
     })
 }
 

@@ -252,6 +252,10 @@ pub fn run(
         all: &all,
         held_from,
         stereo: &options.stereo,
+        target: crate::calib::diagnostics::Target {
+            uncertainty_px: rig.guidance.uncertainty_px,
+            length_mm: rig.guidance.target_mm,
+        },
     };
     let dir = out.join("calibration");
     let stopped = |during: &'static str| -> Result<AppError, AppError> {

@@ -44,6 +44,16 @@ fn calibration_lines(
     }
 }
 
+/// Every warning the report counts, then its notes, one line each.
+fn warning_lines(s: &mut String, diagnosis: &Diagnosis) {
+    for w in &diagnosis.warnings {
+        let _ = writeln!(s, "warning: {w}");
+    }
+    for n in &diagnosis.notes {
+        let _ = writeln!(s, "note: {n}");
+    }
+}
+
 /// "report: PATH (N warnings)" when `files` hold the HTML report.
 fn report_line(s: &mut String, diagnosis: &Diagnosis, files: &[PathBuf]) {
     if let Some(page) = files.iter().find(|f| f.ends_with("report.html")) {
@@ -78,9 +88,7 @@ pub fn of_run(outcome: &Outcome) -> String {
         s.push_str("against the simulated rig's ground truth:\n");
         s.push_str(&super::truth::format_truth(&outcome.truth));
     }
-    for w in &outcome.warnings {
-        let _ = writeln!(s, "warning: {w}");
-    }
+    warning_lines(&mut s, &outcome.diagnosis);
     let _ = writeln!(s, "wrote {} files", outcome.files.len());
     report_line(&mut s, &outcome.diagnosis, &outcome.files);
     s
@@ -99,6 +107,7 @@ pub fn of_file(done: &FileOutcome, out: &Path) -> String {
         );
     }
     let _ = writeln!(s, "wrote {} files to {}", done.files.len(), out.display());
+    warning_lines(&mut s, &done.diagnosis);
     report_line(&mut s, &done.diagnosis, &done.files);
     s
 }

@@ -19,33 +19,71 @@ pub const RMS_RATIO: f64 = 1.5;
 /// Image cells (columns, rows) of the coverage check.
 pub const COVERAGE_CELLS: (usize, usize) = (8, 5);
 
+/// What the user needs of the calibration (the rig file's `[guidance]`, `hexcal calibrate
+/// --target-px/--target-mm`): a warning fires only where the calibration misses it, or where
+/// a check is out of family by more than it (docs/design.md §8, "Warnings").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Target {
+    /// Projection uncertainty (px, 1σ) every device should stay below over its image: the
+    /// operator console's done rule uses the same number.
+    pub uncertainty_px: f64,
+    /// Held-out length error (mm RMS over the verification pairs) the rig should meet.
+    pub length_mm: f64,
+}
+
+/// Default [`Target::uncertainty_px`]: mrcal's default for its valid-intrinsics region.
+pub const DEFAULT_TARGET_PX: f64 = VALID_UNCERTAINTY;
+/// Default [`Target::length_mm`]: the acceptance bound of the simulated paper rig.
+pub const DEFAULT_TARGET_MM: f64 = 0.1;
+
+impl Default for Target {
+    fn default() -> Self {
+        Target {
+            uncertainty_px: DEFAULT_TARGET_PX,
+            length_mm: DEFAULT_TARGET_MM,
+        }
+    }
+}
+
 /// What is said about a calibration, computed once and shown alike by the HTML page, the
-/// residual files and the printed summary: the residual table and every warning.
+/// residual files and the printed summary: the residual table, every warning and the notes.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Diagnosis {
     /// Per device (as in the calibration), the paper's Table I row.
     pub rows: Vec<ResidualRow>,
-    /// The report's own warnings ([`warnings`]), then the verification pairs' out of family
+    /// The report's own warnings ([`warnings`]), then the verification's
     /// ([`verification_warnings`]), then the caller's (skipped poses, refused stacks).
     pub warnings: Vec<String>,
+    /// What is worth knowing but needs no action (outliers of one steep view).
+    pub notes: Vec<String>,
 }
 
 impl Diagnosis {
-    /// The diagnosis of `cal`, verified by `verification` (may be empty), with the caller's
-    /// own warnings `extra` last.
-    pub fn of(cal: &Calibration, verification: &[PairCheck], extra: &[String]) -> Diagnosis {
+    /// The diagnosis of `cal` against the user's `target`, verified by `verification` (may
+    /// be empty), with the caller's own warnings `extra` last.
+    pub fn of(
+        cal: &Calibration,
+        verification: &[PairCheck],
+        extra: &[String],
+        target: &Target,
+    ) -> Diagnosis {
         let rows = residual_table(cal);
         let is_projector = |name: &str| {
             cal.devices
                 .iter()
                 .any(|d| d.name == name && d.kind == DeviceKind::Projector)
         };
-        let warnings = warnings(cal, &rows)
+        let mut notes = Vec::new();
+        let warnings = warnings(cal, &rows, target, &mut notes)
             .into_iter()
-            .chain(verification_warnings(verification, is_projector))
+            .chain(verification_warnings(verification, is_projector, target))
             .chain(extra.iter().cloned())
             .collect();
-        Diagnosis { rows, warnings }
+        Diagnosis {
+            rows,
+            warnings,
+            notes,
+        }
     }
 }
 
@@ -257,11 +295,11 @@ const REGION_NAMES: [&str; 9] = [
     "bottom-right corner",
 ];
 
-/// Where device `d`'s lens model extrapolates: over the corners and centres of its
-/// [`COVERAGE_CELLS`] (image corners included), the points whose [`shape_uncertainty`]
-/// exceeds the noise σ̂ of one observation (the model is less sure there than a single
-/// measurement), as (uncertainty, pixel, region index), worst first.
-fn uncertain_points(cal: &Calibration, d: usize) -> Vec<(f64, Point2<f64>, usize)> {
+/// Where device `d`'s lens model extrapolates beyond the user's target: over the corners
+/// and centres of its [`COVERAGE_CELLS`] (image corners included), the points whose
+/// [`shape_uncertainty`] exceeds `limit` (px), as (uncertainty, pixel, region index), worst
+/// first.
+fn uncertain_points(cal: &Calibration, d: usize, limit: f64) -> Vec<(f64, Point2<f64>, usize)> {
     let m = &cal.devices[d].model;
     let (w, h) = (m.width as f64 - 1.0, m.height as f64 - 1.0);
     let (nx, ny) = COVERAGE_CELLS;
@@ -281,18 +319,18 @@ fn uncertain_points(cal: &Calibration, d: usize) -> Vec<(f64, Point2<f64>, usize
     let mut out: Vec<(f64, Point2<f64>, usize)> = at
         .into_iter()
         .filter_map(|p| Some((shape_uncertainty(cal, d, p)?, p, region(&p))))
-        .filter(|u| u.0 > cal.solution.sigma)
+        .filter(|u| u.0 > limit)
         .collect();
     out.sort_by(|a, b| b.0.total_cmp(&a.0));
     out
 }
 
 /// Distortion terms of device `d` still estimated whose estimate lies within 3σ of zero
-/// while their 1σ moves the farthest image corner by more than the noise σ̂ (a term that
-/// matters and is not known), as "k1 = v ± s (…)". The
-/// radial terms the data cannot determine are fixed before ([`super::lens_model`]); this
-/// names the others.
-fn undetermined_terms(cal: &Calibration, d: usize) -> Vec<String> {
+/// while their 1σ moves the farthest image corner by more than `limit` px (a term that
+/// matters against the user's target and is not known), as "k1 = v ± s (…)". The radial
+/// terms the data cannot determine are fixed before ([`super::lens_model`]); this names
+/// the others.
+fn undetermined_terms(cal: &Calibration, d: usize, limit: f64) -> Vec<String> {
     let (free, cov) = lens_covariance(cal, d);
     let m = &cal.devices[d].model;
     let values = m.lens_vector();
@@ -310,7 +348,7 @@ fn undetermined_terms(cal: &Calibration, d: usize) -> Vec<String> {
         let std = cov[(i, i)].max(0.0).sqrt();
         let value = values[p.index()];
         let col = jac.d_lens.column(p.index()).norm();
-        if value.abs() < 3.0 * std && col * std > cal.solution.sigma {
+        if value.abs() < 3.0 * std && col * std > limit {
             terms.push(format!(
                 "{} = {value:.4} ± {std:.4} (its σ moves the corner by {:.3} px)",
                 p.name(),
@@ -326,11 +364,12 @@ fn undetermined_terms(cal: &Calibration, d: usize) -> Vec<String> {
 /// observed point, and the terms the data cannot determine ([`undetermined_terms`]);
 /// with where to put the board. A coverage hole the rest of the image determines is not
 /// worth a pose and is not mentioned.
-fn lens_warnings(cal: &Calibration, w: &mut Vec<String>) {
+fn lens_warnings(cal: &Calibration, target: &Target, w: &mut Vec<String>) {
     let (nx, ny) = COVERAGE_CELLS;
+    let limit = target.uncertainty_px;
     for (d, (empty, _)) in coverage(cal).into_iter().enumerate() {
-        let points = uncertain_points(cal, d);
-        let terms = undetermined_terms(cal, d);
+        let points = uncertain_points(cal, d, limit);
+        let terms = undetermined_terms(cal, d, limit);
         if points.is_empty() && terms.is_empty() {
             continue;
         }
@@ -343,13 +382,12 @@ fn lens_warnings(cal: &Calibration, w: &mut Vec<String>) {
         if let Some(&(worst, at, _)) = points.first() {
             text += &format!(
                 " the lens model extrapolates in its {}: projection uncertainty up to \
-                 {worst:.3} px relative to its centre (at pixel {:.0}, {:.0}), above the \
-                 {:.3} px noise of one observation; {:.0} % of its {nx} × {ny} image cells \
-                 hold no observed point.",
+                 {worst:.3} px relative to its centre (at pixel {:.0}, {:.0}), above your \
+                 {limit} px target; {:.0} % of its {nx} × {ny} image cells hold no \
+                 observed point.",
                 names.join(", "),
                 at.x,
                 at.y,
-                cal.solution.sigma,
                 100.0 * empty,
             );
         }
@@ -408,8 +446,44 @@ pub const GAUSSIAN_OUTLIER_RATE: f64 = 3.354_626_279_025_119e-4;
 /// count that high has a probability below 10⁻³ divided by the number of devices.
 pub const OUTLIER_SIGNIFICANCE: f64 = 1e-3;
 
-/// Devices with many more outliers than their peers ([`OUTLIER_SIGNIFICANCE`]).
-fn outlier_warnings(cal: &Calibration, rows: &[ResidualRow], w: &mut Vec<String>) {
+/// Outliers this concentrated in one pose are that view's, not the device's.
+pub const ONE_VIEW_SHARE: f64 = 0.8;
+
+/// Device `d`'s outliers by board pose: the pose holding most of them (input index), its
+/// share, and the angle (deg) between the board's normal and the line from the device to
+/// the board's centre there.
+fn outliers_by_pose(cal: &Calibration, d: usize) -> Option<(usize, f64, f64)> {
+    let mut count = std::collections::BTreeMap::<usize, usize>::new();
+    for (o, r) in cal.observations.iter().zip(&cal.solution.residuals) {
+        if o.device == d && r.outlier {
+            *count.entry(o.pose).or_default() += 1;
+        }
+    }
+    let total: usize = count.values().sum();
+    let (&pose, &most) = count.iter().max_by_key(|(_, n)| **n)?;
+    let t = cal.devices[d].pose * cal.solution.boards[pose];
+    let normal = t.rotation * nalgebra::Vector3::z();
+    let towards = t.translation.vector.normalize();
+    let tilt = normal
+        .dot(&towards)
+        .abs()
+        .clamp(0.0, 1.0)
+        .acos()
+        .to_degrees();
+    let input = cal.pose_index.get(pose).copied().unwrap_or(pose);
+    Some((input, most as f64 / total as f64, tilt))
+}
+
+/// Devices with many more outliers than their peers ([`OUTLIER_SIGNIFICANCE`]): a warning
+/// when they are spread over its views (a device fault: focus, exposure, a move), a note
+/// naming the pose when one view holds [`ONE_VIEW_SHARE`] of them (a steep or spoiled view,
+/// left out; nothing to do).
+fn outlier_warnings(
+    cal: &Calibration,
+    rows: &[ResidualRow],
+    w: &mut Vec<String>,
+    notes: &mut Vec<String>,
+) {
     let total = |r: &ResidualRow| (r.points + r.outliers) as f64;
     for (d, (dev, row)) in cal.devices.iter().zip(rows).enumerate() {
         let same = |e: usize, r: &ResidualRow| e != d && r.kind == row.kind;
@@ -429,6 +503,19 @@ fn outlier_warnings(cal: &Calibration, rows: &[ResidualRow], w: &mut Vec<String>
         let k = row.outliers as u64;
         let p = poisson_tail(k, expected);
         if k as f64 >= 2.0 * expected && p < OUTLIER_SIGNIFICANCE / rows.len() as f64 {
+            if let Some((pose, share, tilt)) =
+                outliers_by_pose(cal, d).filter(|o| o.1 >= ONE_VIEW_SHARE)
+            {
+                notes.push(format!(
+                    "{}: {:.1} % of its observations are outliers, {:.0} % of them in pose \
+                     {pose} (the board at {tilt:.0}° to its view): that view's points there \
+                     were left out; the device itself fits as its peers do.",
+                    dev.name,
+                    100.0 * row.outliers as f64 / total(row),
+                    100.0 * share
+                ));
+                continue;
+            }
             w.push(format!(
                 "{}: {} of its {} observations ({:.2} %) are outliers, where its peers' \
                  rate ({:.3} %) predicts {expected:.1} (chance {p:.1e}): check its focus, \
@@ -456,6 +543,7 @@ pub const PAIR_Z: f64 = 3.5;
 pub fn verification_warnings(
     checks: &[PairCheck],
     is_projector: impl Fn(&str) -> bool,
+    target: &Target,
 ) -> Vec<String> {
     let kind = |k: &PairCheck| is_projector(&k.first) || is_projector(&k.second);
     let median = |mut v: Vec<f64>| {
@@ -476,7 +564,8 @@ pub fn verification_warnings(
         let m = median(family.clone());
         let mad = median(family.iter().map(|x| (x - m).abs()).collect());
         let z = 0.6745 * (k.length_rms - m) / mad.max(1e-12 * m.max(1e-300));
-        if z > PAIR_Z {
+        // Out of family and above the target: a pair within the target is good enough.
+        if z > PAIR_Z && k.length_rms > target.length_mm {
             out.push(format!(
                 "Verification pair {}–{} (held-out pose {}): length RMS {:.4} mm (max {:.4} \
                  mm) is out of family: the {} {} pairs' median is {m:.4} mm (robust z {z:.1}): \
@@ -496,6 +585,15 @@ pub fn verification_warnings(
             ));
         }
     }
+    if let Some(rms) = super::verify::verification_rms(checks).filter(|r| *r > target.length_mm) {
+        out.push(format!(
+            "The held-out length error is {rms:.4} mm RMS over {} pairs, above your {} mm \
+             target: add poses where the lenses are least certain (the report's uncertainty \
+             maps), or check the board's scale and flatness.",
+            checks.len(),
+            target.length_mm
+        ));
+    }
     out
 }
 
@@ -503,10 +601,15 @@ pub fn verification_warnings(
 /// [`crate::calib::observability`]), few poses, high RMS, many outliers (absolute and
 /// against peers), coverage holes, extrapolated corners, poorly determined terms, excluded
 /// devices, unregistered views.
-pub fn warnings(cal: &Calibration, rows: &[ResidualRow]) -> Vec<String> {
+pub fn warnings(
+    cal: &Calibration,
+    rows: &[ResidualRow],
+    target: &Target,
+    notes: &mut Vec<String>,
+) -> Vec<String> {
     let mut w: Vec<String> = cal.solution.held.iter().map(ToString::to_string).collect();
-    lens_warnings(cal, &mut w);
-    outlier_warnings(cal, rows, &mut w);
+    lens_warnings(cal, target, &mut w);
+    outlier_warnings(cal, rows, &mut w, notes);
     let expected = expected_rms(cal);
     for (dev, row) in cal.devices.iter().zip(rows) {
         if row.poses < MIN_POSES {
@@ -588,6 +691,18 @@ mod tests {
     use crate::calib::solve::calibrate;
     use crate::calib::synthetic::SyntheticRig;
 
+    /// The target of the tests on σ = 0.1 px synthetic data: the noise of one observation.
+    const NOISE_TARGET: Target = Target {
+        uncertainty_px: 0.1,
+        length_mm: DEFAULT_TARGET_MM,
+    };
+
+    /// A length target the verification tests' pairs (about 0.05 mm) meet.
+    const PAIR_TARGET: Target = Target {
+        uncertainty_px: DEFAULT_TARGET_PX,
+        length_mm: 0.1,
+    };
+
     fn paper(keep: impl Fn(usize, Point2<f64>) -> bool) -> Calibration {
         let rig = SyntheticRig::paper(10, 0.1, 3);
         let mut views = rig.views();
@@ -640,7 +755,7 @@ mod tests {
             &SyntheticRig::paper(10, 0.1, 3),
             &cal,
         );
-        let w = warnings(&cal, &residual_table(&cal));
+        let w = warnings(&cal, &residual_table(&cal), &NOISE_TARGET, &mut Vec::new());
         eprintln!("{} warnings: {w:#?}", w.len());
         let kinds = ["extrapolates", "cannot determine"];
         assert!(
@@ -657,6 +772,52 @@ mod tests {
         }
     }
 
+    /// The paper rig (its image corners without points) at ten times the real noise, judged
+    /// against the default target (1 px, 0.1 mm): no warning, as a healthy rig must get;
+    /// against the noise of one observation it is told where its lenses extrapolate.
+    #[test]
+    fn a_healthy_rig_gets_no_warning_at_the_users_target() {
+        let cal = paper(|_, _| true);
+        let mut notes = Vec::new();
+        let w = warnings(&cal, &residual_table(&cal), &Target::default(), &mut notes);
+        assert!(w.is_empty() && notes.is_empty(), "{w:#?} {notes:#?}");
+        let strict = warnings(&cal, &residual_table(&cal), &NOISE_TARGET, &mut notes);
+        assert!(
+            strict.iter().any(|s| s.contains("extrapolates")),
+            "{strict:#?}"
+        );
+    }
+
+    /// Outliers that all lie in one pose are that view's: a note naming the pose and its
+    /// tilt, no warning.
+    #[test]
+    fn outliers_of_one_view_are_a_note_naming_the_pose() {
+        let mut cal = paper(|_, _| true);
+        let pose = cal
+            .observations
+            .iter()
+            .find(|o| cal.devices[o.device].name == "cam2")
+            .unwrap()
+            .pose;
+        let mut k = 0;
+        for (o, r) in cal.observations.iter().zip(&mut cal.solution.residuals) {
+            if cal.devices[o.device].name == "cam2" && o.pose == pose {
+                k += 1;
+                r.outlier |= k % 3 == 0;
+            }
+        }
+        let mut notes = Vec::new();
+        let w = warnings(&cal, &residual_table(&cal), &Target::default(), &mut notes);
+        assert!(!w.iter().any(|s| s.contains("outliers")), "{w:#?}");
+        let input = cal.pose_index[pose];
+        assert!(
+            notes.len() == 1
+                && notes[0].starts_with("cam2:")
+                && notes[0].contains(&format!("% of them in pose {input} (the board at ")),
+            "{notes:#?}"
+        );
+    }
+
     /// A well-covered rig (every device's whole image seen, corners included), calibrated
     /// from its views: no warning at all.
     #[test]
@@ -671,7 +832,7 @@ mod tests {
         )
         .expect("the covered rig calibrates");
         figures(&cal);
-        let w = warnings(&cal, &residual_table(&cal));
+        let w = warnings(&cal, &residual_table(&cal), &NOISE_TARGET, &mut Vec::new());
         assert!(w.is_empty(), "{w:#?}");
     }
 
@@ -688,7 +849,7 @@ mod tests {
             &Default::default(),
         )
         .expect("a one-sided rig calibrates");
-        let w = warnings(&cal, &residual_table(&cal));
+        let w = warnings(&cal, &residual_table(&cal), &NOISE_TARGET, &mut Vec::new());
         let held: Vec<_> = w.iter().filter(|w| w.contains("front→back")).collect();
         assert_eq!(held.len(), 1, "{w:#?}");
         assert!(
@@ -713,7 +874,7 @@ mod tests {
                 r.outlier |= k % 10 == 0;
             }
         }
-        let w = warnings(&cal, &residual_table(&cal));
+        let w = warnings(&cal, &residual_table(&cal), &NOISE_TARGET, &mut Vec::new());
         let about =
             |name: &str, what: &str| w.iter().any(|s| s.starts_with(name) && s.contains(what));
         assert!(about("cam0", "70 % of its 8 × 5 image cells"), "{w:#?}");
@@ -787,12 +948,12 @@ mod tests {
             pair("proj2", 0.061),
             pair("proj3", 0.055),
         ];
-        assert!(verification_warnings(&checks, proj).is_empty());
+        assert!(verification_warnings(&checks, proj, &Target::default()).is_empty());
         // 0.148 mm is out of family among the camera–projector pairs; cam4's 0.052 mm is
         // in family among the camera–camera pairs.
         checks.push(pair("proj1", 0.148));
         checks.push(pair("cam4", 0.052));
-        let w = verification_warnings(&checks, proj);
+        let w = verification_warnings(&checks, proj, &PAIR_TARGET);
         assert_eq!(w.len(), 1, "{w:#?}");
         assert!(
             w[0].contains("cam1–proj1") && w[0].contains("pose 9"),

@@ -243,3 +243,10 @@ pub fn verify(board: &Board, devices: &[Device], views: &[CameraView]) -> Vec<Pa
     }
     out
 }
+
+/// RMS of the pairs' length errors (mm), if any pair was checked.
+pub fn verification_rms(checks: &[PairCheck]) -> Option<f64> {
+    (!checks.is_empty()).then(|| {
+        (checks.iter().map(|k| k.length_rms.powi(2)).sum::<f64>() / checks.len() as f64).sqrt()
+    })
+}

@@ -76,13 +76,16 @@ pub fn html_report(input: &ReportInput) -> String {
     h.push_str("<h2 id=\"warnings\">Warnings</h2>\n");
     let warnings = &input.diagnosis.warnings;
     if warnings.is_empty() {
-        h.push_str("<p class=\"ok\">None: every device is seen in enough poses and fits as well as the others.</p>\n");
+        h.push_str("<p class=\"ok\">None: every device is seen in enough poses, fits as well as the others and meets the target.</p>\n");
     } else {
         h.push_str("<ul class=\"warn\">\n");
         for w in warnings {
             let _ = writeln!(h, "<li>{}</li>", esc(w));
         }
         h.push_str("</ul>\n");
+    }
+    for n in &input.diagnosis.notes {
+        let _ = writeln!(h, "<p class=\"note\">Note: {}</p>", esc(n));
     }
     h.push_str("<div class=\"row\">\n<div>\n");
     residual_section(&mut h, rows);
@@ -1424,7 +1427,7 @@ mod tests {
             calibration: cal,
             verification,
             title: "Rig <A> & \"B\"",
-            diagnosis: &Diagnosis::of(cal, verification, &warnings),
+            diagnosis: &Diagnosis::of(cal, verification, &warnings, &Default::default()),
         })
     }
 

@@ -576,9 +576,4 @@ pub fn format_verification(checks: &[crate::calib::verify::PairCheck]) -> String
     s
 }
 
-/// RMS of the pairs' length errors (mm), if any pair was checked.
-pub fn verification_rms(checks: &[crate::calib::verify::PairCheck]) -> Option<f64> {
-    (!checks.is_empty()).then(|| {
-        (checks.iter().map(|k| k.length_rms.powi(2)).sum::<f64>() / checks.len() as f64).sqrt()
-    })
-}
+pub use crate::calib::verify::verification_rms;

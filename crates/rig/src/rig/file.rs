@@ -375,6 +375,17 @@ pub struct GuidanceSpec {
     /// whole image.
     #[serde(default = "default_uncertainty")]
     pub uncertainty_px: f64,
+    /// The held-out length error (mm RMS) the rig should meet: the report warns when the
+    /// calibration misses it, and not about checks that stay within it.
+    #[serde(default = "default_target_mm")]
+    pub target_mm: f64,
+}
+
+/// Default of [`GuidanceSpec::target_mm`] (mm).
+pub const DEFAULT_TARGET_MM: f64 = 0.1;
+
+fn default_target_mm() -> f64 {
+    DEFAULT_TARGET_MM
 }
 
 /// Default of [`GuidanceSpec::uncertainty_px`] (px).
@@ -388,6 +399,7 @@ impl Default for GuidanceSpec {
     fn default() -> Self {
         GuidanceSpec {
             uncertainty_px: DEFAULT_UNCERTAINTY_PX,
+            target_mm: DEFAULT_TARGET_MM,
         }
     }
 }
@@ -657,6 +669,13 @@ impl RigFile {
             return Err(ValidationError::new(
                 "guidance.uncertainty_px",
                 format!("{u} px is not a projection uncertainty (0 < u ≤ 100 px)"),
+            ));
+        }
+        let t = self.guidance.target_mm;
+        if !(t.is_finite() && t > 0.0 && t <= 1000.0) {
+            return Err(ValidationError::new(
+                "guidance.target_mm",
+                format!("{t} mm is not a length error to aim for (0 < t ≤ 1000 mm)"),
             ));
         }
         let simulated = self.cameras.iter().any(|c| c.driver == CameraDriver::Sim);
