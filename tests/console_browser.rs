@@ -201,15 +201,17 @@ impl Page {
 /// Start `hexcal run --console` with a free port; gives the process, its stdin, the
 /// console's address and the receiver of its remaining stderr lines.
 fn start_run(rig: &Path, out: &Path) -> (Killed, ChildStdin, String, mpsc::Receiver<String>) {
+    start_run_at(rig, out, "127.0.0.1:0")
+}
+
+/// [`start_run`] with the console on `addr`.
+fn start_run_at(
+    rig: &Path,
+    out: &Path,
+    addr: &str,
+) -> (Killed, ChildStdin, String, mpsc::Receiver<String>) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_hexcal"))
-        .args([
-            "run",
-            "--held-out",
-            "1",
-            "--console",
-            "127.0.0.1:0",
-            "--rig",
-        ])
+        .args(["run", "--held-out", "1", "--console", addr, "--rig"])
         .arg(rig)
         .arg("--out")
         .arg(out)
@@ -603,4 +605,38 @@ fn a_guided_simulated_operator_follows_the_console_until_done() {
     assert!((4..6).contains(&done), "{err}");
     assert!(out.join("calibration/truth.txt").exists(), "{err}");
     assert!(!out.join(format!("pose-{done:03}")).exists(), "{err}");
+}
+
+/// A console open to other machines (`--console 0.0.0.0:0`) prints its address with an
+/// access token; in a real browser the address without it is refused, with it the page
+/// works (its own requests carry the token's cookie: the state arrives, the button is live).
+#[test]
+fn a_console_on_all_addresses_works_only_with_its_token() {
+    let dir = scratch("console-token");
+    let rig = dir.join("rig.toml");
+    std::fs::write(&rig, console_rig().toml()).unwrap();
+    let (_run, _stdin, url, _stderr) = start_run_at(&rig, &dir.join("data"), "0.0.0.0:0");
+    let (base, token) = url
+        .split_once("?token=")
+        .expect("a token in the printed address");
+    assert_eq!(token.len(), 32, "{url}");
+    let base = base.replace("0.0.0.0", "127.0.0.1");
+    let _browser = start_chromium(&dir.join("profile"));
+    let mut page = Page::attach(&dir.join("profile"));
+    page.call("Page.navigate", json!({"url": base}));
+    let start = Instant::now();
+    loop {
+        let body = page.eval("document.body ? document.body.innerText : ''");
+        if body.as_str().is_some_and(|b| b.starts_with("forbidden")) {
+            break;
+        }
+        assert!(start.elapsed() < STEP, "not refused: {body}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    page.call(
+        "Page.navigate",
+        json!({"url": format!("{base}?token={token}")}),
+    );
+    let state = page.wait("the capture button", &|v| v["capture"] == true);
+    assert_eq!(state["sign"], "NOT DONE", "{state}");
 }

@@ -165,6 +165,15 @@ pub struct Console {
     url: String,
 }
 
+/// The access token a console reachable from other machines requires: 128 random bits as
+/// hex; `None` on a loopback address (only this machine can reach it).
+fn access_token(addr: std::net::SocketAddr) -> Option<String> {
+    (!addr.ip().is_loopback()).then(|| {
+        let bits: [u8; 16] = rand::random();
+        bits.iter().map(|b| format!("{b:02x}")).collect()
+    })
+}
+
 impl Console {
     /// Serve the console on `addr` (e.g. 127.0.0.1:8765; port 0 picks a free one) for a run
     /// with these `cameras` (name, image size); `auto`: the run places poses itself (no
@@ -179,9 +188,13 @@ impl Console {
             reason,
         };
         let server = tiny_http::Server::http(addr).map_err(|e| fail(e.to_string()))?;
-        let url = match server.server_addr().to_ip() {
-            Some(a) => format!("http://{a}/"),
-            None => return Err(fail("not an IP address".into())),
+        let Some(bound) = server.server_addr().to_ip() else {
+            return Err(fail("not an IP address".into()));
+        };
+        let token = access_token(bound);
+        let url = match &token {
+            Some(t) => format!("http://{bound}/?token={t}"),
+            None => format!("http://{bound}/"),
         };
         let (capture, captures) = bounded(1);
         let state = State {
@@ -213,7 +226,7 @@ impl Console {
         let (srv, sh) = (Arc::clone(&server), Arc::clone(&shared));
         let thread = std::thread::Builder::new()
             .name("console".into())
-            .spawn(move || server::serve(&srv, &sh))
+            .spawn(move || server::serve(&srv, &sh, token.as_deref()))
             .map_err(|e| fail(e.to_string()))?;
         Ok(Console {
             shared,
@@ -250,7 +263,8 @@ impl Console {
         }
     }
 
-    /// The page's address.
+    /// The page's address (with its access token when the console listens beyond this
+    /// machine).
     pub fn url(&self) -> &str {
         &self.url
     }

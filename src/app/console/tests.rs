@@ -123,3 +123,64 @@ fn a_taken_address_is_refused_naming_it() {
     let e = Console::start(addr, &[], true).err().unwrap();
     assert!(e.to_string().contains(addr), "{e}");
 }
+
+/// One request to `port` on this machine with extra header lines; the whole answer.
+fn raw(port: u16, method: &str, path: &str, headers: &str) -> String {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    write!(
+        s,
+        "{method} {path} HTTP/1.1\r\nHost: x\r\n{headers}Content-Length: 0\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut all = String::new();
+    s.read_to_string(&mut all).unwrap();
+    all
+}
+
+#[test]
+fn a_console_open_to_other_machines_needs_its_token() {
+    let console = Console::start("0.0.0.0:0", &[], false).unwrap();
+    let url = console.url().to_string();
+    let (host, token) = url
+        .trim_start_matches("http://")
+        .split_once("/?token=")
+        .unwrap_or_else(|| panic!("no token in {url}"));
+    assert_eq!(token.len(), 32, "{url}");
+    let port: u16 = host.rsplit_once(':').unwrap().1.parse().unwrap();
+    // Without the token (or with another) the page, the state, the pictures, the events and
+    // the button are refused.
+    for (method, path) in [
+        ("GET", "/"),
+        ("GET", "/state"),
+        ("GET", "/events"),
+        ("GET", "/thumb/0.png"),
+        ("POST", "/capture"),
+        ("GET", "/?token=00000000000000000000000000000000"),
+    ] {
+        let answer = raw(port, method, path, "");
+        assert!(
+            answer.starts_with("HTTP/1.1 403"),
+            "{method} {path}: {answer}"
+        );
+    }
+    let wrong = raw(port, "GET", "/state", "Cookie: hexcal_token=abc\r\n");
+    assert!(wrong.starts_with("HTTP/1.1 403"), "{wrong}");
+    // With it the page comes with the cookie its own requests then carry.
+    let page = raw(port, "GET", &format!("/?token={token}"), "");
+    assert!(page.starts_with("HTTP/1.1 200"), "{page}");
+    assert!(
+        page.contains(&format!(
+            "hexcal_token={token}; Path=/; HttpOnly; SameSite=Strict"
+        )),
+        "{page}"
+    );
+    let cookie = format!("Cookie: other=1; hexcal_token={token}\r\n");
+    let state = raw(port, "GET", "/state", &cookie);
+    assert!(
+        state.starts_with("HTTP/1.1 200") && state.contains("\"status\""),
+        "{state}"
+    );
+    // On loopback no token is asked for (the first test): only this machine reaches it.
+    let local = Console::start("127.0.0.1:0", &[], false).unwrap();
+    assert!(!local.url().contains("token"), "{}", local.url());
+}

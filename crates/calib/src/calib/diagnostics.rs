@@ -446,38 +446,59 @@ pub const GAUSSIAN_OUTLIER_RATE: f64 = 3.354_626_279_025_119e-4;
 /// count that high has a probability below 10⁻³ divided by the number of devices.
 pub const OUTLIER_SIGNIFICANCE: f64 = 1e-3;
 
-/// Outliers this concentrated in one pose are that view's, not the device's.
-pub const ONE_VIEW_SHARE: f64 = 0.8;
+/// Outliers this concentrated in a few of a device's poses (at most a quarter of them,
+/// at least one) are those views', not the device's.
+pub const FEW_VIEWS_SHARE: f64 = 0.8;
 
-/// Device `d`'s outliers by board pose: the pose holding most of them (input index), its
-/// share, and the angle (deg) between the board's normal and the line from the device to
-/// the board's centre there.
-fn outliers_by_pose(cal: &Calibration, d: usize) -> Option<(usize, f64, f64)> {
+/// Device `d`'s outliers by board pose, when [`FEW_VIEWS_SHARE`] of them lie in at most a
+/// quarter of the poses it sees: those poses (input index, with the angle in degrees
+/// between the board's normal and the line from the device to the board's centre there),
+/// most outliers first, and the share they hold.
+fn outliers_in_few_views(cal: &Calibration, d: usize) -> Option<(Vec<(usize, f64)>, f64)> {
     let mut count = std::collections::BTreeMap::<usize, usize>::new();
+    let mut seen = BTreeSet::new();
     for (o, r) in cal.observations.iter().zip(&cal.solution.residuals) {
-        if o.device == d && r.outlier {
-            *count.entry(o.pose).or_default() += 1;
+        if o.device == d {
+            seen.insert(o.pose);
+            if r.outlier {
+                *count.entry(o.pose).or_default() += 1;
+            }
         }
     }
     let total: usize = count.values().sum();
-    let (&pose, &most) = count.iter().max_by_key(|(_, n)| **n)?;
-    let t = cal.devices[d].pose * cal.solution.boards[pose];
-    let normal = t.rotation * nalgebra::Vector3::z();
-    let towards = t.translation.vector.normalize();
-    let tilt = normal
-        .dot(&towards)
-        .abs()
-        .clamp(0.0, 1.0)
-        .acos()
-        .to_degrees();
-    let input = cal.pose_index.get(pose).copied().unwrap_or(pose);
-    Some((input, most as f64 / total as f64, tilt))
+    let mut by: Vec<(usize, usize)> = count.into_iter().collect();
+    by.sort_by(|a, b| b.1.cmp(&a.1));
+    let few = (seen.len() / 4).max(1);
+    let held: usize = by.iter().take(few).map(|p| p.1).sum();
+    let share = held as f64 / total.max(1) as f64;
+    if total == 0 || share < FEW_VIEWS_SHARE {
+        return None;
+    }
+    let mut poses = Vec::new();
+    let mut acc = 0;
+    for &(pose, n) in &by {
+        let t = cal.devices[d].pose * cal.solution.boards[pose];
+        let normal = t.rotation * nalgebra::Vector3::z();
+        let towards = t.translation.vector.normalize();
+        let tilt = normal
+            .dot(&towards)
+            .abs()
+            .clamp(0.0, 1.0)
+            .acos()
+            .to_degrees();
+        poses.push((cal.pose_index.get(pose).copied().unwrap_or(pose), tilt));
+        acc += n;
+        if acc as f64 >= FEW_VIEWS_SHARE * total as f64 {
+            break;
+        }
+    }
+    Some((poses, acc as f64 / total as f64))
 }
 
 /// Devices with many more outliers than their peers ([`OUTLIER_SIGNIFICANCE`]): a warning
 /// when they are spread over its views (a device fault: focus, exposure, a move), a note
-/// naming the pose when one view holds [`ONE_VIEW_SHARE`] of them (a steep or spoiled view,
-/// left out; nothing to do).
+/// naming the poses when a few views hold [`FEW_VIEWS_SHARE`] of them (steep or spoiled
+/// views, left out; nothing to do).
 fn outlier_warnings(
     cal: &Calibration,
     rows: &[ResidualRow],
@@ -503,16 +524,18 @@ fn outlier_warnings(
         let k = row.outliers as u64;
         let p = poisson_tail(k, expected);
         if k as f64 >= 2.0 * expected && p < OUTLIER_SIGNIFICANCE / rows.len() as f64 {
-            if let Some((pose, share, tilt)) =
-                outliers_by_pose(cal, d).filter(|o| o.1 >= ONE_VIEW_SHARE)
-            {
+            if let Some((poses, share)) = outliers_in_few_views(cal, d) {
+                let named: Vec<String> = (poses.iter())
+                    .map(|(p, tilt)| format!("pose {p} (the board at {tilt:.0}° to its view)"))
+                    .collect();
                 notes.push(format!(
-                    "{}: {:.1} % of its observations are outliers, {:.0} % of them in pose \
-                     {pose} (the board at {tilt:.0}° to its view): that view's points there \
-                     were left out; the device itself fits as its peers do.",
+                    "{}: {:.1} % of its observations are outliers, {:.0} % of them in {}: \
+                     those views' points there were left out; the device itself fits as its \
+                     peers do.",
                     dev.name,
                     100.0 * row.outliers as f64 / total(row),
-                    100.0 * share
+                    100.0 * share,
+                    named.join(", ")
                 ));
                 continue;
             }
