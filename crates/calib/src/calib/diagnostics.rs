@@ -467,7 +467,7 @@ fn outliers_in_few_views(cal: &Calibration, d: usize) -> Option<(Vec<(usize, f64
     }
     let total: usize = count.values().sum();
     let mut by: Vec<(usize, usize)> = count.into_iter().collect();
-    by.sort_by(|a, b| b.1.cmp(&a.1));
+    by.sort_by_key(|p| std::cmp::Reverse(p.1));
     let few = (seen.len() / 4).max(1);
     let held: usize = by.iter().take(few).map(|p| p.1).sum();
     let share = held as f64 / total.max(1) as f64;
