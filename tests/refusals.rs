@@ -407,3 +407,56 @@ fn closed_pipes_never_panic() {
         Some(1)
     );
 }
+
+/// First contact (issue 34): an empty folder given to `calibrate` says what it should hold;
+/// a rig file that is not there lists the rig files beside it; a `--stereo` pair naming a
+/// device the rig does not have is refused before anything is captured, with the names.
+#[test]
+fn first_contact_mistakes_say_what_was_meant() {
+    let dir = scratch("first-contact");
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = dir.join("out");
+    let run = hexcal(&[
+        "calibrate",
+        empty.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    refused(
+        &run,
+        &[
+            "not a hexcal dataset (no dataset.json)",
+            "pose-KKK",
+            "correspondences file",
+        ],
+    );
+
+    let rigs = dir.join("rigs");
+    std::fs::create_dir_all(&rigs).unwrap();
+    file(&rigs, "small.toml", SMALL_RIG);
+    let typo = rigs.join("smal.toml");
+    let run = hexcal(&["run", "--rig", typo.to_str().unwrap(), "--auto"]);
+    refused(
+        &run,
+        &["no rig file", "smal.toml; rig files in", "small.toml"],
+    );
+
+    let rig = file(&dir, "rig.toml", SMALL_RIG);
+    let data = dir.join("data");
+    let run = hexcal(&[
+        "run",
+        "--rig",
+        rig.to_str().unwrap(),
+        "--auto",
+        "--out",
+        data.to_str().unwrap(),
+        "--stereo",
+        "cam0,cam9",
+    ]);
+    refused(
+        &run,
+        &["--stereo cam0,cam9: no device \"cam9\"; the devices are cam0"],
+    );
+    assert!(!data.exists(), "nothing written before the refusal");
+}

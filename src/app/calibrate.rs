@@ -232,6 +232,7 @@ pub fn calibrate_dataset(
     let data = Dataset::open(root)?;
     let board = Board::resolve(&data.info.board)?;
     let devices = devices_of(&data.info);
+    check_stereo(stereo, &devices)?;
     let poses = data.completed()?;
     if poses.is_empty() {
         return Err(AppError::Input(format!(
@@ -345,6 +346,7 @@ pub fn calibrate_file(
     target: &Target,
 ) -> Result<FileOutcome, AppError> {
     let c = read_correspondences(input)?;
+    check_stereo(stereo, &c.devices)?;
     let _lock = crate::lock::FolderLock::acquire(out)?;
     let board = Board::resolve(&c.board)?;
     if let Some(name) = reference {
@@ -483,6 +485,14 @@ pub fn calibrate_input(
     (held_out, stereo, target): (usize, &[String], Target),
     events: &mut dyn FnMut(&Event),
 ) -> Result<Calibrated, AppError> {
+    if input.is_dir() && !input.join("dataset.json").exists() {
+        return Err(AppError::Input(format!(
+            "{}: not a hexcal dataset (no dataset.json): give a folder `hexcal run` or \
+             `hexcal capture` wrote (dataset.json and its pose-KKK folders), or a \
+             correspondences file (docs/dataset.md)",
+            input.display()
+        )));
+    }
     if !input.is_dir() {
         let done = calibrate_file(input, out, reference, options, stereo, &target)?;
         return Ok(Calibrated {
@@ -501,6 +511,33 @@ pub fn calibrate_input(
         summary: super::summary::of_run(&outcome),
         uncalibrated: excluded(&outcome.calibration),
     })
+}
+
+/// Every `--stereo FIRST,SECOND` pair names two different devices of `devices`: checked
+/// before anything is captured or calibrated, naming the valid names.
+pub fn check_stereo(stereo: &[String], devices: &[DeviceInfo]) -> Result<(), AppError> {
+    let names: Vec<&str> = devices.iter().map(|d| d.name.as_str()).collect();
+    for pair in stereo {
+        let Some((a, b)) = pair.split_once(',').map(|(a, b)| (a.trim(), b.trim())) else {
+            return Err(AppError::Input(format!(
+                "--stereo {pair}: give two device names as FIRST,SECOND"
+            )));
+        };
+        for name in [a, b] {
+            if !names.contains(&name) {
+                return Err(AppError::Input(format!(
+                    "--stereo {pair}: no device {name:?}; the devices are {}",
+                    names.join(", ")
+                )));
+            }
+        }
+        if a == b {
+            return Err(AppError::Input(format!(
+                "--stereo {pair}: a device cannot pair with itself"
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// The user's target from `hexcal calibrate --target-px --target-mm`, checked.

@@ -196,6 +196,10 @@ pub fn run(
     place: &mut PlaceBoard,
     events: &mut dyn FnMut(&Event),
 ) -> Result<Outcome, AppError> {
+    super::calibrate::check_stereo(
+        &options.stereo,
+        &super::calibrate::devices_of_rig(&rig.file),
+    )?;
     let Prepared {
         rig,
         opened,

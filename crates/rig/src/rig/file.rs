@@ -463,10 +463,50 @@ pub enum RigError {
         /// The cause.
         source: std::io::Error,
     },
+    /// Not there: the rig files beside where it was looked for.
+    #[error(
+        "no rig file {origin}{}",
+        match others.is_empty() {
+            true => String::new(),
+            false => format!("; rig files in {}: {}", folder, others.join(", ")),
+        }
+    )]
+    Missing {
+        /// The file.
+        origin: String,
+        /// The folder looked in.
+        folder: String,
+        /// The `.toml` files there (sorted).
+        others: Vec<String>,
+    },
     /// Not valid TOML of the format, or an impossible value: the file, the line of the key
     /// when known, the dotted key (e.g. `camera[2].exposure_ms`) and what is wrong.
     #[error(transparent)]
     Invalid(ValidationError),
+}
+
+/// [`RigError::Missing`] for `path`: the rig files in its folder (or, when that is not
+/// there, in `rigs/`), so that a typo shows the names it meant.
+fn missing(path: &Path) -> RigError {
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+    let folder = match parent {
+        Some(p) if p.is_dir() => p.to_path_buf(),
+        _ => Path::new("rigs").to_path_buf(),
+    };
+    let mut others: Vec<String> = std::fs::read_dir(&folder)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".toml"))
+        .collect();
+    others.sort();
+    others.truncate(40);
+    RigError::Missing {
+        origin: path.display().to_string(),
+        folder: folder.display().to_string(),
+        others,
+    }
 }
 
 impl RigError {
@@ -474,7 +514,7 @@ impl RigError {
     pub fn field(&self) -> Option<&str> {
         match self {
             RigError::Invalid(e) => Some(&e.at),
-            RigError::Io { .. } => None,
+            RigError::Io { .. } | RigError::Missing { .. } => None,
         }
     }
 
@@ -482,7 +522,7 @@ impl RigError {
     pub fn line(&self) -> Option<usize> {
         match self {
             RigError::Invalid(e) => e.line,
-            RigError::Io { .. } => None,
+            RigError::Io { .. } | RigError::Missing { .. } => None,
         }
     }
 }
@@ -498,9 +538,12 @@ impl RigFile {
     pub fn load_with_text(path: impl AsRef<Path>) -> Result<(RigFile, String), RigError> {
         let path = path.as_ref();
         let origin = path.display().to_string();
-        let text = hexcal_core::limits::read_text(path).map_err(|source| RigError::Io {
-            origin: origin.clone(),
-            source,
+        let text = hexcal_core::limits::read_text(path).map_err(|source| match source.kind() {
+            std::io::ErrorKind::NotFound => missing(path),
+            _ => RigError::Io {
+                origin: origin.clone(),
+                source,
+            },
         })?;
         let mut rig = RigFile::parse(&text, &origin)?;
         rig.base = path.parent().unwrap_or(Path::new(".")).to_owned();
