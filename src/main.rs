@@ -148,6 +148,17 @@ enum Command {
         /// (its held-out.json).
         input: PathBuf,
     },
+    /// Send one command to a rig file's positioner as a move sends it, and print every line
+    /// sent and received: for setting a positioner up.
+    Positioner {
+        /// The rig file.
+        #[arg(long)]
+        rig: PathBuf,
+        /// The positioner's name.
+        name: String,
+        /// The command line to send (as the device takes it, e.g. "G0 X10").
+        command: String,
+    },
     /// Draw one device's map from a calibration as SVG: `uncertainty` (projection
     /// uncertainty over the image, the region within --target outlined) or `distortion`
     /// (the lens's displacement against a pinhole).
@@ -570,6 +581,16 @@ fn execute_other(command: Command) -> anyhow::Result<()> {
         Command::Verify { calibration, input } => {
             let table = hexcal::app::calibrate::verification_table(&input, calibration.as_deref())?;
             print!("{table}");
+        }
+        Command::Positioner { rig, name, command } => {
+            let (lines, ended) = hexcal::app::script::positioner_exchange(&rig, &name, &command)?;
+            for line in lines {
+                println!("{line}");
+            }
+            match ended {
+                Ok(line) => println!("done: {line}"),
+                Err(e) => anyhow::bail!("{e}"),
+            }
         }
         Command::Show {
             map,

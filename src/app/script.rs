@@ -777,3 +777,34 @@ fn describe(a: &Action) -> String {
 
 #[cfg(test)]
 mod tests;
+
+/// `hexcal positioner`: send `command` to the rig file's positioner `name` as a move sends
+/// it (echo, acknowledgement, completion line or polling, as the rig file says) and give
+/// every line sent and received, then how it ended — for a person setting a positioner up.
+pub fn positioner_exchange(
+    rig_path: &Path,
+    name: &str,
+    command: &str,
+) -> Result<(Vec<String>, Result<String, PositionerError>), AppError> {
+    let rig = RigFile::load(rig_path)?;
+    let spec = rig.positioner(name).ok_or_else(|| {
+        let names: Vec<&str> = rig.positioners.iter().map(|p| p.name.as_str()).collect();
+        AppError::Input(format!(
+            "{}: no positioner {name:?}; its positioners: {}",
+            rig_path.display(),
+            if names.is_empty() {
+                "none".to_string()
+            } else {
+                names.join(", ")
+            }
+        ))
+    })?;
+    let mut p = Positioner::open(spec, None).map_err(|source| ScriptError::Positioner {
+        step: format!("positioner {name}"),
+        source,
+    })?;
+    let expect = Regex::new(&spec.reply).map_err(|e| AppError::Input(e.to_string()))?;
+    let timeout = Duration::from_secs_f64(spec.timeout_s);
+    let ended = p.command(command, &expect, timeout, &|| false);
+    Ok((p.transcript().to_vec(), ended))
+}

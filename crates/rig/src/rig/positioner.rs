@@ -8,7 +8,9 @@
 //! pty pair, driven through the same serial code; mounted on a [`SimWorld`], the stage's
 //! axes place the simulated board.
 
-use super::script::{PositionerDriver, PositionerSpec, SimFaultKind, SimStageSpec};
+use super::script::{
+    FlowControl, Parity, PositionerDriver, PositionerSpec, SimFaultKind, SimStageSpec,
+};
 use super::sim::SimWorld;
 use hexcal_simulator::stage::{Axes, SimulatedStage, StageConfig, StageFault};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
@@ -90,8 +92,34 @@ pub enum PositionerError {
     },
 }
 
+/// What a reply line means.
+enum Reply {
+    /// Read on (an echo, the acknowledgement, a busy status).
+    Next,
+    /// The move is done.
+    Done,
+    /// A fault line.
+    Fault(String),
+    /// A line that is not what was expected (the line, the pattern expected).
+    Garbage(String, String),
+    /// No line within the timeout.
+    Silent(Duration),
+    /// Stopped.
+    Interrupted,
+}
+
 /// Longest reply line kept (bytes); a device that sends more without a line end is garbage.
 const MAX_LINE: usize = 4096;
+
+/// How a device says a command was taken and a move is done (docs/rig-file.md, "Scripts
+/// and positioners"): an echo to skip, an acknowledgement at once, then a completion line
+/// or a status polled until idle.
+struct Protocol {
+    echo: bool,
+    ack: Option<Regex>,
+    /// The status query, the idle pattern, the period.
+    poll: Option<(String, Regex, Duration)>,
+}
 
 /// An open positioner.
 pub struct Positioner {
@@ -100,9 +128,46 @@ pub struct Positioner {
     ending: &'static str,
     fault: Regex,
     stop: Option<String>,
+    protocol: Protocol,
     pending: Vec<u8>,
+    /// Every line sent (`> …`) and received (`< …`), for `hexcal positioner`.
+    transcript: Vec<String>,
     /// The simulated stage serving the other end of the pty, for `sim`.
     stage: Option<SimulatedStage>,
+}
+
+/// A pattern of `spec`, compiled; an error naming the positioner.
+fn pattern(name: &str, text: &str) -> Result<Regex, PositionerError> {
+    Regex::new(text).map_err(|e| PositionerError::Pattern {
+        name: name.to_string(),
+        pattern: text.to_string(),
+        message: e.to_string(),
+    })
+}
+
+/// The serial framing of `spec` on a port builder.
+fn framed(spec: &PositionerSpec, path: &str) -> serialport::SerialPortBuilder {
+    use serialport::{DataBits, FlowControl as Flow, Parity as P, StopBits};
+    serialport::new(path, spec.baud)
+        .timeout(Duration::from_millis(20))
+        .data_bits(match spec.data_bits {
+            7 => DataBits::Seven,
+            _ => DataBits::Eight,
+        })
+        .parity(match spec.parity {
+            Parity::None => P::None,
+            Parity::Odd => P::Odd,
+            Parity::Even => P::Even,
+        })
+        .stop_bits(match spec.stop_bits {
+            2 => StopBits::Two,
+            _ => StopBits::One,
+        })
+        .flow_control(match spec.flow_control {
+            FlowControl::None => Flow::None,
+            FlowControl::Software => Flow::Software,
+            FlowControl::Hardware => Flow::Hardware,
+        })
 }
 
 impl Positioner {
@@ -110,21 +175,26 @@ impl Positioner {
     /// pty pair, mounted on `world` when there is one (the stage then holds the board).
     pub fn open(spec: &PositionerSpec, world: Option<&SimWorld>) -> Result<Self, PositionerError> {
         let name = spec.name.clone();
-        let fault = Regex::new(&spec.fault).map_err(|e| PositionerError::Pattern {
-            name: name.clone(),
-            pattern: spec.fault.clone(),
-            message: e.to_string(),
-        })?;
+        let fault = pattern(&name, &spec.fault)?;
+        let protocol = Protocol {
+            echo: spec.echo,
+            ack: spec.ack.as_deref().map(|a| pattern(&name, a)).transpose()?,
+            poll: match &spec.poll {
+                Some(q) => Some((
+                    q.query.clone(),
+                    pattern(&name, &q.idle)?,
+                    Duration::from_secs_f64(q.period_s),
+                )),
+                None => None,
+            },
+        };
         let open_error = |port: &str| {
             let (name, port) = (name.clone(), port.to_string());
             move |source| PositionerError::Open { name, port, source }
         };
         let (port, stage): (Box<dyn SerialPort>, _) = match (spec.driver, &spec.port) {
             (PositionerDriver::Serial, Some(path)) => {
-                let port = serialport::new(path, spec.baud)
-                    .timeout(Duration::from_millis(20))
-                    .open()
-                    .map_err(open_error(path))?;
+                let port = framed(spec, path).open().map_err(open_error(path))?;
                 (port, None)
             }
             _ => {
@@ -160,9 +230,16 @@ impl Positioner {
             ending: spec.line_ending.text(),
             fault,
             stop: spec.stop.clone(),
+            protocol,
             pending: Vec::new(),
+            transcript: Vec::new(),
             stage,
         })
+    }
+
+    /// Every line sent (`> …`) and received (`< …`) so far.
+    pub fn transcript(&self) -> &[String] {
+        &self.transcript
     }
 
     /// Its name.
@@ -175,8 +252,10 @@ impl Positioner {
         self.stage.as_ref().map(|s| s.handle().position())
     }
 
-    /// Send `command` and wait up to `timeout` for a line matching `expect`; a line matching
-    /// the fault pattern, any other line, silence, and `stopped()` turning true (then the
+    /// Send `command` and wait up to `timeout` for the move to be done: its echo skipped,
+    /// its acknowledgement taken, then a line matching `expect` or, polling, a status line
+    /// matching the idle pattern (other status lines are "busy"). A line matching the
+    /// fault pattern, any other line, silence, and `stopped()` turning true (then the
     /// positioner's stop command is sent) are errors naming the positioner and command.
     pub fn command(
         &mut self,
@@ -188,42 +267,87 @@ impl Positioner {
         self.drain_input()?;
         self.write_line(command)?;
         let deadline = Instant::now() + timeout;
+        let mut acked = self.protocol.ack.is_none();
+        let mut next_poll = Instant::now();
         loop {
             if stopped() {
                 if let Some(stop) = self.stop.clone() {
                     self.write_line(&stop)?;
                 }
-                return Err(PositionerError::Interrupted {
-                    name: self.name.clone(),
-                    command: command.to_string(),
-                });
+                return Err(self.error(command, Reply::Interrupted));
+            }
+            if let Some((query, _, period)) = self.protocol.poll.clone() {
+                if acked && Instant::now() >= next_poll {
+                    self.write_line(&query)?;
+                    next_poll = Instant::now() + period;
+                }
             }
             if let Some(line) = self.read_line()? {
-                let (name, command) = (self.name.clone(), command.to_string());
-                if self.fault.is_match(&line) {
-                    return Err(PositionerError::Fault {
-                        name,
-                        command,
-                        line,
-                    });
+                match self.judge(command, &line, expect, &mut acked) {
+                    Reply::Next => continue,
+                    Reply::Done => return Ok(line),
+                    other => return Err(self.error(command, other)),
                 }
-                if expect.is_match(&line) {
-                    return Ok(line);
-                }
-                let expect = expect.as_str().to_string();
-                return Err(PositionerError::Garbage {
-                    name,
-                    command,
-                    line,
-                    expect,
-                });
             }
             if Instant::now() >= deadline {
-                return Err(PositionerError::NoReply {
-                    name: self.name.clone(),
-                    command: command.to_string(),
-                    timeout_s: timeout.as_secs_f64(),
-                });
+                return Err(self.error(command, Reply::Silent(timeout)));
+            }
+        }
+    }
+
+    /// What `line` means in answer to `command`.
+    fn judge(&self, command: &str, line: &str, expect: &Regex, acked: &mut bool) -> Reply {
+        let p = &self.protocol;
+        let query = p.poll.as_ref().map(|q| q.0.trim());
+        if p.echo && (line == command.trim() || Some(line) == query) {
+            return Reply::Next;
+        }
+        if self.fault.is_match(line) {
+            return Reply::Fault(line.to_string());
+        }
+        if !*acked {
+            return match p.ack.as_ref().is_some_and(|a| a.is_match(line)) {
+                true => {
+                    *acked = true;
+                    Reply::Next
+                }
+                false => Reply::Garbage(
+                    line.to_string(),
+                    p.ack.as_ref().map_or("", |a| a.as_str()).to_string(),
+                ),
+            };
+        }
+        match &p.poll {
+            Some((_, idle, _)) if idle.is_match(line) => Reply::Done,
+            // Busy, or a status line of another kind: poll on.
+            Some(_) => Reply::Next,
+            None if expect.is_match(line) => Reply::Done,
+            None => Reply::Garbage(line.to_string(), expect.as_str().to_string()),
+        }
+    }
+
+    /// The error of a command's `reply`.
+    fn error(&self, command: &str, reply: Reply) -> PositionerError {
+        let (name, command) = (self.name.clone(), command.to_string());
+        match reply {
+            Reply::Fault(line) => PositionerError::Fault {
+                name,
+                command,
+                line,
+            },
+            Reply::Garbage(line, expect) => PositionerError::Garbage {
+                name,
+                command,
+                line,
+                expect,
+            },
+            Reply::Silent(t) => PositionerError::NoReply {
+                name,
+                command,
+                timeout_s: t.as_secs_f64(),
+            },
+            Reply::Interrupted | Reply::Next | Reply::Done => {
+                PositionerError::Interrupted { name, command }
             }
         }
     }
@@ -236,6 +360,7 @@ impl Positioner {
     }
 
     fn write_line(&mut self, line: &str) -> Result<(), PositionerError> {
+        self.transcript.push(format!("> {line}"));
         let bytes = format!("{line}{}", self.ending);
         self.port
             .write_all(bytes.as_bytes())
@@ -263,6 +388,7 @@ impl Positioner {
                 if text.is_empty() {
                     continue;
                 }
+                self.transcript.push(format!("< {text}"));
                 return Ok(Some(text));
             }
             if self.pending.len() > MAX_LINE {

@@ -255,6 +255,53 @@ fn check_positioner(
     if let Some(s) = &p.sim {
         check_stage(s, at)?;
     }
+    check_protocol(p, at)
+}
+
+/// A positioner's protocol and serial settings: patterns that compile, a poll period and a
+/// step scale within their ranges, 7 or 8 data bits, 1 or 2 stop bits.
+fn check_protocol(p: &PositionerSpec, at: &dyn Fn(&str) -> String) -> Result<(), ValidationError> {
+    let mut patterns: Vec<(&str, &str)> = Vec::new();
+    if let Some(a) = &p.ack {
+        patterns.push(("ack", a));
+    }
+    if let Some(q) = &p.poll {
+        check_text(&q.query).map_err(|m| m.at(at("poll.query")))?;
+        if q.query.trim().is_empty() {
+            return Err(ValidationError::new(at("poll.query"), "an empty query"));
+        }
+        patterns.push(("poll.idle", &q.idle));
+        if !(q.period_s >= 0.001 && q.period_s <= 60.0) {
+            return Err(ValidationError::new(
+                at("poll.period_s"),
+                format!("{} s is not a poll period (0.001–60 s)", q.period_s),
+            ));
+        }
+    }
+    for (key, pattern) in patterns {
+        check_text(pattern).map_err(|m| m.at(at(key)))?;
+        Regex::new(pattern).map_err(|e| ValidationError::new(at(key), pattern_message(&e)))?;
+    }
+    if !matches!(p.data_bits, 7 | 8) {
+        return Err(ValidationError::new(
+            at("data_bits"),
+            format!("{}: 7 or 8", p.data_bits),
+        ));
+    }
+    if !matches!(p.stop_bits, 1 | 2) {
+        return Err(ValidationError::new(
+            at("stop_bits"),
+            format!("{}: 1 or 2", p.stop_bits),
+        ));
+    }
+    if let Some(k) = p.steps_per_unit {
+        if !(k.is_finite() && k > 0.0 && k <= 1e9) {
+            return Err(ValidationError::new(
+                at("steps_per_unit"),
+                format!("{k}: a scale above 0 and at most 10⁹"),
+            ));
+        }
+    }
     Ok(())
 }
 
@@ -476,8 +523,12 @@ impl Unroller<'_> {
         let given = s.to.clone().unwrap_or_default();
         let mut to = BTreeMap::new();
         for (k, v) in &given {
+            let scaled = |x: f64| match p.steps_per_unit {
+                Some(k) => format_number((x * k).round()),
+                None => format_number(x),
+            };
             let value = match v {
-                ValueSpec::Number(x) if x.is_finite() => format_number(*x),
+                ValueSpec::Number(x) if x.is_finite() => scaled(*x),
                 ValueSpec::Number(x) => {
                     return Err(ValidationError::new(
                         key(&format!("to.{k}")),
@@ -486,8 +537,13 @@ impl Unroller<'_> {
                 }
                 ValueSpec::Text(t) => {
                     check_text(t).map_err(|m| m.at(key(&format!("to.{k}"))))?;
-                    fill(t, &mut |n| vars.get(n).map(|&v| format_number(v)))
-                        .map_err(|m| m.at(key(&format!("to.{k}"))))?
+                    let text = fill(t, &mut |n| vars.get(n).map(|&v| format_number(v)))
+                        .map_err(|m| m.at(key(&format!("to.{k}"))))?;
+                    // A number after substitution is scaled like a number given as such.
+                    match text.trim().parse::<f64>() {
+                        Ok(x) if x.is_finite() && p.steps_per_unit.is_some() => scaled(x),
+                        _ => text,
+                    }
                 }
             };
             to.insert(k.clone(), value);

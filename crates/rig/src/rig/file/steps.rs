@@ -135,6 +135,83 @@ pub struct PositionerSpec {
     /// The simulated stage (`sim` only).
     #[serde(default)]
     pub sim: Option<SimStageSpec>,
+    /// The device echoes each line it is sent: that line is skipped.
+    #[serde(default)]
+    pub echo: bool,
+    /// Pattern of the line that acknowledges a command at once; the move is then done at
+    /// the `reply` line, or when the `poll` finds the device idle.
+    #[serde(default)]
+    pub ack: Option<String>,
+    /// Poll the device's state until it is idle, instead of waiting for a `reply` line.
+    #[serde(default)]
+    pub poll: Option<PollSpec>,
+    /// Serial framing: data bits (7 or 8).
+    #[serde(default = "default_data_bits")]
+    pub data_bits: u8,
+    /// Serial framing: parity.
+    #[serde(default)]
+    pub parity: Parity,
+    /// Serial framing: stop bits (1 or 2).
+    #[serde(default = "default_stop_bits")]
+    pub stop_bits: u8,
+    /// Serial flow control.
+    #[serde(default)]
+    pub flow_control: FlowControl,
+    /// Device steps per unit of the numbers move steps give (degrees, mm): each is
+    /// multiplied by it and rounded to a whole step before it fills the command.
+    #[serde(default)]
+    pub steps_per_unit: Option<f64>,
+}
+
+/// How a positioner is polled until its move is done.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PollSpec {
+    /// The status query sent (e.g. `?` for GRBL, `/1` for a Zaber device).
+    pub query: String,
+    /// Pattern of a status line that says the device is idle (the move done).
+    pub idle: String,
+    /// Time between queries (s).
+    #[serde(default = "default_poll_period")]
+    pub period_s: f64,
+}
+
+/// Serial parity.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Parity {
+    /// None.
+    #[default]
+    None,
+    /// Odd.
+    Odd,
+    /// Even.
+    Even,
+}
+
+/// Serial flow control.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FlowControl {
+    /// None.
+    #[default]
+    None,
+    /// XON/XOFF.
+    Software,
+    /// RTS/CTS.
+    Hardware,
+}
+
+fn default_data_bits() -> u8 {
+    8
+}
+
+fn default_stop_bits() -> u8 {
+    1
+}
+
+fn default_poll_period() -> f64 {
+    0.1
 }
 
 fn default_baud() -> u32 {
