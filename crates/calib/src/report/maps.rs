@@ -3,7 +3,7 @@
 //! the lens's displacement field (where the lens puts each ray against a pinhole).
 //!
 //! Takes a device's lens model and the covariance of its free lens parameters (from a
-//! [`Calibration`] or a `calibration.json` record); gives the maps as values on a grid of
+//! [`Calibration`](crate::calib::solve::Calibration) or a `calibration.json` record); gives the maps as values on a grid of
 //! cells and as self-contained SVG pictures with pixel axes, for the report and
 //! `hexcal show`.
 
