@@ -3,9 +3,9 @@
 //! the lens's displacement field (where the lens puts each ray against a pinhole).
 //!
 //! Takes a device's lens model and the covariance of its free lens parameters (from a
-//! [`Calibration`](crate::calib::solve::Calibration) or a `calibration.json` record); gives the maps as values on a grid of
-//! cells and as self-contained SVG pictures with pixel axes, for the report and
-//! `hexcal show`.
+//! [`Calibration`](crate::calib::solve::Calibration) or a `calibration.json` record);
+//! gives the maps as values on a grid of cells and as self-contained SVG pictures with
+//! pixel axes, for the report and `hexcal show`.
 
 use super::DeviceRecord;
 use crate::calib::diagnostics::lens_uncertainty;
