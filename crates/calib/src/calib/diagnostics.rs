@@ -56,6 +56,8 @@ pub struct Diagnosis {
     pub warnings: Vec<String>,
     /// What is worth knowing but needs no action (outliers of one steep view).
     pub notes: Vec<String>,
+    /// The target the warnings were judged against.
+    pub target: Target,
 }
 
 impl Diagnosis {
@@ -83,6 +85,7 @@ impl Diagnosis {
             rows,
             warnings,
             notes,
+            target: *target,
         }
     }
 }

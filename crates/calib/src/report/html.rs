@@ -93,7 +93,7 @@ pub fn html_report(input: &ReportInput) -> String {
     rig_section(&mut h, cal);
     h.push_str("</div>\n</div>\n");
     lens_section(&mut h, cal);
-    device_sections(&mut h, cal, rows);
+    device_sections(&mut h, cal, rows, input.diagnosis.target.uncertainty_px);
     uncertainty_section(&mut h, cal);
     if !input.verification.is_empty() {
         verification_section(&mut h, cal, input.verification);
@@ -341,7 +341,7 @@ fn short(x: f64) -> String {
 }
 
 /// Viridis at t ∈ [0, 1] (five control points, linear in between).
-fn viridis(t: f64) -> String {
+pub(super) fn viridis(t: f64) -> String {
     const STOPS: [(f64, f64, f64); 5] = [
         (68.0, 1.0, 84.0),
         (59.0, 82.0, 139.0),
@@ -930,7 +930,7 @@ impl Plot {
 }
 
 /// Per device: residual vectors, histogram, coverage.
-fn device_sections(h: &mut String, cal: &Calibration, rows: &[ResidualRow]) {
+fn device_sections(h: &mut String, cal: &Calibration, rows: &[ResidualRow], target: f64) {
     h.push_str("<h2 id=\"devices\">Residuals and coverage per device</h2>\n");
     for (d, (dev, row)) in cal.devices.iter().zip(rows).enumerate() {
         let data = device_data(cal, d);
@@ -955,7 +955,10 @@ fn device_sections(h: &mut String, cal: &Calibration, rows: &[ResidualRow]) {
             residual_figure(dev, &data),
             histogram_figure(&data, cal.solution.sigma),
             coverage_figure(dev, &data),
-        ] {
+        ]
+        .into_iter()
+        .chain(map_figures(cal, d, target))
+        {
             let _ = writeln!(
                 h,
                 "<figure>{svg}<figcaption>{}</figcaption></figure>",
@@ -964,6 +967,42 @@ fn device_sections(h: &mut String, cal: &Calibration, rows: &[ResidualRow]) {
         }
         h.push_str("</div>\n</div>\n");
     }
+}
+
+/// Device `d`'s projection-uncertainty map (the region within `target` px outlined) and
+/// its lens's displacement field ([`super::maps`]).
+fn map_figures(cal: &Calibration, d: usize, target: f64) -> Vec<(String, String)> {
+    let dev = &cal.devices[d];
+    let (free, cov) = crate::calib::diagnostics::lens_covariance(cal, d);
+    let lens = super::maps::LensWithCovariance {
+        model: dev.model,
+        free,
+        cov,
+    };
+    let (field, vectors) = super::maps::distortion_map(&dev.model);
+    // Inline in HTML an <svg> needs no namespace (and the page names no outside address).
+    let inline = |svg: String| svg.replacen(" xmlns=\"http://www.w3.org/2000/svg\"", "", 1);
+    vec![
+        (
+            inline(super::maps::uncertainty_svg(
+                &lens.uncertainty_map(),
+                &dev.name,
+                target,
+            )),
+            format!(
+                "Projection uncertainty over the image (log scale); the outline holds the \
+                 pixels within your {target} px target (hexcal show uncertainty {})",
+                dev.name
+            ),
+        ),
+        (
+            inline(super::maps::distortion_svg(&field, &vectors, &dev.name)),
+            format!(
+                "The lens's displacement against a pinhole (hexcal show distortion {})",
+                dev.name
+            ),
+        ),
+    ]
 }
 
 /// The rig seen from above in the reference frame: devices with their horizontal field of
@@ -1447,8 +1486,13 @@ mod tests {
         assert_eq!(html.matches("<html").count(), 1);
         assert_eq!(html.matches("</html>").count(), 1);
         assert_eq!(html.matches("<svg").count(), html.matches("</svg>").count());
-        // Rig view plus three figures per device.
-        assert_eq!(html.matches("<svg").count(), 1 + 3 * cal.devices.len());
+        // Rig view plus five figures per device (residuals, histogram, coverage, the
+        // uncertainty map and the displacement field).
+        assert_eq!(html.matches("<svg").count(), 1 + 5 * cal.devices.len());
+        assert_eq!(
+            html.matches("projection uncertainty (px, 1σ)").count(),
+            cal.devices.len()
+        );
         assert!(!html.contains("http://") && !html.contains("https://"));
         assert!(!html.contains("<script") && !html.contains("<link") && !html.contains("<img"));
         // The title is escaped.
@@ -1470,11 +1514,24 @@ mod tests {
         }
     }
 
-    /// The paper rig's poses leave its image corners empty, so the page warns that the
-    /// lens models extrapolate there (calib::diagnostics' tests) and of nothing else.
+    /// The paper rig (at ten times the real noise) meets the default target: the page says
+    /// so. Its poses leave its image corners empty, so against the noise of one observation
+    /// (0.1 px) the page warns that the lens models extrapolate there (calib::diagnostics'
+    /// tests) and of nothing else.
     #[test]
     fn the_paper_rig_is_warned_of_its_corners_only_and_no_verification_without_checks() {
         let html = page(calibration(), &[], Vec::new());
+        assert!(html.contains("<p class=\"ok\">None"));
+        let strict = crate::calib::diagnostics::Target {
+            uncertainty_px: 0.1,
+            ..Default::default()
+        };
+        let html = html_report(&ReportInput {
+            calibration: calibration(),
+            verification: &[],
+            title: "strict",
+            diagnosis: &Diagnosis::of(calibration(), &[], &[], &strict),
+        });
         assert!(!html.contains("<p class=\"ok\">None"));
         assert!(html.contains("the lens model extrapolates in its"));
         assert!(!html.contains("outliers,") && !html.contains("the median"));

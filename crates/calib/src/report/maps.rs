@@ -7,6 +7,7 @@
 //! gives the maps as values on a grid of cells and as self-contained SVG pictures with
 //! pixel axes, for the report and `hexcal show`.
 
+use super::html::viridis;
 use super::DeviceRecord;
 use crate::calib::diagnostics::lens_uncertainty;
 use hexcal_core::camera::{CameraModel, LensParam};
@@ -133,26 +134,6 @@ pub fn distortion_map(model: &CameraModel) -> (ImageMap, Vec<Option<[f64; 2]>>) 
     (vectors_map, vectors)
 }
 
-/// Colour of `t` in [0, 1] on a dark-blue → green → yellow scale (viridis-like).
-fn colour(t: f64) -> String {
-    const STOPS: [[f64; 3]; 5] = [
-        [68.0, 1.0, 84.0],
-        [59.0, 82.0, 139.0],
-        [33.0, 145.0, 140.0],
-        [94.0, 201.0, 98.0],
-        [253.0, 231.0, 37.0],
-    ];
-    let x = t.clamp(0.0, 1.0) * (STOPS.len() - 1) as f64;
-    let (i, f) = (
-        (x.floor() as usize).min(STOPS.len() - 2),
-        x - x.floor().min((STOPS.len() - 2) as f64),
-    );
-    let c: Vec<u8> = (0..3)
-        .map(|k| (STOPS[i][k] + f * (STOPS[i + 1][k] - STOPS[i][k])).round() as u8)
-        .collect();
-    format!("#{:02x}{:02x}{:02x}", c[0], c[1], c[2])
-}
-
 /// Picture width (SVG units) of a map.
 const PICTURE: f64 = 480.0;
 
@@ -174,7 +155,7 @@ fn cells_svg(map: &ImageMap, title: &str, scale: impl Fn(f64) -> f64) -> (String
     let [cw, ch] = map.cells;
     let (dx, dy) = (pw / cw as f64, ph / ch as f64);
     for (i, v) in map.values.iter().enumerate() {
-        let fill = v.map_or("#888888".to_string(), |v| colour(scale(v)));
+        let fill = v.map_or("#888888".to_string(), |v| viridis(scale(v)));
         let _ = write!(
             s,
             "<rect x=\"{:.2}\" y=\"{:.2}\" width=\"{:.2}\" height=\"{:.2}\" fill=\"{fill}\"/>",
@@ -206,7 +187,7 @@ fn colour_bar(s: &mut String, height: f64, labels: &[(f64, String)], scale: impl
             "<rect x=\"{x}\" y=\"{:.2}\" width=\"16\" height=\"{:.2}\" fill=\"{}\"/>",
             i as f64 * height / 50.0,
             height / 50.0 + 0.05,
-            colour(t)
+            viridis(t)
         );
     }
     for (v, text) in labels {
