@@ -35,12 +35,13 @@ fn predicted_worst(
     pose: &Isometry3<f64>,
 ) -> f64 {
     let sol = &cal.solution;
-    let seen = sightings(&cal.board, &cal.devices, &sol.front_back, pose);
+    let fb = back_frame(cal);
+    let seen = sightings(&cal.board, &cal.devices, &fb, pose);
     assert!(seen.len() > 1000, "{} sightings", seen.len());
     let h = information(
         block,
         &cal.devices,
-        &sol.front_back,
+        &fb,
         &cal.board,
         pose,
         &seen,
