@@ -287,6 +287,7 @@ mod tests {
         use super::super::{MarkerKind, Side, Sides};
         let b = Board::from_toml_str(FRONT).unwrap();
         let hex600 = Board::hex600();
+        assert_eq!(b, hex600.front_only());
         assert_eq!((b.sides, b.name.as_str()), (Sides::One, "hex600-front"));
         assert_eq!(b.sides.list(), [Side::Front]);
         assert!(b.has(Side::Front) && !b.has(Side::Back));

@@ -466,6 +466,23 @@ impl Board {
         }
     }
 
+    /// This board printed on the front only, named `<name>-front`: no back codes, no
+    /// thickness, no side transform (its side marks kept).
+    pub fn front_only(&self) -> Board {
+        Board {
+            name: format!("{}-front", self.name),
+            sides: Sides::One,
+            thickness: None,
+            front_back: None,
+            codes: Codes {
+                back_center: None,
+                back_side: None,
+                ..self.codes
+            },
+            ..self.clone()
+        }
+    }
+
     /// Whether `side` is printed (the front always is).
     pub fn has(&self, side: Side) -> bool {
         self.sides.list().contains(&side)
