@@ -83,7 +83,10 @@ fn board_follows_a_single_sided_board() {
     let run = hexcal(&["board", "--board", file, "--out", out]);
     assert!(run.status.success(), "{run:?}");
     let stdout = String::from_utf8_lossy(&run.stdout);
-    assert!(stdout.contains("hex600-front front side written"), "{stdout}");
+    assert!(
+        stdout.contains("hex600-front front side written"),
+        "{stdout}"
+    );
     let board = Board::load(file).unwrap();
     assert_eq!(
         std::fs::read_to_string(out).unwrap(),

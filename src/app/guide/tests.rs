@@ -38,15 +38,7 @@ fn predicted_worst(
     let fb = back_frame(cal);
     let seen = sightings(&cal.board, &cal.devices, &fb, pose);
     assert!(seen.len() > 1000, "{} sightings", seen.len());
-    let h = information(
-        block,
-        &cal.devices,
-        &fb,
-        &cal.board,
-        pose,
-        &seen,
-        sol.sigma,
-    );
+    let h = information(block, &cal.devices, &fb, &cal.board, pose, &seen, sol.sigma);
     let after = (info0 + h).cholesky().unwrap().inverse();
     let distance = working_distances(&cal.devices, &sol.boards);
     (0..cal.devices.len())

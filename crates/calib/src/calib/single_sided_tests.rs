@@ -50,7 +50,12 @@ fn single_sided_board_adjusts_without_side_parameters() {
     assert!(b.front_back.is_none() && b.side_index.is_none());
     assert_eq!(a.dof, b.dof);
     assert_eq!(a.covariance.len(), b.covariance.len());
-    assert!((a.sigma / b.sigma - 1.0).abs() < 1e-9, "{} {}", a.sigma, b.sigma);
+    assert!(
+        (a.sigma / b.sigma - 1.0).abs() < 1e-9,
+        "{} {}",
+        a.sigma,
+        b.sigma
+    );
     for (x, y) in a.devices.iter().zip(&b.devices) {
         let (u, v) = (x.model.lens_vector(), y.model.lens_vector());
         let diff = (u - &v).norm() / u.norm();
@@ -60,7 +65,10 @@ fn single_sided_board_adjusts_without_side_parameters() {
     let boards: Vec<_> = single.boards.iter().collect();
     let nominal = double.board.side_transform(Side::Back);
     let ((z, name), m) = worst_deviation(&b, &devices, &boards, &nominal);
-    assert!(z <= bonferroni_bound(m), "{name} is {z:.2}σ off ({m} parameters)");
+    assert!(
+        z <= bonferroni_bound(m),
+        "{name} is {z:.2}σ off ({m} parameters)"
+    );
     assert!((b.sigma / SIGMA - 1.0).abs() <= 0.02, "σ̂ {}", b.sigma);
 }
 
@@ -138,5 +146,8 @@ fn the_back_of_a_single_sided_board_is_refused() {
         ..rig.perturbed_start(4)
     };
     let e = adjust(&p, &Options::default()).unwrap_err();
-    assert!(e.to_string().contains("back of a single-sided board"), "{e}");
+    assert!(
+        e.to_string().contains("back of a single-sided board"),
+        "{e}"
+    );
 }

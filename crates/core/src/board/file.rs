@@ -270,7 +270,10 @@ mod tests {
             (Some("codes.back_side"), Some(line_no("[codes]"))),
             "{e}"
         );
-        assert!(e.to_string().contains("missing: a double-sided board"), "{e}");
+        assert!(
+            e.to_string().contains("missing: a double-sided board"),
+            "{e}"
+        );
         let e = Board::from_toml_str(&with_line("thickness", "")).unwrap_err();
         assert_eq!((e.field(), e.line()), (Some("thickness"), None), "{e}");
 
@@ -292,7 +295,10 @@ mod tests {
         assert_eq!(b.sides.list(), [Side::Front]);
         assert!(b.has(Side::Front) && !b.has(Side::Back));
         assert_eq!(b.circles(Side::Front), hex600.circles(Side::Front));
-        assert_eq!(b.marker_cells(Side::Front), hex600.marker_cells(Side::Front));
+        assert_eq!(
+            b.marker_cells(Side::Front),
+            hex600.marker_cells(Side::Front)
+        );
         assert!(b.circles(Side::Back).is_empty() && b.marker_cells(Side::Back).is_empty());
         assert!(b.ringed(Side::Back).is_empty());
         for kind in [MarkerKind::BackCenter, MarkerKind::BackSide] {
@@ -308,7 +314,10 @@ mod tests {
             .join("\n");
         let b = Board::from_toml_str(&bare).unwrap();
         assert_eq!(b.codes.present().count(), 1);
-        assert_eq!(b.marker_cells(Side::Front), hex600.marker_cells(Side::Front)[..1]);
+        assert_eq!(
+            b.marker_cells(Side::Front),
+            hex600.marker_cells(Side::Front)[..1]
+        );
     }
 
     /// A single-sided board refuses anything of a back, and side marks without their code or
@@ -318,7 +327,10 @@ mod tests {
         let line_of = |text: &str, start: &str| text.lines().position(|l| l.starts_with(start));
         for (extra, field) in [
             ("thickness = 10.0", "thickness"),
-            ("[front_back]\nrotation = [0.0, 3.1, 0.0]\ntranslation = [0.0, 0.0, -10.0]", "front_back"),
+            (
+                "[front_back]\nrotation = [0.0, 3.1, 0.0]\ntranslation = [0.0, 0.0, -10.0]",
+                "front_back",
+            ),
             ("back_center = \"000111\"", "codes.back_center"),
             ("back_side = \"001101\"", "codes.back_side"),
         ] {
@@ -350,7 +362,10 @@ mod tests {
         assert_eq!(e.field(), Some("codes.front_side"), "{e}");
         let e = Board::from_toml_str(&FRONT.replace("sides = 1", "sides = 3")).unwrap_err();
         assert!(matches!(e, BoardError::Parse { .. }), "{e}");
-        assert_eq!((e.field(), e.line()), (Some("sides"), line_of(FRONT, "sides").map(|l| l + 1)));
+        assert_eq!(
+            (e.field(), e.line()),
+            (Some("sides"), line_of(FRONT, "sides").map(|l| l + 1))
+        );
         assert!(e.to_string().contains("1 or 2 printed sides"), "{e}");
     }
 

@@ -347,11 +347,8 @@ impl Codes {
     /// steps, i.e. image neighbour j is board neighbour (j + k) mod 6. Only the kinds the
     /// board has decode: a single-sided board's never names the back.
     pub fn decode(&self, read: Code) -> Option<(MarkerKind, usize)> {
-        self.present().find_map(|(kind, code)| {
-            (0..6)
-                .find(|&k| code.rotated(k) == read)
-                .map(|k| (kind, k))
-        })
+        self.present()
+            .find_map(|(kind, code)| (0..6).find(|&k| code.rotated(k) == read).map(|k| (kind, k)))
     }
 }
 
@@ -547,7 +544,9 @@ impl Board {
             center: Hex::new(0, 0),
             kind: center,
         }];
-        let spacing = self.marker_spacing.filter(|_| self.codes.get(mark).is_some());
+        let spacing = self
+            .marker_spacing
+            .filter(|_| self.codes.get(mark).is_some());
         if let Some(s) = spacing.filter(|&s| s > 0) {
             // Rows r = s·j of the lattice, and in each the q = s·i of its circles.
             let rows = self.row_reach() / s;

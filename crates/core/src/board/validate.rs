@@ -142,10 +142,7 @@ impl Board {
             check("thickness", &[t], t > 0.0, "thickness > 0")?;
         }
         if let Some(s) = self.marker_spacing.filter(|&s| s < 1) {
-            return Err(invalid(
-                "marker_spacing",
-                format!("{s} must be at least 1"),
-            ));
+            return Err(invalid("marker_spacing", format!("{s} must be at least 1")));
         }
         if let Some(t) = &self.front_back {
             check("front_back.rotation", &t.rotation, true, "all finite")?;
