@@ -28,6 +28,10 @@
 //! # rotation = [0.0, 3.14159265358979, 0.0]
 //! # translation = [0.0, 0.0, -10.0]
 //! ```
+//!
+//! A board printed on the front only says `sides = 1` (default 2) and has no back: no
+//! `codes.back_center`, `codes.back_side`, `thickness` or `[front_back]`; its side marks
+//! (`codes.front_side` with `marker_spacing`) are optional (`rigs/boards/hex600-front.toml`).
 
 use super::{Board, InvalidField};
 use std::path::{Path, PathBuf};
