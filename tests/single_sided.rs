@@ -48,9 +48,12 @@ fn scene(board: &Board, side: Side, look: [f64; 2], d: f64, tilt: f64) -> Scene 
     }
 }
 
-/// Render `scene` and analyse it with `board`: the grid, the truth's whole circles
-/// (label → image centre) and the side the truth says faces the camera.
-fn detect(scene: &Scene, board: &Board) -> (Grid, Vec<(Hex, [f64; 2])>, Option<Side>) {
+/// The truth's whole circles of a view: label and image centre (px).
+type Whole = Vec<(Hex, [f64; 2])>;
+
+/// Render `scene` and analyse it with `board`: the grid, the truth's whole circles and the
+/// side the truth says faces the camera.
+fn detect(scene: &Scene, board: &Board) -> (Grid, Whole, Option<Side>) {
     let view = render(scene).unwrap();
     let (w, h) = (view.frame.size.width, view.frame.size.height);
     let img = FloatImage::from_raw(w, h, view.frame.data.iter().map(|&v| v as f32).collect())

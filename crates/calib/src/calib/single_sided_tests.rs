@@ -58,7 +58,8 @@ fn single_sided_board_adjusts_without_side_parameters() {
     );
     for (x, y) in a.devices.iter().zip(&b.devices) {
         let (u, v) = (x.model.lens_vector(), y.model.lens_vector());
-        let diff = (u - &v).norm() / u.norm();
+        let scale = u.norm();
+        let diff = (u - v).norm() / scale;
         assert!(diff < 1e-9, "{}: lens differs by {diff:e}", x.name);
     }
     let devices: Vec<_> = single.devices.iter().collect();
