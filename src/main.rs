@@ -84,9 +84,10 @@ enum Command {
         /// A built-in board (hex600) or a board file (docs/board-file.md).
         #[arg(long, default_value = "hex600")]
         board: String,
-        /// The side to draw, as seen looking at it: front or back.
+        /// The side to draw, as seen looking at it: front or back (a single-sided board has
+        /// the front only, the default for it).
         #[arg(long)]
-        side: Side,
+        side: Option<Side>,
         /// The SVG file to write.
         #[arg(long)]
         out: PathBuf,
@@ -575,7 +576,7 @@ fn execute_other(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Info => println!("{}", hexcal::app::jobs::info()),
         Command::Board { board, side, out } => {
-            let name = hexcal::app::jobs::board_svg(&board, side, &out)?;
+            let (name, side) = hexcal::app::jobs::board_svg(&board, side, &out)?;
             println!("{name} {side} side written to {}", out.display());
         }
         Command::Verify { calibration, input } => {

@@ -71,3 +71,44 @@ fn board_rejects_bad_input() {
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1, "only bad.toml");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A single-sided board draws its front without `--side` and refuses the back in one line
+/// naming the board file; a double-sided board needs `--side`.
+#[test]
+fn board_follows_a_single_sided_board() {
+    let dir = scratch("board-cli-one-side");
+    let file = concat!(env!("CARGO_MANIFEST_DIR"), "/rigs/boards/hex600-front.toml");
+    let out = dir.join("front.svg");
+    let out = out.to_str().unwrap();
+    let run = hexcal(&["board", "--board", file, "--out", out]);
+    assert!(run.status.success(), "{run:?}");
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        stdout.contains("hex600-front front side written"),
+        "{stdout}"
+    );
+    let board = Board::load(file).unwrap();
+    assert_eq!(
+        std::fs::read_to_string(out).unwrap(),
+        board.svg(Side::Front)
+    );
+    for (args, says) in [
+        (
+            vec!["--board", file, "--side", "back"],
+            format!("board {file} is single-sided (sides = 1): it has no back to draw"),
+        ),
+        (
+            vec!["--board", "hex600"],
+            "board hex600 has two sides: give --side front or --side back".to_owned(),
+        ),
+    ] {
+        let bad = dir.join("bad.svg");
+        let run = hexcal(&[&["board", "--out", bad.to_str().unwrap()][..], &args].concat());
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(!run.status.success(), "{args:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.contains(&says), "{args:?}: {err}");
+        assert!(!bad.exists(), "{args:?}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

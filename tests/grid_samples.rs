@@ -61,7 +61,9 @@ fn assert_sound(what: &str, grid: &Grid, sc: &Score) {
     } else if grid.side.is_some() {
         // Side marks fix side and rotation; the origin is off by a marker-lattice step.
         assert_eq!(sc.rotation, 0, "{what}: rotation not fixed {sc:?}");
-        let s = Board::hex600().marker_spacing;
+        let s = Board::hex600()
+            .marker_spacing
+            .expect("hex600 has side marks");
         let t = sc.translation;
         assert!(
             t.q % s == 0 && t.r % s == 0,

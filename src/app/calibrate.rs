@@ -310,6 +310,15 @@ pub fn read_correspondences(path: &Path) -> Result<Correspondences, AppError> {
     Ok(c)
 }
 
+/// The board a correspondences file names, its views checked against it (none on the back
+/// of a single-sided board); errors name `path`.
+fn board_of(c: &Correspondences, path: &Path) -> Result<Board, AppError> {
+    let board = Board::resolve(&c.board)?;
+    crate::observations::check_sides(&board, &c.views)
+        .map_err(|e| AppError::Invalid(e.in_file(path)))?;
+    Ok(board)
+}
+
 /// Refuses `held_out` poses of `poses` when fewer than [`MIN_CALIBRATION_POSES`] remain to
 /// calibrate (checked before a capture starts).
 pub fn check_held_out(poses: usize, held_out: usize) -> Result<(), AppError> {
@@ -348,7 +357,7 @@ pub fn calibrate_file(
     let c = read_correspondences(input)?;
     check_stereo(stereo, &c.devices)?;
     let _lock = crate::lock::FolderLock::acquire(out)?;
-    let board = Board::resolve(&c.board)?;
+    let board = board_of(&c, input)?;
     if let Some(name) = reference {
         let names = c.devices.iter().map(|d| d.name.as_str());
         options.bundle.reference = device_index(input, names, name)?;
@@ -439,7 +448,7 @@ pub fn verify_file(calibration: &Path, input: &Path) -> Result<Vec<PairCheck>, A
             })
         })
         .collect::<Result<Vec<_>, AppError>>()?;
-    let board = Board::resolve(&c.board)?;
+    let board = board_of(&c, input)?;
     let checks = verify(&board, &devices, &c.views);
     if checks.is_empty() {
         return Err(AppError::Input(format!(

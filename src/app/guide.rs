@@ -100,6 +100,14 @@ fn inside(m: &CameraModel, p: Point2<f64>) -> bool {
     p.x > 2.0 && p.y > 2.0 && p.x < f64::from(m.width) - 3.0 && p.y < f64::from(m.height) - 3.0
 }
 
+/// The back side's frame for predictions: the calibrated one, or the plain back of a
+/// single-sided board (no circle on it: [`sightings`] never sees it).
+pub fn back_frame(cal: &Calibration) -> Isometry3<f64> {
+    cal.solution
+        .front_back
+        .unwrap_or_else(|| cal.board.side_transform(Side::Back))
+}
+
 /// T_board_side of `side` with the back side at `front_back`.
 fn side_frame(side: Side, front_back: &Isometry3<f64>) -> Isometry3<f64> {
     match side {
@@ -531,7 +539,7 @@ pub fn predicted_worst(
     ridge: f64,
 ) -> Vec<Option<f64>> {
     let block = Block::of(layout);
-    let fb = &layout.solution.front_back;
+    let fb = &back_frame(layout);
     let n = block.state.len();
     let mut info = DMatrix::<f64>::zeros(n, n);
     let mut seen_in = vec![0usize; devices.len().min(block.lens.len())];
@@ -584,15 +592,16 @@ fn suggest(
 ) -> Option<Suggestion> {
     let info0 = cov.clone().cholesky()?.inverse();
     let sol = &cal.solution;
+    let fb = back_frame(cal);
     let predict = |pose: &Isometry3<f64>| -> Option<f64> {
-        let seen = sightings(&cal.board, &cal.devices, &sol.front_back, pose);
+        let seen = sightings(&cal.board, &cal.devices, &fb, pose);
         if seen.is_empty() {
             return None;
         }
         let h = information(
             block,
             &cal.devices,
-            &sol.front_back,
+            &fb,
             &cal.board,
             pose,
             &seen,
@@ -613,7 +622,7 @@ fn suggest(
         .min_by(|a, b| a.1.total_cmp(&b.1))?;
     // The device told about: one not yet calibrated, else the worst one when it sees the
     // pose, else the one that sees most of it.
-    let seen = sightings(&cal.board, &cal.devices, &sol.front_back, &pose);
+    let seen = sightings(&cal.board, &cal.devices, &fb, &pose);
     let count = |d: usize| seen.iter().filter(|s| s.device == d).count();
     let index = |name: &str| cal.devices.iter().position(|d| d.name == name);
     let uncalibrated = now.iter().find(|u| u.worst.is_none());
@@ -652,7 +661,7 @@ fn outlines(
     devices: &[DeviceInfo],
     pose: &Isometry3<f64>,
 ) -> Vec<Option<Vec<[f32; 2]>>> {
-    let seen = sightings(&cal.board, &cal.devices, &cal.solution.front_back, pose);
+    let seen = sightings(&cal.board, &cal.devices, &back_frame(cal), pose);
     devices
         .iter()
         .enumerate()

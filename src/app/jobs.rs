@@ -17,8 +17,10 @@ pub fn info() -> String {
 }
 
 /// `hexcal board`: the printable SVG of `side` of the board `board` (built-in name or board
-/// file) at exact size, written to `out` (named `*.svg`); gives the board's name.
-pub fn board_svg(board: &str, side: Side, out: &Path) -> Result<String, AppError> {
+/// file) at exact size, written to `out` (named `*.svg`); gives the board's name and the
+/// side drawn. A single-sided board draws its front when no side is given and refuses the
+/// back; a double-sided board needs the side.
+pub fn board_svg(board: &str, side: Option<Side>, out: &Path) -> Result<(String, Side), AppError> {
     if out
         .extension()
         .is_none_or(|e| !e.eq_ignore_ascii_case("svg"))
@@ -28,9 +30,24 @@ pub fn board_svg(board: &str, side: Side, out: &Path) -> Result<String, AppError
             out.display()
         )));
     }
-    let board = Board::resolve(board)?;
+    let named = board;
+    let board = Board::resolve(named)?;
+    let side = match (side, board.sides.list()) {
+        (Some(side), sides) if sides.contains(&side) => side,
+        (None, &[only]) => only,
+        (Some(side), _) => {
+            return Err(AppError::Input(format!(
+                "board {named} is single-sided (sides = 1): it has no {side} to draw"
+            )))
+        }
+        (None, _) => {
+            return Err(AppError::Input(format!(
+                "board {named} has two sides: give --side front or --side back"
+            )))
+        }
+    };
     crate::atomic::write(out, board.svg(side).as_bytes()).map_err(AppError::io(out))?;
-    Ok(board.name)
+    Ok((board.name, side))
 }
 
 /// `hexcal simulate`: render one view of the scene file `scene` (the built-in scene when

@@ -6,7 +6,7 @@
 //! whole set as the correspondences file ([`Correspondences`]), with the checks a file read
 //! from disk must pass.
 
-use crate::board::{Hex, Side};
+use crate::board::{Board, Hex, Side};
 use crate::invalid::{Invalid, ValidationError};
 use crate::limits;
 use nalgebra::Point2;
@@ -199,4 +199,22 @@ pub fn check_input(
         }
     }
     Ok(())
+}
+
+/// The first view labelled on a side `board` does not have (the back of a single-sided
+/// board): its JSON path (`views[i].frame`) and what is wrong.
+pub fn check_sides(board: &Board, views: &[CameraView]) -> Result<(), ValidationError> {
+    match views
+        .iter()
+        .position(|v| matches!(v.frame, Frame::Anchored(side) if !board.has(side)))
+    {
+        Some(i) => Err(ValidationError::new(
+            format!("views[{i}].frame"),
+            format!(
+                "labelled on the back, but board {} is single-sided (sides = 1): it has no back",
+                board.name
+            ),
+        )),
+        None => Ok(()),
+    }
 }

@@ -451,10 +451,14 @@ impl Calibration {
         self.file.sigma
     }
 
-    /// T_board_back, the refined back side's frame in the board's (4 × 4, mm).
+    /// T_board_back, the refined back side's frame in the board's (4 × 4, mm); None for a
+    /// single-sided board, which has no back.
     #[getter]
-    fn front_back<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        matrix4(py, &self.file.front_back.isometry().to_homogeneous())
+    fn front_back<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray2<f64>>> {
+        self.file
+            .front_back
+            .as_ref()
+            .map(|fb| matrix4(py, &fb.isometry().to_homogeneous()))
     }
 
     /// Devices the calibration left out, as (name, reason); empty for a loaded file (which

@@ -320,7 +320,10 @@ fn noise_sd(im: &Imaging, level: f64) -> f64 {
 fn expected_rings(board: &Board, side: Side) -> std::collections::HashSet<Hex> {
     let mut expected = std::collections::HashSet::new();
     for cell in board.marker_cells(side) {
-        let code = board.codes.get(cell.kind);
+        let code = board
+            .codes
+            .get(cell.kind)
+            .expect("a marker cell has its code");
         for k in (0..6).filter(|&k| code.bit(k)) {
             expected.insert(cell.center.neighbour(k));
         }

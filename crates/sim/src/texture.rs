@@ -174,17 +174,28 @@ pub fn face_side(face: u8) -> Option<Side> {
 }
 
 /// The board as a simulator target in the board frame: face 0 the front, face 1 the back
-/// (through the board's side transform), faces 2–5 the edges of a slab of the board's size
-/// and thickness between z = 0 and z = −t (exact for the nominal side transform).
+/// (through the board's side transform; plain black on a single-sided board), faces 2–5 the
+/// edges of a slab of the board's size and thickness between z = 0 and z = −t (exact for the
+/// nominal side transform; none on a single-sided board, a plate of no thickness).
 pub fn board_target(board: &Board, albedo: BoardAlbedo) -> Target {
+    let (hw, hh) = (board.size[0] / 2.0, board.size[1] / 2.0);
     let mut faces: Vec<Face> = Side::BOTH
         .iter()
         .map(|&side| Face {
             pose: board.side_transform(side),
-            texture: Box::new(BoardTexture::new(board, side, albedo)),
+            texture: if board.has(side) {
+                Box::new(BoardTexture::new(board, side, albedo))
+            } else {
+                Box::new(UniformRect {
+                    half: Vector2::new(hw, hh),
+                    albedo: albedo.black,
+                })
+            },
         })
         .collect();
-    let (hw, hh, t) = (board.size[0] / 2.0, board.size[1] / 2.0, board.thickness);
+    let Some(t) = board.thickness else {
+        return Target { faces };
+    };
     // (outward normal, face x axis, centre, half extents along face x and y).
     let edges = [
         (

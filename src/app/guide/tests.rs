@@ -35,17 +35,10 @@ fn predicted_worst(
     pose: &Isometry3<f64>,
 ) -> f64 {
     let sol = &cal.solution;
-    let seen = sightings(&cal.board, &cal.devices, &sol.front_back, pose);
+    let fb = back_frame(cal);
+    let seen = sightings(&cal.board, &cal.devices, &fb, pose);
     assert!(seen.len() > 1000, "{} sightings", seen.len());
-    let h = information(
-        block,
-        &cal.devices,
-        &sol.front_back,
-        &cal.board,
-        pose,
-        &seen,
-        sol.sigma,
-    );
+    let h = information(block, &cal.devices, &fb, &cal.board, pose, &seen, sol.sigma);
     let after = (info0 + h).cholesky().unwrap().inverse();
     let distance = working_distances(&cal.devices, &sol.boards);
     (0..cal.devices.len())

@@ -2,7 +2,8 @@
 //!
 //! Model (§8): x = π(K_d, D_d, T_d · S_k · F_s · X), with T_d = T_device_ref (the reference
 //! device is the gauge), S_k = T_ref_board of board pose k, F_s the side transform
-//! (identity for the front, T_front_back for the back) and X a lattice point on side s.
+//! (identity for the front, T_front_back for the back) and X a lattice point on side s. A
+//! single-sided board has no back: no F_back, no side-transform parameters.
 //! Camera observations are image-ellipse centres, so the prediction adds the perspective
 //! bias of a circle of radius R (bias-free circle model); projector observations are the
 //! projector pixels of the board point a camera saw at its ellipse centre.
@@ -178,8 +179,8 @@ pub struct Solution {
     pub devices: Vec<Device>,
     /// Adjusted board poses T_ref_board.
     pub boards: Vec<Isometry3<f64>>,
-    /// Adjusted T_front_back.
-    pub front_back: Isometry3<f64>,
+    /// Adjusted T_front_back; none for a single-sided board (no back, no such parameter).
+    pub front_back: Option<Isometry3<f64>>,
     /// Adjusted board bend (flat unless [`Options::refine_flatness`]).
     pub bend: Bend,
     /// Standard deviations of the bend coefficients (mm); zero when not refined.
@@ -320,17 +321,22 @@ impl Layout {
 struct State {
     devices: Vec<Device>,
     boards: Vec<Isometry3<f64>>,
-    front_back: Isometry3<f64>,
+    /// None for a single-sided board.
+    front_back: Option<Isometry3<f64>>,
     bend: Bend,
 }
 
 impl State {
-    /// The problem's own devices and board poses, the nominal side transform, a flat board.
+    /// The problem's own devices and board poses, the board file's side transform (none for
+    /// a single-sided board), a flat board.
     fn start(p: &Problem) -> State {
         State {
             devices: p.devices.clone(),
             boards: p.boards.clone(),
-            front_back: p.board.side_transform(Side::Back),
+            front_back: p
+                .board
+                .has(Side::Back)
+                .then(|| p.board.side_transform(Side::Back)),
             bend: Bend::flat(&p.board),
         }
     }
@@ -338,7 +344,9 @@ impl State {
     fn side(&self, s: Side) -> Isometry3<f64> {
         match s {
             Side::Front => Isometry3::identity(),
-            Side::Back => self.front_back,
+            Side::Back => self
+                .front_back
+                .expect("back observations of a single-sided board are refused (check_problem)"),
         }
     }
 
@@ -362,9 +370,9 @@ impl State {
             let inc: Vec<f64> = (0..6).map(|j| step(l.board[k] + j)).collect();
             *b = apply_increment(b, &inc);
         }
-        if let Some(at) = l.side {
+        if let (Some(at), Some(fb)) = (l.side, s.front_back.as_mut()) {
             let inc: Vec<f64> = (0..6).map(|j| step(at + j)).collect();
-            s.front_back = apply_increment(&s.front_back, &inc);
+            *fb = apply_increment(fb, &inc);
         }
         if let Some(at) = l.bend {
             s.bend.coefficients += Vector3::new(step(at), step(at + 1), step(at + 2));
@@ -1348,7 +1356,8 @@ fn inliers<T: Copy + Into<f64>>(p: &Problem, res: &[T], o: &Options) -> Vec<bool
         .collect()
 }
 
-/// Refuses observations naming a device, board pose or camera out of range.
+/// Refuses observations naming a device, board pose or camera out of range, or the back of a
+/// single-sided board.
 fn check_problem(p: &Problem, o: &Options) -> Result<(), CalibError> {
     if o.reference >= p.devices.len() {
         return Err(CalibError::Degenerate("reference device out of range"));
@@ -1360,6 +1369,11 @@ fn check_problem(p: &Problem, o: &Options) -> Result<(), CalibError> {
     {
         return Err(CalibError::Degenerate(
             "an observation names a device or board pose out of range",
+        ));
+    }
+    if !p.board.has(Side::Back) && p.observations.iter().any(|ob| ob.side == Side::Back) {
+        return Err(CalibError::Degenerate(
+            "an observation is on the back of a single-sided board",
         ));
     }
     Ok(())

@@ -65,7 +65,7 @@ fn predict(
     let centre = device_from_board.inverse() * Point3::origin();
     let (w, h) = (f64::from(model.width), f64::from(model.height));
     let mut out = Vec::new();
-    for side in [Side::Front, Side::Back] {
+    for &side in board.sides.list() {
         let normal = board.side_transform(side).rotation * Vector3::z();
         let project = |hex: Hex| -> Option<Point2<f64>> {
             let x = board.point(side, hex);

@@ -144,8 +144,7 @@ fn restart(p: &Problem, sol: &Solution, fixed: &[Vec<LensParam>]) -> Problem {
         dev.model.set_lens_vector(&v);
     }
     let mut board = p.board.clone();
-    let fb = sol.front_back;
-    board.front_back = Some(SideTransform {
+    board.front_back = sol.front_back.map(|fb| SideTransform {
         rotation: fb.rotation.scaled_axis().into(),
         translation: fb.translation.vector.into(),
     });

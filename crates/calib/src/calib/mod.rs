@@ -92,4 +92,6 @@ pub enum CalibError {
 }
 
 #[cfg(test)]
+mod single_sided_tests;
+#[cfg(test)]
 mod tests;

@@ -111,7 +111,8 @@ fn check_devices(p: &Problem) -> Result<(), CalibError> {
 
 /// The options `o` with every parameter `p`'s views cannot determine held at its prior,
 /// and a note for each; refuses a device too few views see (its index and names checked
-/// by the caller).
+/// by the caller). A single-sided board has no side transform: none is refined and none is
+/// noted.
 pub fn hold_unobservable(
     p: &Problem,
     o: &Options,
@@ -119,7 +120,9 @@ pub fn hold_unobservable(
     check_devices(p)?;
     let mut o = o.clone();
     let mut held = Vec::new();
-    if o.refine_side_transform {
+    if !p.board.has(Side::Back) {
+        o.refine_side_transform = false;
+    } else if o.refine_side_transform {
         if let Some(why) = side_transform(p) {
             o.refine_side_transform = false;
             held.push(why);

@@ -15,7 +15,7 @@ use super::zhang;
 use super::{CalibError, PlanarView, PlaneCorrespondence};
 use hexcal_core::board::{Board, Side};
 use hexcal_core::camera::CameraModel;
-use hexcal_core::observations::{check_input, CameraView, DeviceInfo};
+use hexcal_core::observations::{check_input, check_sides, CameraView, DeviceInfo};
 use hexcal_core::{Invalid, ValidationError};
 use std::collections::BTreeMap;
 
@@ -275,6 +275,7 @@ pub fn calibrate(
     options: &CalibrateOptions,
 ) -> Result<Calibration, CalibError> {
     check_input(devices, poses, views)?;
+    check_sides(board, views)?;
     check_reference(devices, options.bundle.reference)?;
     let (views, registration) = register(views, &options.register);
     let obs = observations(&views);

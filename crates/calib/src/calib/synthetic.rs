@@ -809,8 +809,8 @@ pub fn worst_deviation(
         let name = format!("board {k}");
         pose(&mut check, &name, sol.board_index[k], increment(est, truth));
     }
-    if let Some(at) = sol.side_index {
-        let inc = increment(&sol.front_back, front_back);
+    if let (Some(at), Some(est)) = (sol.side_index, &sol.front_back) {
+        let inc = increment(est, front_back);
         pose(&mut check, "front→back", at, inc);
     }
     (worst, count)

@@ -14,6 +14,7 @@ pub mod maps;
 use crate::calib::diagnostics::{lens_covariance, valid_region, ResidualRow, VALID_UNCERTAINTY};
 use crate::calib::lens_model::TermChoice;
 use crate::calib::solve::Calibration;
+use hexcal_core::board::Sides;
 use hexcal_core::camera::{CameraModel, Distortion, Intrinsics};
 use hexcal_core::observations::DeviceKind;
 use hexcal_core::{Invalid, ValidationError};
@@ -163,8 +164,13 @@ pub struct CalibrationFile {
     pub units: Units,
     /// Board name.
     pub board: String,
-    /// Refined T_board_back (the back side's frame in the board frame).
-    pub front_back: PoseRecord,
+    /// Printed sides of the board: written `1` for a single-sided board, absent (2) else.
+    #[serde(default, skip_serializing_if = "Sides::is_two")]
+    pub board_sides: Sides,
+    /// Refined T_board_back (the back side's frame in the board frame); absent for a
+    /// single-sided board, which has no back.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub front_back: Option<PoseRecord>,
     /// Board bend (mm): displacement along the board's z at distance `bend_scale` from the
     /// centre for the bowl (x² + y²), saddle (x² − y²) and saddle (2xy) shapes; zero unless
     /// refined.
@@ -237,7 +243,8 @@ impl CalibrationFile {
                 image: "px".into(),
             },
             board: cal.board.name.clone(),
-            front_back: PoseRecord::from_isometry(&sol.front_back),
+            board_sides: cal.board.sides,
+            front_back: sol.front_back.as_ref().map(PoseRecord::from_isometry),
             bend: sol.bend.coefficients.into(),
             bend_std: sol.bend_std,
             bend_scale: sol.bend.scale,
@@ -330,8 +337,7 @@ impl CalibrationFile {
                 format!("{:?} is none of the devices", self.reference),
             ));
         }
-        limits::finite(&self.front_back.rvec).map_err(|m| m.at("front_back.rvec"))?;
-        limits::finite(&self.front_back.tvec).map_err(|m| m.at("front_back.tvec"))?;
+        check_front_back(self)?;
         limits::finite(&self.bend).map_err(|m| m.at("bend"))?;
         limits::finite(&[self.bend_scale, self.sigma]).map_err(|m| m.at("sigma"))
     }
@@ -339,6 +345,25 @@ impl CalibrationFile {
     /// Pretty JSON text.
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("plain data serialises")
+    }
+}
+
+/// `front_back` finite for a double-sided board, absent for a single-sided one.
+fn check_front_back(f: &CalibrationFile) -> Result<(), ValidationError> {
+    match (&f.front_back, f.board_sides) {
+        (Some(fb), Sides::Two) => {
+            hexcal_core::limits::finite(&fb.rvec).map_err(|m| m.at("front_back.rvec"))?;
+            hexcal_core::limits::finite(&fb.tvec).map_err(|m| m.at("front_back.tvec"))
+        }
+        (None, Sides::One) => Ok(()),
+        (Some(_), Sides::One) => Err(ValidationError::new(
+            "front_back",
+            "a single-sided board (board_sides 1) has no back side transform",
+        )),
+        (None, Sides::Two) => Err(ValidationError::new(
+            "front_back",
+            "missing: a double-sided board's calibration has the back side transform",
+        )),
     }
 }
 

@@ -28,6 +28,10 @@
 //! # rotation = [0.0, 3.14159265358979, 0.0]
 //! # translation = [0.0, 0.0, -10.0]
 //! ```
+//!
+//! A board printed on the front only says `sides = 1` (default 2) and has no back: no
+//! `codes.back_center`, `codes.back_side`, `thickness` or `[front_back]`; its side marks
+//! (`codes.front_side` with `marker_spacing`) are optional (`rigs/boards/hex600-front.toml`).
 
 use super::{Board, InvalidField};
 use std::path::{Path, PathBuf};
@@ -263,16 +267,110 @@ mod tests {
         let e = Board::from_toml_str(&with_line("radius", "")).unwrap_err();
         assert_eq!(e.line(), None, "{e}");
         assert!(e.to_string().contains("missing field `radius`"), "{e}");
+        // A code a double-sided board needs: named, at its table's line.
         let e = Board::from_toml_str(&with_line("back_side", "")).unwrap_err();
         assert_eq!(
             (e.field(), e.line()),
-            (Some("codes"), Some(line_no("[codes]"))),
+            (Some("codes.back_side"), Some(line_no("[codes]"))),
             "{e}"
         );
-        assert!(e.to_string().contains("missing field `back_side`"), "{e}");
+        assert!(
+            e.to_string().contains("missing: a double-sided board"),
+            "{e}"
+        );
+        let e = Board::from_toml_str(&with_line("thickness", "")).unwrap_err();
+        assert_eq!((e.field(), e.line()), (Some("thickness"), None), "{e}");
 
         let e = Board::from_toml_str("pitch = 20.0\nradius = [\n").unwrap_err();
         assert_eq!(e.line(), Some(3), "{e}");
+    }
+
+    const FRONT: &str = include_str!("../../../../rigs/boards/hex600-front.toml");
+
+    /// The shipped single-sided board: hex600's front, nothing on its back, no back code
+    /// decodes.
+    #[test]
+    fn single_sided_board_file_has_no_back() {
+        use super::super::{MarkerKind, Side, Sides};
+        let b = Board::from_toml_str(FRONT).unwrap();
+        let hex600 = Board::hex600();
+        assert_eq!(b, hex600.front_only());
+        assert_eq!((b.sides, b.name.as_str()), (Sides::One, "hex600-front"));
+        assert_eq!(b.sides.list(), [Side::Front]);
+        assert!(b.has(Side::Front) && !b.has(Side::Back));
+        assert_eq!(b.circles(Side::Front), hex600.circles(Side::Front));
+        assert_eq!(
+            b.marker_cells(Side::Front),
+            hex600.marker_cells(Side::Front)
+        );
+        assert!(b.circles(Side::Back).is_empty() && b.marker_cells(Side::Back).is_empty());
+        assert!(b.ringed(Side::Back).is_empty());
+        for kind in [MarkerKind::BackCenter, MarkerKind::BackSide] {
+            let code = hex600.codes.get(kind).unwrap();
+            assert_eq!(b.codes.get(kind), None);
+            assert!((0..6).all(|k| b.codes.decode(code.rotated(k)).is_none()));
+        }
+        // Without side marks the centre cell is the only marker.
+        let bare: String = FRONT
+            .lines()
+            .filter(|l| !l.starts_with("marker_spacing") && !l.starts_with("front_side"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let b = Board::from_toml_str(&bare).unwrap();
+        assert_eq!(b.codes.present().count(), 1);
+        assert_eq!(
+            b.marker_cells(Side::Front),
+            hex600.marker_cells(Side::Front)[..1]
+        );
+    }
+
+    /// A single-sided board refuses anything of a back, and side marks without their code or
+    /// spacing, naming the field and its line.
+    #[test]
+    fn single_sided_board_refuses_a_back() {
+        let line_of = |text: &str, start: &str| text.lines().position(|l| l.starts_with(start));
+        for (extra, field) in [
+            ("thickness = 10.0", "thickness"),
+            (
+                "[front_back]\nrotation = [0.0, 3.1, 0.0]\ntranslation = [0.0, 0.0, -10.0]",
+                "front_back",
+            ),
+            ("back_center = \"000111\"", "codes.back_center"),
+            ("back_side = \"001101\"", "codes.back_side"),
+        ] {
+            // Top-level keys go before [codes], the rest after it.
+            let text = if extra.starts_with("thickness") {
+                format!("{extra}\n{FRONT}")
+            } else {
+                format!("{FRONT}\n{extra}\n")
+            };
+            let e = Board::from_toml_str(&text).unwrap_err();
+            assert_eq!(e.field(), Some(field), "{e}");
+            let key = extra.split([' ', '\n']).next().unwrap();
+            assert_eq!(e.line(), line_of(&text, key).map(|l| l + 1), "{e}");
+            assert!(e.to_string().contains("has no back: remove it"), "{e}");
+        }
+        let no_spacing: String = FRONT
+            .lines()
+            .filter(|l| !l.starts_with("marker_spacing"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let e = Board::from_toml_str(&no_spacing).unwrap_err();
+        assert_eq!(e.field(), Some("marker_spacing"), "{e}");
+        let no_code: String = FRONT
+            .lines()
+            .filter(|l| !l.starts_with("front_side"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let e = Board::from_toml_str(&no_code).unwrap_err();
+        assert_eq!(e.field(), Some("codes.front_side"), "{e}");
+        let e = Board::from_toml_str(&FRONT.replace("sides = 1", "sides = 3")).unwrap_err();
+        assert!(matches!(e, BoardError::Parse { .. }), "{e}");
+        assert_eq!(
+            (e.field(), e.line()),
+            (Some("sides"), line_of(FRONT, "sides").map(|l| l + 1))
+        );
+        assert!(e.to_string().contains("1 or 2 printed sides"), "{e}");
     }
 
     #[test]

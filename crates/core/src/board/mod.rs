@@ -1,12 +1,13 @@
-//! The calibration board (docs/design.md §3): a double-sided planar target of white circles on
-//! black in a hexagonal lattice, with dark marker rings that encode the board centre and
-//! which side is seen.
+//! The calibration board (docs/design.md §3): a planar target of white circles on black in a
+//! hexagonal lattice, printed on both sides or on the front only, with dark marker rings that
+//! encode the board centre and which side is seen.
 //!
 //! Takes a board description (the built-in [`Board::hex600`] or a TOML board file, see
-//! [`file`](mod@file)) and gives every circle of either side in that side's own lattice frame and in the
-//! board frame, the marker cells and their codes, the rigid transform between the two sides,
-//! a check of the rules that make the codes decodable ([`Board::validate`]) and the printable
-//! target of either side ([`Board::svg`]).
+//! [`file`](mod@file)) and gives every circle of a printed side in that side's own lattice
+//! frame and in the board frame, the marker cells and their codes, the rigid transform between
+//! the two sides, a check of the rules that make the codes decodable ([`Board::validate`]) and
+//! the printable target of a side ([`Board::svg`]). A single-sided board ([`Sides::One`]) has
+//! no circles, marker cells or codes on its back.
 
 pub mod file;
 mod lattice_map;
@@ -20,7 +21,7 @@ pub use validate::InvalidField;
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-/// One side of the double-sided board.
+/// One side of the board.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Side {
@@ -66,6 +67,57 @@ impl std::str::FromStr for Side {
             other => Err(format!(
                 "unknown board side {other:?} (expected front or back)"
             )),
+        }
+    }
+}
+
+/// How many sides of a board are printed: both (the default), or the front only.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(try_from = "u8", into = "u8")]
+pub enum Sides {
+    /// The front only: the back is plain and never seen as a side of the board.
+    One,
+    /// Front and back.
+    #[default]
+    Two,
+}
+
+impl Sides {
+    /// The printed sides, front first.
+    pub fn list(self) -> &'static [Side] {
+        match self {
+            Sides::One => &[Side::Front],
+            Sides::Two => &Side::BOTH,
+        }
+    }
+
+    /// Whether both sides are printed.
+    pub fn is_two(&self) -> bool {
+        *self == Sides::Two
+    }
+}
+
+/// A `sides` value other than 1 or 2.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("sides = {0}: a board has 1 or 2 printed sides")]
+pub struct SidesError(pub u8);
+
+impl TryFrom<u8> for Sides {
+    type Error = SidesError;
+    fn try_from(n: u8) -> Result<Self, SidesError> {
+        match n {
+            1 => Ok(Sides::One),
+            2 => Ok(Sides::Two),
+            other => Err(SidesError(other)),
+        }
+    }
+}
+
+impl From<Sides> for u8 {
+    fn from(s: Sides) -> u8 {
+        match s {
+            Sides::One => 1,
+            Sides::Two => 2,
         }
     }
 }
@@ -254,40 +306,49 @@ impl MarkerKind {
     }
 }
 
-/// The four ring codes of a board.
+/// The ring codes of a board: every code of a double-sided board; the front centre's, and
+/// the front side marks' when it has side marks, of a single-sided one ([`Board::validate`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Codes {
     /// Centre cell of the front.
     pub front_center: Code,
-    /// Centre cell of the back.
-    pub back_center: Code,
-    /// Side marks on the front.
-    pub front_side: Code,
-    /// Side marks on the back.
-    pub back_side: Code,
+    /// Centre cell of the back (none on a single-sided board).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub back_center: Option<Code>,
+    /// Side marks on the front (optional on a single-sided board).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub front_side: Option<Code>,
+    /// Side marks on the back (none on a single-sided board).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub back_side: Option<Code>,
 }
 
 impl Codes {
-    /// The code of a marker kind.
-    pub fn get(&self, kind: MarkerKind) -> Code {
+    /// The code of a marker kind, when the board has that kind of marker.
+    pub fn get(&self, kind: MarkerKind) -> Option<Code> {
         match kind {
-            MarkerKind::FrontCenter => self.front_center,
+            MarkerKind::FrontCenter => Some(self.front_center),
             MarkerKind::BackCenter => self.back_center,
             MarkerKind::FrontSide => self.front_side,
             MarkerKind::BackSide => self.back_side,
         }
     }
 
+    /// The marker kinds the board has, with their codes, in [`MarkerKind::ALL`] order.
+    pub fn present(&self) -> impl Iterator<Item = (MarkerKind, Code)> + '_ {
+        MarkerKind::ALL
+            .iter()
+            .filter_map(|&kind| self.get(kind).map(|code| (kind, code)))
+    }
+
     /// The marker kind and rotation `k` whose rotated code equals `read`, if any: a cell
     /// whose neighbour j (in image order) reads bit j of `read` is the marker turned by `k`
-    /// steps, i.e. image neighbour j is board neighbour (j + k) mod 6.
+    /// steps, i.e. image neighbour j is board neighbour (j + k) mod 6. Only the kinds the
+    /// board has decode: a single-sided board's never names the back.
     pub fn decode(&self, read: Code) -> Option<(MarkerKind, usize)> {
-        MarkerKind::ALL.iter().find_map(|&kind| {
-            (0..6)
-                .find(|&k| self.get(kind).rotated(k) == read)
-                .map(|k| (kind, k))
-        })
+        self.present()
+            .find_map(|(kind, code)| (0..6).find(|&k| code.rotated(k) == read).map(|k| (kind, k)))
     }
 }
 
@@ -315,6 +376,9 @@ pub struct MarkerCell {
 
 /// A board: geometry of the lattice, circles, rings, codes and the side transform.
 ///
+/// A single-sided board (`sides` [`Sides::One`]) prints the front only: it has no back codes,
+/// no thickness and no measured side transform, and no circle or marker on its back.
+///
 /// Its fields are the keys of a board file ([`file`](mod@file) documents the format); build one from
 /// a file with [`Board::load`] or [`Board::resolve`], which also [`Board::validate`] it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -322,6 +386,9 @@ pub struct MarkerCell {
 pub struct Board {
     /// Name printed on the target and written into outputs.
     pub name: String,
+    /// The printed sides (a board file's `sides = 1` or `2`, 2 when not written).
+    #[serde(default, skip_serializing_if = "Sides::is_two")]
+    pub sides: Sides,
     /// Lattice pitch d (mm).
     pub pitch: f64,
     /// Circle radius R (mm).
@@ -335,12 +402,16 @@ pub struct Board {
     pub size: [f64; 2],
     /// Marker ring radii (inner, outer) as fractions of the circle radius.
     pub ring: [f64; 2],
-    /// Board thickness t (mm), used by the nominal side transform.
-    pub thickness: f64,
+    /// Board thickness t (mm), used by the nominal side transform; none on a single-sided
+    /// board.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub thickness: Option<f64>,
     /// Ring codes.
     pub codes: Codes,
-    /// Side marks sit at (q, r) = (s·i, s·j) for this spacing s.
-    pub marker_spacing: i32,
+    /// Side marks sit at (q, r) = (s·i, s·j) for this spacing s; none on a single-sided
+    /// board without side marks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub marker_spacing: Option<i32>,
     /// Measured transform of back-side points into the board (front) frame; when absent the
     /// nominal (x, y) → (−x, y, −t) is used.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -373,22 +444,45 @@ impl Board {
         let code = |s| Code::parse(s).expect("built-in code");
         Board {
             name: "hex600".into(),
+            sides: Sides::Two,
             pitch: 20.0,
             radius: 6.0,
             half_width: 290.0,
             half_height: 230.0,
             size: [600.0, 500.0],
             ring: [0.45, 0.75],
-            thickness: 10.0,
+            thickness: Some(10.0),
             codes: Codes {
                 front_center: code("011111"),
-                back_center: code("000111"),
-                front_side: code("001011"),
-                back_side: code("001101"),
+                back_center: Some(code("000111")),
+                front_side: Some(code("001011")),
+                back_side: Some(code("001101")),
             },
-            marker_spacing: 6,
+            marker_spacing: Some(6),
             front_back: None,
         }
+    }
+
+    /// This board printed on the front only, named `<name>-front`: no back codes, no
+    /// thickness, no side transform (its side marks kept).
+    pub fn front_only(&self) -> Board {
+        Board {
+            name: format!("{}-front", self.name),
+            sides: Sides::One,
+            thickness: None,
+            front_back: None,
+            codes: Codes {
+                back_center: None,
+                back_side: None,
+                ..self.codes
+            },
+            ..self.clone()
+        }
+    }
+
+    /// Whether `side` is printed (the front always is).
+    pub fn has(&self, side: Side) -> bool {
+        self.sides.list().contains(&side)
     }
 
     /// Position of a lattice point in its side's own 2D frame (mm):
@@ -436,18 +530,24 @@ impl Board {
         )
     }
 
-    /// The marker cells of one side: the centre cell, then the side marks.
+    /// The marker cells of one side: the centre cell, then the side marks (none on the
+    /// unprinted back of a single-sided board; no side marks on a board without them).
     pub fn marker_cells(&self, side: Side) -> Vec<MarkerCell> {
         let (center, mark) = match side {
             Side::Front => (MarkerKind::FrontCenter, MarkerKind::FrontSide),
             Side::Back => (MarkerKind::BackCenter, MarkerKind::BackSide),
         };
+        if self.codes.get(center).is_none() {
+            return Vec::new();
+        }
         let mut cells = vec![MarkerCell {
             center: Hex::new(0, 0),
             kind: center,
         }];
-        let s = self.marker_spacing;
-        if s > 0 {
+        let spacing = self
+            .marker_spacing
+            .filter(|_| self.codes.get(mark).is_some());
+        if let Some(s) = spacing.filter(|&s| s > 0) {
             // Rows r = s·j of the lattice, and in each the q = s·i of its circles.
             let rows = self.row_reach() / s;
             for j in -rows..=rows {
@@ -474,7 +574,9 @@ impl Board {
     pub fn ringed(&self, side: Side) -> std::collections::HashSet<Hex> {
         let mut set = std::collections::HashSet::new();
         for cell in self.marker_cells(side) {
-            let code = self.codes.get(cell.kind);
+            let Some(code) = self.codes.get(cell.kind) else {
+                continue;
+            };
             for k in 0..6 {
                 if code.bit(k) {
                     set.insert(cell.center.neighbour(k));
@@ -484,8 +586,11 @@ impl Board {
         set
     }
 
-    /// Every circle of one side.
+    /// Every circle of one side (none on the unprinted back of a single-sided board).
     pub fn circles(&self, side: Side) -> Vec<BoardCircle> {
+        if !self.has(side) {
+            return Vec::new();
+        }
         let ringed = self.ringed(side);
         self.lattice()
             .into_iter()
@@ -499,7 +604,8 @@ impl Board {
     }
 
     /// `T_board_side`: maps a point (x, y, 0) of a side's own frame into the board frame
-    /// (origin at the front centre, z out of the front).
+    /// (origin at the front centre, z out of the front). The back of a single-sided board
+    /// (no circle on it) is the front's plane turned over: the nominal transform with t = 0.
     pub fn side_transform(&self, side: Side) -> Isometry3<f64> {
         match side {
             Side::Front => Isometry3::identity(),
@@ -507,7 +613,7 @@ impl Board {
                 || {
                     // Nominal: X = −x_b, Y = y_b, Z = −t (a half turn about y, then −t).
                     Isometry3::from_parts(
-                        Translation3::new(0.0, 0.0, -self.thickness),
+                        Translation3::new(0.0, 0.0, -self.thickness.unwrap_or(0.0)),
                         UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI),
                     )
                 },
@@ -554,9 +660,10 @@ mod tests {
     #[test]
     fn codes_decode_with_rotation() {
         let codes = Board::hex600().codes;
-        for kind in MarkerKind::ALL {
+        assert_eq!(codes.present().count(), 4);
+        for (kind, code) in codes.present() {
             for k in 0..6 {
-                assert_eq!(codes.decode(codes.get(kind).rotated(k)), Some((kind, k)));
+                assert_eq!(codes.decode(code.rotated(k)), Some((kind, k)));
             }
         }
         assert_eq!(Code::parse("011111").unwrap().to_string(), "011111");

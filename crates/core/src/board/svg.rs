@@ -47,7 +47,8 @@ impl Board {
     /// side is at SVG (size\[0\]/2 + x, size\[1\]/2 − y). Scale bar and label sit in the margin
     /// below the circles, white on black; a board whose margin is narrower than 12 mm gets a
     /// 12 mm white strip added below it for them (the only case where the document is larger
-    /// than the board).
+    /// than the board). The back of a single-sided board has no circles: it is the plain
+    /// board (`hexcal board` refuses to draw it).
     pub fn svg(&self, side: Side) -> String {
         let [w, h] = self.size;
         let circles = self.circles(side);

@@ -1,7 +1,7 @@
 //! The rules a board must keep for its codes to decode (docs/design.md §3) and for its geometry
 //! to make sense; [`Board::validate`] names the field that breaks one.
 
-use super::{Board, Code, Hex, MarkerKind, Side};
+use super::{Board, Code, Hex, MarkerKind, Sides};
 use crate::limits;
 use std::collections::HashMap;
 
@@ -37,6 +37,9 @@ fn check(field: &str, values: &[f64], ok: bool, rule: &str) -> Result<(), Invali
 
 impl Board {
     /// Check the board, first broken rule first:
+    /// - a double-sided board has every code, `marker_spacing` and `thickness`; a
+    ///   single-sided one (`sides = 1`) has no back code, no `thickness` and no `front_back`
+    ///   (nothing of a back), and `codes.front_side` with `marker_spacing` or neither;
     /// - `name` not empty; every length finite; `pitch`, `radius`, `half_width`,
     ///   `half_height`, `thickness`, `size` positive; `pitch` > 2·`radius` (circles apart);
     ///   `ring` 0 < inner < outer < 1; the circles (centre ± R) inside `size`;
@@ -47,9 +50,61 @@ impl Board {
     ///   marker cells disjoint; no circle but a marker centre whose ringed neighbours (as
     ///   printed, a missing neighbour read as unringed) read as a rotation of any code.
     pub fn validate(&self) -> Result<(), InvalidField> {
+        self.check_sides()?;
         self.check_geometry()?;
         self.check_codes()?;
         self.check_markers()
+    }
+
+    /// What each number of printed sides needs and forbids.
+    fn check_sides(&self) -> Result<(), InvalidField> {
+        let has = [
+            ("codes.back_center", self.codes.back_center.is_some()),
+            ("codes.back_side", self.codes.back_side.is_some()),
+            ("thickness", self.thickness.is_some()),
+            ("front_back", self.front_back.is_some()),
+        ];
+        match self.sides {
+            Sides::Two => {
+                let needed = [
+                    ("codes.back_center", has[0].1),
+                    ("codes.front_side", self.codes.front_side.is_some()),
+                    ("codes.back_side", has[1].1),
+                    ("marker_spacing", self.marker_spacing.is_some()),
+                    ("thickness", has[2].1),
+                ];
+                match needed.iter().find(|(_, present)| !present) {
+                    Some((field, _)) => Err(invalid(
+                        field,
+                        "missing: a double-sided board needs it (write `sides = 1` for a board \
+                         printed on the front only)"
+                            .into(),
+                    )),
+                    None => Ok(()),
+                }
+            }
+            Sides::One => {
+                if let Some((field, _)) = has.iter().find(|(_, present)| *present) {
+                    return Err(invalid(
+                        field,
+                        "a single-sided board (sides = 1) has no back: remove it".into(),
+                    ));
+                }
+                match (self.codes.front_side, self.marker_spacing) {
+                    (Some(_), None) => Err(invalid(
+                        "marker_spacing",
+                        "missing: side marks (codes.front_side) need their spacing".into(),
+                    )),
+                    (None, Some(_)) => Err(invalid(
+                        "codes.front_side",
+                        "missing: marker_spacing places side marks, which need their code \
+                         (or remove marker_spacing)"
+                            .into(),
+                    )),
+                    _ => Ok(()),
+                }
+            }
+        }
     }
 
     fn check_geometry(&self) -> Result<(), InvalidField> {
@@ -83,17 +138,11 @@ impl Board {
             fits,
             "width ≥ 2·(half_width + radius), height ≥ 2·(half_height + radius)",
         )?;
-        check(
-            "thickness",
-            &[self.thickness],
-            self.thickness > 0.0,
-            "thickness > 0",
-        )?;
-        if self.marker_spacing < 1 {
-            return Err(invalid(
-                "marker_spacing",
-                format!("{} must be at least 1", self.marker_spacing),
-            ));
+        if let Some(t) = self.thickness {
+            check("thickness", &[t], t > 0.0, "thickness > 0")?;
+        }
+        if let Some(s) = self.marker_spacing.filter(|&s| s < 1) {
+            return Err(invalid("marker_spacing", format!("{s} must be at least 1")));
         }
         if let Some(t) = &self.front_back {
             check("front_back.rotation", &t.rotation, true, "all finite")?;
@@ -137,9 +186,9 @@ impl Board {
     }
 
     fn check_codes(&self) -> Result<(), InvalidField> {
-        for (i, &a) in MarkerKind::ALL.iter().enumerate() {
+        let present: Vec<(MarkerKind, Code)> = self.codes.present().collect();
+        for (i, &(a, code)) in present.iter().enumerate() {
             let field = format!("codes.{}", a.name());
-            let code = self.codes.get(a);
             if code.weight() < 3 {
                 return Err(invalid(
                     &field,
@@ -155,8 +204,7 @@ impl Board {
                     format!("{code} is periodic: turned by {k} steps it reads the same"),
                 ));
             }
-            for &b in &MarkerKind::ALL[..i] {
-                let other = self.codes.get(b);
+            for &(b, other) in &present[..i] {
                 for k in 0..6 {
                     let dist = (code.rotated(k).0 ^ other.0).count_ones();
                     if dist < 2 {
@@ -196,7 +244,7 @@ impl Board {
                 ));
             }
         }
-        for side in Side::BOTH {
+        for &side in self.sides.list() {
             let cells = self.marker_cells(side);
             let mut owner: HashMap<Hex, Hex> = HashMap::new();
             for cell in &cells {
@@ -207,7 +255,7 @@ impl Board {
                             format!(
                                 "with spacing {} the marker cells at ({}, {}) and ({}, {}) of \
                                  the {side} share the circle ({}, {})",
-                                self.marker_spacing,
+                                self.marker_spacing.unwrap_or(0),
                                 other.q,
                                 other.r,
                                 cell.center.q,
@@ -236,7 +284,7 @@ impl Board {
                             "with spacing {} the circle ({}, {}) of the {side}, no marker \
                              centre, has rings of two marker cells around it that read {read}, \
                              codes.{} turned by {k} steps",
-                            self.marker_spacing,
+                            self.marker_spacing.unwrap_or(0),
                             h.q,
                             h.r,
                             kind.name()
@@ -372,7 +420,7 @@ mod tests {
     #[test]
     fn hex600_non_marker_circles_see_at_most_two_rings() {
         let b = Board::hex600();
-        for side in Side::BOTH {
+        for side in crate::board::Side::BOTH {
             let ringed = b.ringed(side);
             let centres: Vec<Hex> = b.marker_cells(side).iter().map(|c| c.center).collect();
             let most = b

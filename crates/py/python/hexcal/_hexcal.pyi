@@ -104,8 +104,8 @@ class Calibration:
     def sigma(self) -> float:
         """Posterior σ per residual coordinate (px)."""
     @property
-    def front_back(self) -> npt.NDArray[np.float64]:
-        """T_board_back (4 × 4, mm)."""
+    def front_back(self) -> Optional[npt.NDArray[np.float64]]:
+        """T_board_back (4 × 4, mm); None for a single-sided board (no back)."""
     @property
     def excluded(self) -> List[Tuple[str, str]]:
         """Devices a calibration left out: (name, reason); empty for a loaded file."""

@@ -192,7 +192,7 @@ pub(crate) fn frame(
         };
     }
     // Side marks: vote for (side, rotation, offset modulo the marker lattice).
-    let s = board.marker_spacing.max(1);
+    let s = board.marker_spacing.unwrap_or(1).max(1);
     let mut votes: HashMap<(Side, u8, Hex), (usize, Hex)> = HashMap::new();
     for m in markers.iter().filter(|m| !m.kind.is_center()) {
         let offset = -m.at.rotate(m.rotation as usize);

@@ -414,7 +414,7 @@ impl<'a> Scene<'a> {
         }
         let confirmed: Vec<PlacedMarker> = placed_markers(comp, &self.cells, &self.decoded)
             .into_iter()
-            .filter(|m| frame.confirms(m, &self.rings, self.board.marker_spacing))
+            .filter(|m| frame.confirms(m, &self.rings, self.board.marker_spacing.unwrap_or(1)))
             .collect();
         stats.markers = marker_readings(&self.cells, &self.decoded, &confirmed);
         Grid {
