@@ -5,7 +5,10 @@
 //! `GET /state` the state as JSON; `GET /events` server-sent events, one whole state per
 //! change (coalesced when they come faster than a page reads); `GET /thumb/C.png` camera C's latest thumbnail; `GET /live/C.png` its latest live
 //! preview picture; `POST /capture` the capture
-//! button (refused with 409 unless the run waits for the board). A page that goes away
+//! button (refused with 409 unless the run waits for the board and the live pictures are
+//! fresh); `POST /finish` the Finish button (refused with 409 unless the run captures).
+//! Every request must carry the console's access token (`?token=`), else it is refused
+//! with 403. A page that goes away
 //! only ends its own thread: nothing the server does can block or fail the run.
 
 use super::Shared;
@@ -44,7 +47,28 @@ fn text(status: u16, body: &str) -> Response<std::io::Cursor<Vec<u8>>> {
         .with_header(header("Content-Type", "text/plain; charset=utf-8"))
 }
 
+/// Whether `url`'s query carries `token` (compared in time independent of where it differs).
+fn has_token(url: &str, token: &str) -> bool {
+    let query = url.split_once('?').map_or("", |(_, q)| q);
+    query.split('&').any(|kv| {
+        kv.strip_prefix("token=").is_some_and(|t| {
+            t.len() == token.len()
+                && t.bytes()
+                    .zip(token.bytes())
+                    .fold(0u8, |d, (a, b)| d | (a ^ b))
+                    == 0
+        })
+    })
+}
+
 fn respond(request: Request, shared: &Arc<Shared>) -> std::io::Result<()> {
+    if !has_token(request.url(), &shared.token) {
+        return request.respond(text(
+            403,
+            "hexcal console: open the address hexcal printed on its terminal (it carries \
+             ?token=…)",
+        ));
+    }
     let path = request.url().split('?').next().unwrap_or("").to_string();
     let no_store = header("Cache-Control", "no-store");
     match (request.method(), path.as_str()) {
@@ -91,6 +115,10 @@ fn respond(request: Request, shared: &Arc<Shared>) -> std::io::Result<()> {
         }
         (Method::Post, "/capture") => match shared.press_capture() {
             Ok(()) => request.respond(text(200, "taken")),
+            Err(why) => request.respond(text(409, &why.to_string())),
+        },
+        (Method::Post, "/finish") => match shared.press_finish() {
+            Ok(()) => request.respond(text(200, "finishing")),
             Err(why) => request.respond(text(409, &why.to_string())),
         },
         _ => request.respond(text(404, "not found")),
