@@ -147,6 +147,8 @@ impl Page {
             r#"JSON.stringify({
                 sign: document.querySelector('#sign')?.textContent,
                 capture: !!document.querySelector('#capture') && !document.querySelector('#capture').disabled,
+                finish: document.querySelector('#finish') && !document.querySelector('#finish').disabled ? document.querySelector('#finish').textContent : null,
+                failures: [...document.querySelectorAll('#failures li')].map(l => l.textContent),
                 cameras: [...document.querySelectorAll('#cameras figure')].map(f => ({
                     name: f.dataset.camera, points: +f.dataset.points, pose: f.dataset.thumbPose,
                     caption: f.querySelector('figcaption').textContent })),
@@ -164,6 +166,23 @@ impl Page {
         .as_str()
         .map(|s| serde_json::from_str(s).unwrap())
         .unwrap_or(Value::Null)
+    }
+
+    /// Wait until `ok` holds for the text `expr` gives in the page; gives it.
+    fn wait_for(&mut self, what: &str, expr: &str, ok: &dyn Fn(&str) -> bool) -> String {
+        let start = Instant::now();
+        loop {
+            let v = self.eval(expr);
+            let text = v.as_str().unwrap_or("").to_string();
+            if ok(&text) {
+                return text;
+            }
+            assert!(
+                start.elapsed() < STEP,
+                "waited for {what}; the page shows {text}"
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
     }
 
     /// Wait until `ok` holds for what the page shows; gives it.
@@ -184,10 +203,15 @@ impl Page {
 
     /// Click the Capture button with the mouse, at its centre.
     fn click_capture(&mut self) {
-        let r = self.eval(
-            "(() => { const r = document.querySelector('#capture').getBoundingClientRect(); \
-             return [r.x + r.width / 2, r.y + r.height / 2]; })()",
-        );
+        self.click("#capture");
+    }
+
+    /// Click the element `selector` with the mouse, at its centre.
+    fn click(&mut self, selector: &str) {
+        let r = self.eval(&format!(
+            "(() => {{ const r = document.querySelector('{selector}').getBoundingClientRect(); \
+             return [r.x + r.width / 2, r.y + r.height / 2]; }})()"
+        ));
         let (x, y) = (r[0].as_f64().unwrap(), r[1].as_f64().unwrap());
         for kind in ["mousePressed", "mouseReleased"] {
             self.call(
@@ -370,7 +394,7 @@ fn capture_until_done(page: &mut Page, shots: &Path) -> (usize, Option<Value>) {
         // After the capture: this pose's thumbnail and overlay in every camera, the
         // button back, and the poses-seen counts up.
         let want = pose.to_string();
-        let caption = format!(": pose {}:", pose + 1);
+        let caption = format!(": pose {pose}:");
         let seen = page.wait(&format!("pose {pose} shown"), &|v| {
             v["capture"] == true
                 && v["cameras"].as_array().unwrap().iter().all(|c| {
@@ -502,9 +526,21 @@ fn console_guides_a_run_in_a_real_browser() {
     let dir = scratch("console-browser");
     let rig = dir.join("rig.toml");
     std::fs::write(&rig, console_rig().toml()).unwrap();
-    let (mut run, mut stdin, url, stderr) = start_run(&rig, &dir.join("data"));
+    let (mut run, stdin, url, stderr) = start_run(&rig, &dir.join("data"));
     let browser = start_chromium(&dir.join("profile"));
     let mut page = Page::attach(&dir.join("profile"));
+    // Without the token printed on the terminal, the page is refused.
+    let bare = url.split('?').next().unwrap().to_string();
+    page.call("Page.navigate", json!({"url": bare}));
+    let refused = page.wait_for(
+        "the refusal without the token",
+        "document.body ? document.body.textContent : ''",
+        &|t| t.contains("token"),
+    );
+    assert!(
+        refused.contains("open the address hexcal printed"),
+        "{refused}"
+    );
     page.call("Page.navigate", json!({"url": url}));
 
     let first = page.wait("the capture button", &|v| v["capture"] == true);
@@ -527,14 +563,23 @@ fn console_guides_a_run_in_a_real_browser() {
         done["next"].as_str().unwrap_or("").contains("done"),
         "{done}"
     );
+    assert_eq!(done["finish"], "Finish", "Finish offered at DONE: {done}");
+    assert_eq!(done["failures"], json!([]), "{done}");
     check_screenshot(&mut page, &dir.join("console.png"));
 
-    // Closing the browser harms nothing: Enter finishes the run as without a console.
+    // Finish ends the capture and calibrates now; closing the browser then harms nothing.
+    page.click("#finish");
+    let finishing = page.wait_for(
+        "the Finish statement",
+        "document.querySelector('#finishing').textContent",
+        &|t| !t.is_empty(),
+    );
+    assert!(
+        finishing.starts_with("Finish: the capture ends"),
+        "{finishing}"
+    );
     drop(page);
     drop(browser);
-    for _ in pose..6 {
-        writeln!(stdin,).unwrap();
-    }
     let start = Instant::now();
     let status = loop {
         if let Some(s) = run.0.try_wait().unwrap() {
@@ -557,6 +602,12 @@ fn console_guides_a_run_in_a_real_browser() {
         "{}",
         lines.join("\n")
     );
+    assert!(
+        lines.iter().any(|l| l.starts_with("finish: ")),
+        "{}",
+        lines.join("\n")
+    );
+    drop(stdin);
     assert!(out.contains("proj0"), "{out}");
 }
 
