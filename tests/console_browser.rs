@@ -517,6 +517,47 @@ fn check_screenshot(page: &mut Page, file: &Path) {
     );
 }
 
+/// At 1920×1080 and at a tablet's 1024×768 (screenshots into `dir`): the sign, the message,
+/// Capture and Finish lie whole inside the first screen, the sign and the buttons large
+/// enough to read from a few metres, and nothing runs off the page's width.
+fn check_layout(page: &mut Page, dir: &Path) {
+    for [w, h] in [[1920, 1080], [1024, 768]] {
+        page.call(
+            "Emulation.setDeviceMetricsOverride",
+            json!({"width": w, "height": h, "deviceScaleFactor": 1, "mobile": false}),
+        );
+        let facts = page.eval(
+            "JSON.stringify({ wide: document.documentElement.scrollWidth, \
+             boxes: ['#sign', '#message', '#capture', '#finish'].map(s => { \
+               const r = document.querySelector(s).getBoundingClientRect(); \
+               return [r.left, r.top, r.right, r.bottom, \
+                 parseFloat(getComputedStyle(document.querySelector(s)).fontSize)]; }) })",
+        );
+        let facts: Value = serde_json::from_str(facts.as_str().unwrap()).unwrap();
+        screenshot(page, &dir.join(format!("console-{w}x{h}.png")));
+        eprintln!("layout at {w}×{h}: {facts}");
+        assert!(facts["wide"].as_f64().unwrap() <= f64::from(w), "{facts}");
+        for (i, b) in facts["boxes"].as_array().unwrap().iter().enumerate() {
+            let b: Vec<f64> = b
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect();
+            let inside = b[0] >= 0.0 && b[1] >= 0.0 && b[2] <= f64::from(w) && b[3] <= f64::from(h);
+            assert!(
+                inside && b[2] > b[0] && b[3] > b[1],
+                "element {i} at {w}×{h}: {facts}"
+            );
+            // The sign and the buttons: letters of at least 28 px (about 2 cm on a tablet).
+            if i != 1 {
+                assert!(b[4] >= 28.0, "element {i} at {w}×{h}: {facts}");
+            }
+        }
+    }
+    page.call("Emulation.clearDeviceMetricsOverride", json!({}));
+}
+
 #[test]
 fn console_guides_a_run_in_a_real_browser() {
     assert!(
@@ -566,6 +607,7 @@ fn console_guides_a_run_in_a_real_browser() {
     assert_eq!(done["finish"], "Finish", "Finish offered at DONE: {done}");
     assert_eq!(done["failures"], json!([]), "{done}");
     check_screenshot(&mut page, &dir.join("console.png"));
+    check_layout(&mut page, &dir);
 
     // Finish ends the capture and calibrates now; closing the browser then harms nothing.
     page.click("#finish");
