@@ -556,6 +556,11 @@ fn check_layout(page: &mut Page, dir: &Path) {
         }
     }
     page.call("Emulation.clearDeviceMetricsOverride", json!({}));
+    // The capture sound is offered, and off unless the operator turns it on.
+    let sound = page.eval(
+        "(() => { const b = document.querySelector('#sound'); return b ? b.checked : null; })()",
+    );
+    assert_eq!(sound, json!(false), "the sound toggle, off by default");
 }
 
 #[test]
