@@ -147,6 +147,8 @@ impl Page {
             r#"JSON.stringify({
                 sign: document.querySelector('#sign')?.textContent,
                 capture: !!document.querySelector('#capture') && !document.querySelector('#capture').disabled,
+                finish: document.querySelector('#finish') && !document.querySelector('#finish').disabled ? document.querySelector('#finish').textContent : null,
+                failures: [...document.querySelectorAll('#failures li')].map(l => l.textContent),
                 cameras: [...document.querySelectorAll('#cameras figure')].map(f => ({
                     name: f.dataset.camera, points: +f.dataset.points, pose: f.dataset.thumbPose,
                     caption: f.querySelector('figcaption').textContent })),
@@ -164,6 +166,23 @@ impl Page {
         .as_str()
         .map(|s| serde_json::from_str(s).unwrap())
         .unwrap_or(Value::Null)
+    }
+
+    /// Wait until `ok` holds for the text `expr` gives in the page; gives it.
+    fn wait_for(&mut self, what: &str, expr: &str, ok: &dyn Fn(&str) -> bool) -> String {
+        let start = Instant::now();
+        loop {
+            let v = self.eval(expr);
+            let text = v.as_str().unwrap_or("").to_string();
+            if ok(&text) {
+                return text;
+            }
+            assert!(
+                start.elapsed() < STEP,
+                "waited for {what}; the page shows {text}"
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
     }
 
     /// Wait until `ok` holds for what the page shows; gives it.
@@ -184,10 +203,15 @@ impl Page {
 
     /// Click the Capture button with the mouse, at its centre.
     fn click_capture(&mut self) {
-        let r = self.eval(
-            "(() => { const r = document.querySelector('#capture').getBoundingClientRect(); \
-             return [r.x + r.width / 2, r.y + r.height / 2]; })()",
-        );
+        self.click("#capture");
+    }
+
+    /// Click the element `selector` with the mouse, at its centre.
+    fn click(&mut self, selector: &str) {
+        let r = self.eval(&format!(
+            "(() => {{ const r = document.querySelector('{selector}').getBoundingClientRect(); \
+             return [r.x + r.width / 2, r.y + r.height / 2]; }})()"
+        ));
         let (x, y) = (r[0].as_f64().unwrap(), r[1].as_f64().unwrap());
         for kind in ["mousePressed", "mouseReleased"] {
             self.call(
@@ -372,7 +396,7 @@ fn capture_until_done(page: &mut Page, shots: &Path) -> (usize, Option<Value>) {
         // After the capture: this pose's thumbnail and overlay in every camera, the
         // button back, and the poses-seen counts up.
         let want = pose.to_string();
-        let caption = format!(": pose {}:", pose + 1);
+        let caption = format!(": pose {pose}:");
         let seen = page.wait(&format!("pose {pose} shown"), &|v| {
             v["capture"] == true
                 && v["cameras"].as_array().unwrap().iter().all(|c| {
@@ -495,6 +519,52 @@ fn check_screenshot(page: &mut Page, file: &Path) {
     );
 }
 
+/// At 1920×1080 and at a tablet's 1024×768 (screenshots into `dir`): the sign, the message,
+/// Capture and Finish lie whole inside the first screen, the sign and the buttons large
+/// enough to read from a few metres, and nothing runs off the page's width.
+fn check_layout(page: &mut Page, dir: &Path) {
+    for [w, h] in [[1920, 1080], [1024, 768]] {
+        page.call(
+            "Emulation.setDeviceMetricsOverride",
+            json!({"width": w, "height": h, "deviceScaleFactor": 1, "mobile": false}),
+        );
+        let facts = page.eval(
+            "JSON.stringify({ wide: document.documentElement.scrollWidth, \
+             boxes: ['#sign', '#message', '#capture', '#finish'].map(s => { \
+               const r = document.querySelector(s).getBoundingClientRect(); \
+               return [r.left, r.top, r.right, r.bottom, \
+                 parseFloat(getComputedStyle(document.querySelector(s)).fontSize)]; }) })",
+        );
+        let facts: Value = serde_json::from_str(facts.as_str().unwrap()).unwrap();
+        screenshot(page, &dir.join(format!("console-{w}x{h}.png")));
+        eprintln!("layout at {w}×{h}: {facts}");
+        assert!(facts["wide"].as_f64().unwrap() <= f64::from(w), "{facts}");
+        for (i, b) in facts["boxes"].as_array().unwrap().iter().enumerate() {
+            let b: Vec<f64> = b
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect();
+            let inside = b[0] >= 0.0 && b[1] >= 0.0 && b[2] <= f64::from(w) && b[3] <= f64::from(h);
+            assert!(
+                inside && b[2] > b[0] && b[3] > b[1],
+                "element {i} at {w}×{h}: {facts}"
+            );
+            // The sign and the buttons: letters of at least 28 px (about 2 cm on a tablet).
+            if i != 1 {
+                assert!(b[4] >= 28.0, "element {i} at {w}×{h}: {facts}");
+            }
+        }
+    }
+    page.call("Emulation.clearDeviceMetricsOverride", json!({}));
+    // The capture sound is offered, and off unless the operator turns it on.
+    let sound = page.eval(
+        "(() => { const b = document.querySelector('#sound'); return b ? b.checked : null; })()",
+    );
+    assert_eq!(sound, json!(false), "the sound toggle, off by default");
+}
+
 #[test]
 fn console_guides_a_run_in_a_real_browser() {
     assert!(
@@ -504,9 +574,21 @@ fn console_guides_a_run_in_a_real_browser() {
     let dir = scratch("console-browser");
     let rig = dir.join("rig.toml");
     std::fs::write(&rig, console_rig().toml()).unwrap();
-    let (mut run, mut stdin, url, stderr) = start_run(&rig, &dir.join("data"));
+    let (mut run, stdin, url, stderr) = start_run(&rig, &dir.join("data"));
     let browser = start_chromium(&dir.join("profile"));
     let mut page = Page::attach(&dir.join("profile"));
+    // Without the token printed on the terminal, the page is refused.
+    let bare = url.split('?').next().unwrap().to_string();
+    page.call("Page.navigate", json!({"url": bare}));
+    let refused = page.wait_for(
+        "the refusal without the token",
+        "document.body ? document.body.textContent : ''",
+        &|t| t.contains("token"),
+    );
+    assert!(
+        refused.contains("open the address hexcal printed"),
+        "{refused}"
+    );
     page.call("Page.navigate", json!({"url": url}));
 
     let first = page.wait("the capture button", &|v| v["capture"] == true);
@@ -529,14 +611,24 @@ fn console_guides_a_run_in_a_real_browser() {
         done["next"].as_str().unwrap_or("").contains("done"),
         "{done}"
     );
+    assert_eq!(done["finish"], "Finish", "Finish offered at DONE: {done}");
+    assert_eq!(done["failures"], json!([]), "{done}");
     check_screenshot(&mut page, &dir.join("console.png"));
+    check_layout(&mut page, &dir);
 
-    // Closing the browser harms nothing: Enter finishes the run as without a console.
+    // Finish ends the capture and calibrates now; closing the browser then harms nothing.
+    page.click("#finish");
+    let finishing = page.wait_for(
+        "the Finish statement",
+        "document.querySelector('#finishing').textContent",
+        &|t| !t.is_empty(),
+    );
+    assert!(
+        finishing.starts_with("Finish: the capture ends"),
+        "{finishing}"
+    );
     drop(page);
     drop(browser);
-    for _ in pose..6 {
-        writeln!(stdin,).unwrap();
-    }
     let start = Instant::now();
     let status = loop {
         if let Some(s) = run.0.try_wait().unwrap() {
@@ -559,6 +651,12 @@ fn console_guides_a_run_in_a_real_browser() {
         "{}",
         lines.join("\n")
     );
+    assert!(
+        lines.iter().any(|l| l.starts_with("finish: ")),
+        "{}",
+        lines.join("\n")
+    );
+    drop(stdin);
     assert!(out.contains("proj0"), "{out}");
 }
 
@@ -609,7 +707,7 @@ fn a_guided_simulated_operator_follows_the_console_until_done() {
 
 /// A console open to other machines (`--console 0.0.0.0:0`) prints its address with an
 /// access token; in a real browser the address without it is refused, with it the page
-/// works (its own requests carry the token's cookie: the state arrives, the button is live).
+/// works (its own requests carry the token: the state arrives, the button is live).
 #[test]
 fn a_console_on_all_addresses_works_only_with_its_token() {
     let dir = scratch("console-token");
@@ -627,7 +725,10 @@ fn a_console_on_all_addresses_works_only_with_its_token() {
     let start = Instant::now();
     loop {
         let body = page.eval("document.body ? document.body.innerText : ''");
-        if body.as_str().is_some_and(|b| b.starts_with("forbidden")) {
+        if body
+            .as_str()
+            .is_some_and(|b| b.starts_with("hexcal console: open the address hexcal printed"))
+        {
             break;
         }
         assert!(start.elapsed() < STEP, "not refused: {body}");

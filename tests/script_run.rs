@@ -503,24 +503,29 @@ fn the_console_shows_a_prompt_and_its_button_answers_it() {
         .spawn()
         .unwrap();
     let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
-    let addr = loop {
+    let (addr, token) = loop {
         let line = lines.next().expect("the console's address").unwrap();
         if let Some(url) = line.strip_prefix("console: http://") {
-            break url.split(['/', ' ']).next().unwrap().to_string();
+            let url = url.split(' ').next().unwrap();
+            let (addr, token) = url.split_once("/?token=").expect("the access token");
+            break (addr.to_string(), token.to_string());
         }
     };
     let rest = std::thread::spawn(move || lines.map_while(Result::ok).collect::<Vec<_>>());
     // The page's state shows the prompt while the script waits for it.
     let t = Instant::now();
     loop {
-        let (_, body) = http(&addr, "GET /state");
+        let (_, body) = http(&addr, &format!("GET /state?token={token}"));
         if body.contains("\"prompt\":\"Mount the board\"") {
             break;
         }
         assert!(t.elapsed() < Duration::from_secs(120), "no prompt: {body}");
         std::thread::sleep(Duration::from_millis(100));
     }
-    let (status, body) = http(&addr, "POST /capture");
+    // Without the token the button is refused; with it, taken.
+    let (status, _) = http(&addr, "POST /capture");
+    assert!(status.contains(" 403 "), "{status}");
+    let (status, body) = http(&addr, &format!("POST /capture?token={token}"));
     assert!(status.contains(" 200 "), "{status}: {body}");
     let status = child.wait().unwrap();
     let stderr = rest.join().unwrap().join("\n");

@@ -160,16 +160,27 @@ fn place_sim(
 /// Puts the board at pose k: a simulated world's pose when the rig is simulated (`guided`:
 /// where the console's guidance aims); then, unless `auto` (or a simulated world placed it
 /// and `sim_places` says that is enough), waits for the operator's Enter or a press of the
-/// console's capture `button` (end of input, or `stop` set, ends the capture).
+/// console's capture `button` (end of input, or `stop` set, ends the capture). A press of
+/// the console's `finish` button ends the capture at the next placement, or while waiting.
 fn placer(
     (auto, sim_places): (bool, bool),
     stop: Option<Arc<AtomicBool>>,
-    button: Option<Receiver<()>>,
+    (button, finish): (Option<Receiver<()>>, Option<Receiver<()>>),
     mut guided: Option<Guided>,
     tell: Tell,
 ) -> impl FnMut(usize, Option<&SimWorld>) -> Result<bool, AppError> {
     let mut lines = None;
+    let finished = move |tell: &Tell| {
+        let pressed = finish.as_ref().is_some_and(|f| f.try_recv().is_ok());
+        if pressed {
+            tell("finish: the console's Finish ends the capture; calibrating now");
+        }
+        pressed
+    };
     move |k, world| {
+        if finished(&tell) {
+            return Ok(false);
+        }
         if let Some(w) = world {
             if !place_sim(w, k, guided.as_mut(), stop.as_ref(), &tell)? {
                 return Ok(false);
@@ -179,7 +190,8 @@ fn placer(
             return Ok(true);
         }
         tell(&format!(
-            "pose {k}: place the board, then press Enter (end of input stops)"
+            "pose {k}: place the board, then press Enter (end of input stops; the console's \
+             Finish calibrates now)"
         ));
         let lines = lines.get_or_insert_with(operator_lines);
         // A press from before this pose waited is stale.
@@ -189,7 +201,7 @@ fn placer(
                 Ok(more) => return Ok(more),
                 Err(RecvTimeoutError::Disconnected) => return Ok(false),
                 Err(RecvTimeoutError::Timeout) => {
-                    if stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst)) {
+                    if stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst)) || finished(&tell) {
                         return Ok(false);
                     }
                     if button.as_ref().is_some_and(|b| b.try_recv().is_ok()) {
@@ -276,7 +288,7 @@ pub fn capture(
             poses,
             ..Default::default()
         };
-        let mut place = placer((auto, true), None, None, None, Arc::clone(&tell));
+        let mut place = placer((auto, true), None, (None, None), None, Arc::clone(&tell));
         let mut log = |note: Note| tell(&note.to_string());
         let summary = capture_dataset(&rig, out, &options, &mut place, &mut log)?;
         return Ok(Captured {
@@ -360,6 +372,7 @@ pub fn run(
         None => None,
     };
     let button = console.as_ref().map(Console::captures);
+    let finish = console.as_ref().map(Console::finishes);
     let prompts = console.as_ref().map(Console::prompts);
     let guided = guided(&rig, how, guide.as_ref())?;
     let Voice {
@@ -376,24 +389,32 @@ pub fn run(
         }
         print(e);
     };
-    let (outcome, jitter) = match plan {
+    let ran = match plan {
         Some(plan) => {
             let hooks = (button, prompts.map(|p| Box::new(p) as Asking));
-            run_script(&rig, plan, out, &options, &mut events, say, hooks)?
+            run_script(&rig, plan, out, &options, &mut events, say, hooks)
         }
         None => {
             let stop = options.stop.clone();
-            let mut place = placer((how.auto, false), stop, button, guided, tell);
-            let outcome = super::run::run(&rig, out, &options, &mut place, &mut events)?;
-            (outcome, None)
+            let mut place = placer((how.auto, false), stop, (button, finish), guided, tell);
+            super::run::run(&rig, out, &options, &mut place, &mut events).map(|o| (o, None))
         }
     };
-    Ok(Ended {
-        summary: super::summary::of_run(&outcome),
-        uncalibrated: super::calibrate::uncalibrated(out)?,
-        outcome,
-        jitter,
-    })
+    let ended = ran.and_then(|(outcome, jitter)| {
+        Ok(Ended {
+            summary: super::summary::of_run(&outcome),
+            uncalibrated: super::calibrate::uncalibrated(out)?,
+            outcome,
+            jitter,
+        })
+    });
+    if let Some(c) = console.as_mut() {
+        match &ended {
+            Ok(e) => c.ended(Ok(&e.uncalibrated)),
+            Err(e) => c.ended(Err(&e.to_string())),
+        }
+    }
+    ended
 }
 
 /// Each camera's name and image size: the console's panels.

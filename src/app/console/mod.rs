@@ -52,6 +52,9 @@ enum PressRefused {
     /// The run has ended.
     #[error("the run no longer listens")]
     Gone,
+    /// The live pictures were taken before the last capture.
+    #[error("the live pictures are not fresh yet (taken before the last capture): wait a moment")]
+    Stale,
 }
 
 /// What the server threads and the run share.
@@ -62,6 +65,9 @@ struct Shared {
     live: Mutex<Vec<Option<Arc<Vec<u8>>>>>,
     hub: Mutex<Vec<Sender<()>>>,
     capture: Sender<()>,
+    finish: Sender<()>,
+    /// The access token every request must carry (`?token=`).
+    token: String,
     closed: AtomicBool,
     /// When the live preview's rounds ended (its rate).
     clock: Mutex<PreviewClock>,
@@ -83,17 +89,21 @@ impl Shared {
     /// One round of live preview frames (or why the preview stopped) onto the page.
     fn preview(&self, round: Result<Vec<Option<LiveView>>, &str>, started: std::time::Instant) {
         let mut s = lock(&self.state);
+        let fresh_from = s.fresh_from;
         let p = s.preview.get_or_insert_with(Preview::default);
         let views = match round {
             Ok(views) => views,
             Err(e) => {
                 p.error = Some(e.to_string());
+                // No fresh picture will come: Capture no longer waits for one.
+                s.stale = false;
                 self.publish(&mut s);
                 return;
             }
         };
         p.rounds += 1;
         p.error = None;
+        let stale = p.rounds < fresh_from;
         (p.rate_hz, p.detect_ms) = lock(&self.clock).tick(started);
         let n = p.rounds;
         p.stages = Default::default();
@@ -102,6 +112,7 @@ impl Shared {
             p.stages += v.stages;
             p.seeing += usize::from(v.sees_board);
         }
+        s.stale = stale;
         let mut pngs = lock(&self.live);
         for (c, view) in views.into_iter().enumerate() {
             let (Some(v), Some(panel)) = (view, s.cameras.get_mut(c)) else {
@@ -133,10 +144,36 @@ impl Shared {
         if s.prompt.is_none() && (s.auto || s.status != "waiting") {
             return Err(PressRefused::NotWaiting(s.status.clone()));
         }
+        if s.prompt.is_none() && s.stale {
+            return Err(PressRefused::Stale);
+        }
         match self.capture.try_send(()) {
             Ok(()) | Err(TrySendError::Full(())) => Ok(()),
             Err(TrySendError::Disconnected(())) => Err(PressRefused::Gone),
         }
+    }
+
+    /// The Finish button: taken while the run captures (waiting for the board or capturing);
+    /// the capture ends at the next placement and the run calibrates from the poses so far.
+    /// The page then says what the run does and, before DONE, what is not yet met.
+    fn press_finish(&self) -> Result<(), PressRefused> {
+        let mut s = lock(&self.state);
+        if !matches!(s.status.as_str(), "waiting" | "capturing") {
+            return Err(PressRefused::NotWaiting(s.status.clone()));
+        }
+        match self.finish.try_send(()) {
+            Ok(()) | Err(TrySendError::Full(())) => {}
+            Err(TrySendError::Disconnected(())) => return Err(PressRefused::Gone),
+        }
+        s.finishing = Some(match s.verdict.done {
+            true => "Finish: the capture ends; calibrating now".into(),
+            false => format!(
+                "Finish before done: the capture ends and the run calibrates now; not yet met: {}",
+                s.verdict.missing.join("; ")
+            ),
+        });
+        self.publish(&mut s);
+        Ok(())
     }
 
     /// Number the state, and tell every open page it changed (a page that has not yet read
@@ -162,22 +199,15 @@ pub struct Console {
     thread: Option<JoinHandle<()>>,
     thumbs: Arc<Mutex<Thumbs>>,
     captures: Receiver<()>,
+    finishes: Receiver<()>,
     url: String,
-}
-
-/// The access token a console reachable from other machines requires: 128 random bits as
-/// hex; `None` on a loopback address (only this machine can reach it).
-fn access_token(addr: std::net::SocketAddr) -> Option<String> {
-    (!addr.ip().is_loopback()).then(|| {
-        let bits: [u8; 16] = rand::random();
-        bits.iter().map(|b| format!("{b:02x}")).collect()
-    })
 }
 
 impl Console {
     /// Serve the console on `addr` (e.g. 127.0.0.1:8765; port 0 picks a free one) for a run
     /// with these `cameras` (name, image size); `auto`: the run places poses itself (no
-    /// capture button).
+    /// capture button). A fresh random access token guards it: [`Console::url`] carries it,
+    /// and every request without it is refused (403), on loopback as on any other address.
     pub fn start(
         addr: &str,
         cameras: &[(String, [u32; 2])],
@@ -188,15 +218,13 @@ impl Console {
             reason,
         };
         let server = tiny_http::Server::http(addr).map_err(|e| fail(e.to_string()))?;
-        let Some(bound) = server.server_addr().to_ip() else {
-            return Err(fail("not an IP address".into()));
-        };
-        let token = access_token(bound);
-        let url = match &token {
-            Some(t) => format!("http://{bound}/?token={t}"),
-            None => format!("http://{bound}/"),
+        let token = format!("{:032x}", rand::random::<u128>());
+        let url = match server.server_addr().to_ip() {
+            Some(a) => format!("http://{a}/?token={token}"),
+            None => return Err(fail("not an IP address".into())),
         };
         let (capture, captures) = bounded(1);
+        let (finish, finishes) = bounded(1);
         let state = State {
             status: "starting".into(),
             message: "opening the rig".into(),
@@ -218,6 +246,8 @@ impl Console {
             live: Mutex::new(Vec::new()),
             hub: Mutex::new(Vec::new()),
             capture,
+            finish,
+            token,
             closed: AtomicBool::new(false),
             clock: Mutex::new(PreviewClock::default()),
         });
@@ -226,7 +256,7 @@ impl Console {
         let (srv, sh) = (Arc::clone(&server), Arc::clone(&shared));
         let thread = std::thread::Builder::new()
             .name("console".into())
-            .spawn(move || server::serve(&srv, &sh, token.as_deref()))
+            .spawn(move || server::serve(&srv, &sh))
             .map_err(|e| fail(e.to_string()))?;
         Ok(Console {
             shared,
@@ -234,6 +264,7 @@ impl Console {
             thread: Some(thread),
             thumbs: Arc::new(Mutex::new(Thumbs::default())),
             captures,
+            finishes,
             url,
         })
     }
@@ -244,6 +275,7 @@ impl Console {
         move |v| {
             let mut s = lock(&shared.state);
             s.verdict = v.clone();
+            blind_devices(&mut s);
             shared.publish(&mut s);
         }
     }
@@ -263,8 +295,38 @@ impl Console {
         }
     }
 
-    /// The page's address (with its access token when the console listens beyond this
-    /// machine).
+    /// The Finish button's presses (one message per press taken).
+    pub fn finishes(&self) -> Receiver<()> {
+        self.finishes.clone()
+    }
+
+    /// The run ended: `Ok` with the rig's devices the calibration left out (exit 2), or the
+    /// run's error; either becomes a failure in the page's header. Open pages get a moment
+    /// to read this last state before the console closes.
+    pub fn ended(&mut self, result: Result<&[String], &str>) {
+        let mut s = lock(&self.shared.state);
+        match result {
+            Ok([]) => {}
+            Ok(out) => s.failures.push(format!(
+                "The calibration leaves out {}: show the board to {} in more poses (its \
+                 coverage and tilts) and run again (exit 2)",
+                out.join(", "),
+                if out.len() == 1 { "it" } else { "them" }
+            )),
+            Err(e) => {
+                s.status = "failed".into();
+                s.failures.push(format!("The run failed: {e}"));
+            }
+        }
+        let pages = !lock(&self.shared.hub).is_empty();
+        self.shared.publish(&mut s);
+        drop(s);
+        if pages {
+            std::thread::sleep(std::time::Duration::from_millis(300));
+        }
+    }
+
+    /// The page's address.
     pub fn url(&self) -> &str {
         &self.url
     }
@@ -332,15 +394,20 @@ impl Console {
     fn apply(&self, e: &Event, s: &mut State) {
         match e {
             Event::PoseStarted { pose, of } => {
-                // A new placement: the preview's rate starts afresh (a capture lay between).
+                // A new placement: the preview's rate starts afresh (a capture lay between),
+                // and Capture waits for a round of pictures taken from now on.
                 lock(&self.shared.clock).ends.clear();
+                if let Some(p) = &s.preview {
+                    s.fresh_from = p.rounds + 1;
+                    s.stale = p.error.is_none();
+                }
                 s.status = "waiting".into();
                 s.pose = Some([*pose, *of]);
                 s.frames = None;
                 s.message = match s.auto {
-                    true => format!("pose {} of {of}", pose + 1),
+                    true => format!("pose {pose} ({} of {of})", pose + 1),
                     false => format!(
-                        "Place the board for pose {} of {of}, then press Capture (or Enter)",
+                        "Place the board for pose {pose} ({} of {of}), then press Capture (or Enter)",
                         pose + 1
                     ),
                 };
@@ -348,13 +415,21 @@ impl Console {
             Event::Frames { pose, done, of } => {
                 s.status = "capturing".into();
                 s.frames = Some([*done, *of]);
-                s.message = format!("capturing pose {}: keep the board still", pose + 1);
+                s.message = format!("capturing pose {pose}: keep the board still");
             }
             Event::PoseCaptured { pose, .. } => {
                 self.thumbnails(*pose, s);
-                s.message = format!("pose {} captured; finding the board", pose + 1);
+                s.message = format!("pose {pose} captured; finding the board");
             }
-            Event::PoseProcessed { .. } => {}
+            Event::PoseProcessed { pose, held_out, .. } => {
+                s.processed += usize::from(!held_out);
+                // The pose was captured again and kept: its refusal is over.
+                let tag = format!(", pose {pose}: ");
+                s.failures
+                    .retain(|f| !(f.contains(&tag) && f.contains("capturing again")));
+                blind_devices(s);
+            }
+            Event::StackRefused { .. } => s.failures.push(e.to_string()),
             Event::Calibrating { .. } => {
                 s.status = "calibrating".into();
                 s.message = e.to_string();
@@ -433,3 +508,22 @@ impl Drop for Console {
 
 #[cfg(test)]
 mod tests;
+
+/// Calibration poses after which a device that has seen none is a failure.
+const BLIND_AFTER: usize = crate::app::calibrate::MIN_CALIBRATION_POSES;
+
+/// The failure of each device that has not seen the board in [`BLIND_AFTER`] or more
+/// calibration poses (replacing the last verdict's).
+fn blind_devices(s: &mut State) {
+    s.failures.retain(|f| !f.contains("has not seen the board"));
+    if s.processed < BLIND_AFTER {
+        return;
+    }
+    for d in s.verdict.devices.iter().filter(|d| d.poses == 0) {
+        s.failures.push(format!(
+            "{} has not seen the board in {} poses: check that it is on, focused and aimed \
+             at where the board goes",
+            d.name, s.processed
+        ));
+    }
+}

@@ -5,9 +5,11 @@
 //! `GET /state` the state as JSON; `GET /events` server-sent events, one whole state per
 //! change (coalesced when they come faster than a page reads); `GET /thumb/C.png` camera C's latest thumbnail; `GET /live/C.png` its latest live
 //! preview picture; `POST /capture` the capture
-//! button (refused with 409 unless the run waits for the board). A page that goes away
-//! only ends its own thread: nothing the server does can block or fail the run. On an
-//! address other machines can reach, every request must carry the console's access token.
+//! button (refused with 409 unless the run waits for the board and the live pictures are
+//! fresh); `POST /finish` the Finish button (refused with 409 unless the run captures).
+//! Every request must carry the console's access token (`?token=`), else it is refused
+//! with 403. A page that goes away
+//! only ends its own thread: nothing the server does can block or fail the run.
 
 use super::Shared;
 use crossbeam_channel::{bounded, RecvTimeoutError};
@@ -24,55 +26,15 @@ const MAX_STREAMS: usize = 32;
 /// A comment line this often keeps an idle stream open and finds closed pages.
 const KEEP_ALIVE: Duration = Duration::from_secs(5);
 
-/// Answer requests until the console closes; with a `token`, only those that carry it (in
-/// the query, `?token=…`, or in the cookie the page gets with it) — every other is refused
-/// with 403.
-pub(super) fn serve(server: &Server, shared: &Arc<Shared>, token: Option<&str>) {
+/// Answer requests until the console closes.
+pub(super) fn serve(server: &Server, shared: &Arc<Shared>) {
     for request in server.incoming_requests() {
         if shared.closed.load(Ordering::SeqCst) {
             break;
         }
         // A page that went away mid-answer harms nothing.
-        let _ = match token {
-            Some(t) if !carries(&request, t) => request.respond(text(
-                403,
-                "forbidden: open the console's address with its token, as hexcal printed it",
-            )),
-            Some(t) if request.url().contains("token=") => respond_setting(request, shared, t),
-            _ => respond(request, shared),
-        };
+        let _ = respond(request, shared);
     }
-}
-
-/// The cookie that carries the token.
-const COOKIE: &str = "hexcal_token";
-
-/// Whether `request` carries `token` in its query or its cookie.
-fn carries(request: &Request, token: &str) -> bool {
-    let query = request.url().split_once('?').map_or("", |(_, q)| q);
-    let in_query = query.split('&').any(|kv| kv == format!("token={token}"));
-    let in_cookie = request
-        .headers()
-        .iter()
-        .filter(|h| h.field.equiv("Cookie"))
-        .flat_map(|h| h.value.as_str().split(';'))
-        .any(|c| c.trim() == format!("{COOKIE}={token}"));
-    in_query || in_cookie
-}
-
-/// [`respond`], the answer also setting the token's cookie, so that the page's own
-/// requests (state, events, pictures, the button) carry it.
-fn respond_setting(request: Request, shared: &Arc<Shared>, token: &str) -> std::io::Result<()> {
-    if request.url().split('?').next() == Some("/") && *request.method() == Method::Get {
-        let cookie = format!("{COOKIE}={token}; Path=/; HttpOnly; SameSite=Strict");
-        return request.respond(
-            Response::from_string(PAGE)
-                .with_header(header("Content-Type", "text/html; charset=utf-8"))
-                .with_header(header("Cache-Control", "no-store"))
-                .with_header(header("Set-Cookie", &cookie)),
-        );
-    }
-    respond(request, shared)
 }
 
 fn header(name: &str, value: &str) -> Header {
@@ -85,7 +47,28 @@ fn text(status: u16, body: &str) -> Response<std::io::Cursor<Vec<u8>>> {
         .with_header(header("Content-Type", "text/plain; charset=utf-8"))
 }
 
+/// Whether `url`'s query carries `token` (compared in time independent of where it differs).
+fn has_token(url: &str, token: &str) -> bool {
+    let query = url.split_once('?').map_or("", |(_, q)| q);
+    query.split('&').any(|kv| {
+        kv.strip_prefix("token=").is_some_and(|t| {
+            t.len() == token.len()
+                && t.bytes()
+                    .zip(token.bytes())
+                    .fold(0u8, |d, (a, b)| d | (a ^ b))
+                    == 0
+        })
+    })
+}
+
 fn respond(request: Request, shared: &Arc<Shared>) -> std::io::Result<()> {
+    if !has_token(request.url(), &shared.token) {
+        return request.respond(text(
+            403,
+            "hexcal console: open the address hexcal printed on its terminal (it carries \
+             ?token=…)",
+        ));
+    }
     let path = request.url().split('?').next().unwrap_or("").to_string();
     let no_store = header("Cache-Control", "no-store");
     match (request.method(), path.as_str()) {
@@ -132,6 +115,10 @@ fn respond(request: Request, shared: &Arc<Shared>) -> std::io::Result<()> {
         }
         (Method::Post, "/capture") => match shared.press_capture() {
             Ok(()) => request.respond(text(200, "taken")),
+            Err(why) => request.respond(text(409, &why.to_string())),
+        },
+        (Method::Post, "/finish") => match shared.press_finish() {
+            Ok(()) => request.respond(text(200, "finishing")),
             Err(why) => request.respond(text(409, &why.to_string())),
         },
         _ => request.respond(text(404, "not found")),

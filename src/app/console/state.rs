@@ -84,6 +84,18 @@ pub struct State {
     pub warnings: Vec<String>,
     /// The live preview, once it has run.
     pub preview: Option<Preview>,
+    /// The preview round from which the live pictures were taken after the last capture
+    /// (Capture waits for it: a picture from before the capture shows an old placement).
+    pub fresh_from: u64,
+    /// Capture waits for fresh live pictures.
+    pub stale: bool,
+    /// Failures the operator must act on (red in the page's header): each says what went
+    /// wrong and what to do. The sign never reads DONE over one.
+    pub failures: Vec<String>,
+    /// The operator pressed Finish: what the run does now, and what was not yet met.
+    pub finishing: Option<String>,
+    /// Calibration poses processed so far.
+    pub processed: usize,
     /// The run's verdict: each device's progress, the latest guidance, done or not.
     #[serde(flatten)]
     pub verdict: Verdict,

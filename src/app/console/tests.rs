@@ -6,9 +6,23 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::time::Duration;
 
-/// One HTTP request; gives the status and the body.
+/// The console's address (host:port) and its token, from its URL.
+fn parts(url: &str) -> (&str, &str) {
+    let rest = url.trim_start_matches("http://");
+    let (addr, query) = rest.split_once("/?token=").unwrap();
+    (addr, query)
+}
+
+/// One HTTP request carrying the console's token; gives the status and the body.
 fn request(url: &str, method: &str, path: &str) -> (u16, String) {
-    let addr = url.trim_start_matches("http://").trim_end_matches('/');
+    let token = parts(url).1;
+    let sep = if path.contains('?') { '&' } else { '?' };
+    raw(url, method, &format!("{path}{sep}token={token}"))
+}
+
+/// One HTTP request as given (no token added); gives the status and the body.
+fn raw(url: &str, method: &str, path: &str) -> (u16, String) {
+    let addr = parts(url).0;
     let mut s = TcpStream::connect(addr).unwrap();
     write!(
         s,
@@ -27,10 +41,14 @@ fn request(url: &str, method: &str, path: &str) -> (u16, String) {
 
 /// An event stream: the connection and its reader.
 fn open_stream(url: &str) -> BufReader<TcpStream> {
-    let addr = url.trim_start_matches("http://").trim_end_matches('/');
+    let (addr, token) = parts(url);
     let mut s = TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    write!(s, "GET /events HTTP/1.1\r\nHost: {addr}\r\n\r\n").unwrap();
+    write!(
+        s,
+        "GET /events?token={token} HTTP/1.1\r\nHost: {addr}\r\n\r\n"
+    )
+    .unwrap();
     BufReader::new(s)
 }
 
@@ -50,6 +68,24 @@ fn serves_the_page_state_and_events_and_takes_presses_only_when_waiting() {
     let mut console = Console::start("127.0.0.1:0", &[], false).unwrap();
     let url = console.url().to_string();
     assert!(url.starts_with("http://127.0.0.1:"), "{url}");
+    // Without the token (or with another) nothing is served and no press is taken.
+    let token = parts(&url).1.to_string();
+    assert_eq!(token.len(), 32, "{url}");
+    let wrong: String = token.chars().rev().collect();
+    for path in [
+        "/",
+        "/state",
+        "/events",
+        "/thumb/0.png",
+        "/index.html?token=",
+    ] {
+        assert_eq!(raw(&url, "GET", path).0, 403, "{path}");
+    }
+    assert_eq!(raw(&url, "GET", &format!("/?token={wrong}")).0, 403);
+    assert_eq!(raw(&url, "POST", "/capture").0, 403);
+    assert_eq!(raw(&url, "POST", "/finish").0, 403);
+    let other = Console::start("127.0.0.1:0", &[], false).unwrap();
+    assert_ne!(parts(other.url()).1, token, "a fresh token per console");
 
     let (status, page) = request(&url, "GET", "/");
     assert_eq!(status, 200);
@@ -116,71 +152,114 @@ fn auto_runs_have_no_capture_button() {
 #[test]
 fn a_taken_address_is_refused_naming_it() {
     let first = Console::start("127.0.0.1:0", &[], true).unwrap();
-    let addr = first
-        .url()
-        .trim_start_matches("http://")
-        .trim_end_matches('/');
+    let addr = parts(first.url()).0;
     let e = Console::start(addr, &[], true).err().unwrap();
     assert!(e.to_string().contains(addr), "{e}");
 }
 
-/// One request to `port` on this machine with extra header lines; the whole answer.
-fn raw(port: u16, method: &str, path: &str, headers: &str) -> String {
-    let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
-    write!(
-        s,
-        "{method} {path} HTTP/1.1\r\nHost: x\r\n{headers}Content-Length: 0\r\nConnection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut all = String::new();
-    s.read_to_string(&mut all).unwrap();
-    all
-}
-
 #[test]
-fn a_console_open_to_other_machines_needs_its_token() {
-    let console = Console::start("0.0.0.0:0", &[], false).unwrap();
+fn finish_capture_freshness_and_failures_follow_the_run() {
+    use crate::app::guide::stats::DeviceStats;
+    use crate::observations::{DeviceInfo, DeviceKind};
+    let cams = [("cam0".to_string(), [64, 48])];
+    let mut console = Console::start("127.0.0.1:0", &cams, false).unwrap();
     let url = console.url().to_string();
-    let (host, token) = url
-        .trim_start_matches("http://")
-        .split_once("/?token=")
-        .unwrap_or_else(|| panic!("no token in {url}"));
-    assert_eq!(token.len(), 32, "{url}");
-    let port: u16 = host.rsplit_once(':').unwrap().1.parse().unwrap();
-    // Without the token (or with another) the page, the state, the pictures, the events and
-    // the button are refused.
-    for (method, path) in [
-        ("GET", "/"),
-        ("GET", "/state"),
-        ("GET", "/events"),
-        ("GET", "/thumb/0.png"),
-        ("POST", "/capture"),
-        ("GET", "/?token=00000000000000000000000000000000"),
-    ] {
-        let answer = raw(port, method, path, "");
-        assert!(
-            answer.starts_with("HTTP/1.1 403"),
-            "{method} {path}: {answer}"
-        );
-    }
-    let wrong = raw(port, "GET", "/state", "Cookie: hexcal_token=abc\r\n");
-    assert!(wrong.starts_with("HTTP/1.1 403"), "{wrong}");
-    // With it the page comes with the cookie its own requests then carry.
-    let page = raw(port, "GET", &format!("/?token={token}"), "");
-    assert!(page.starts_with("HTTP/1.1 200"), "{page}");
+    let (presses, finishes) = (console.captures(), console.finishes());
+    let state = |url: &str| -> serde_json::Value {
+        serde_json::from_str(&request(url, "GET", "/state").1).unwrap()
+    };
+    // Finish is refused before the run captures.
+    assert_eq!(request(&url, "POST", "/finish").0, 409);
+    // A preview round, then a new placement: Capture waits for a round taken after it.
+    let round = |c: &Console| {
+        let view = preview::LiveView {
+            png: Vec::new(),
+            circles: 0,
+            overlay: Overlay::labelled(0, 0, false, &[]),
+            sees_board: false,
+            stages: Default::default(),
+        };
+        c.shared
+            .preview(Ok(vec![Some(view)]), std::time::Instant::now());
+    };
+    round(&console);
+    console.event(&Event::PoseStarted { pose: 1, of: 4 });
+    assert_eq!(state(&url)["stale"], true);
+    let (status, why) = request(&url, "POST", "/capture");
+    assert_eq!(status, 409, "{why}");
+    assert!(why.contains("not fresh"), "{why}");
+    assert!(presses.try_recv().is_err());
+    round(&console);
+    assert_eq!(state(&url)["stale"], false);
+    assert_eq!(request(&url, "POST", "/capture").0, 200);
+    assert!(presses.try_recv().is_ok());
+
+    // A refused stack: a failure (the sign cannot read DONE) until the pose is kept.
+    console.event(&Event::StackRefused {
+        pose: 1,
+        camera: "cam0".into(),
+        reason: "the white circles clip: lower the exposure".into(),
+        attempt: 2,
+        of: 3,
+    });
+    let s = state(&url);
+    let failures = s["failures"].as_array().unwrap();
     assert!(
-        page.contains(&format!(
-            "hexcal_token={token}; Path=/; HttpOnly; SameSite=Strict"
-        )),
-        "{page}"
+        failures.len() == 1 && failures[0].as_str().unwrap().contains("clip"),
+        "{s}"
     );
-    let cookie = format!("Cookie: other=1; hexcal_token={token}\r\n");
-    let state = raw(port, "GET", "/state", &cookie);
+    let processed = |pose| Event::PoseProcessed {
+        pose,
+        points: Vec::new(),
+        need_views: Vec::new(),
+        held_out: false,
+    };
+    console.event(&processed(1));
+    assert_eq!(state(&url)["failures"], serde_json::json!([]));
+
+    // A device that has seen no pose after three calibration poses is a failure.
+    let blind = DeviceStats::new(&DeviceInfo {
+        name: "proj0".into(),
+        kind: DeviceKind::Projector,
+        width: 64,
+        height: 48,
+    });
+    let verdicts = console.verdicts();
+    let verdict = Verdict {
+        devices: vec![blind],
+        missing: vec!["proj0: coverage 0 %".into()],
+        ..Verdict::default()
+    };
+    verdicts(&verdict);
+    assert_eq!(state(&url)["failures"], serde_json::json!([]));
+    console.event(&processed(2));
+    console.event(&processed(3));
+    verdicts(&verdict);
+    let s = state(&url);
     assert!(
-        state.starts_with("HTTP/1.1 200") && state.contains("\"status\""),
-        "{state}"
+        s["failures"][0]
+            .as_str()
+            .unwrap()
+            .starts_with("proj0 has not seen the board in 3 poses"),
+        "{s}"
     );
-    // On loopback no token is asked for (the first test): only this machine reaches it.
-    let local = Console::start("127.0.0.1:0", &[], false).unwrap();
-    assert!(!local.url().contains("token"), "{}", local.url());
+
+    // Finish before done: taken, with what is not yet met; the run hears it.
+    assert_eq!(request(&url, "POST", "/finish").0, 200);
+    assert!(finishes.try_recv().is_ok());
+    let s = state(&url);
+    let said = s["finishing"].as_str().unwrap();
+    assert!(
+        said.starts_with("Finish before done") && said.contains("proj0: coverage 0 %"),
+        "{s}"
+    );
+    // The calibration leaves a device out: said as a failure naming it and exit 2.
+    console.ended(Ok(&["proj0".to_string()]));
+    let s = state(&url);
+    let last = s["failures"].as_array().unwrap().last().unwrap().clone();
+    assert!(
+        last.as_str().unwrap().contains("leaves out proj0")
+            && last.as_str().unwrap().contains("exit 2"),
+        "{s}"
+    );
 }
