@@ -296,7 +296,8 @@ impl CalibrationFile {
 
     /// The first problem of a calibration file: the JSON path and what is wrong. Devices within
     /// [`hexcal_core::limits::MAX_DEVICES`] with unique names, models as
-    /// [`CameraModel::check`] requires, finite poses and figures, and a reference among them.
+    /// [`CameraModel::check`] requires, poses as [`hexcal_core::limits::rigid`] requires,
+    /// finite figures, and a reference among them.
     pub fn check(&self) -> Result<(), ValidationError> {
         use hexcal_core::limits;
         limits::count(self.devices.len(), limits::MAX_DEVICES, "devices")
@@ -312,8 +313,7 @@ impl CalibrationFile {
                 ));
             }
             d.model().check().map_err(|e| e.map_at(at))?;
-            limits::finite(&d.pose.rvec).map_err(|m| m.at(at("pose.rvec")))?;
-            limits::finite(&d.pose.tvec).map_err(|m| m.at(at("pose.tvec")))?;
+            limits::rigid(&d.pose.rvec, &d.pose.tvec).map_err(|e| e.within(at("pose")))?;
             limits::count(
                 d.lens_std.len(),
                 hexcal_core::camera::LENS_PARAM_COUNT,
@@ -329,8 +329,8 @@ impl CalibrationFile {
                 format!("{:?} is none of the devices", self.reference),
             ));
         }
-        limits::finite(&self.front_back.rvec).map_err(|m| m.at("front_back.rvec"))?;
-        limits::finite(&self.front_back.tvec).map_err(|m| m.at("front_back.tvec"))?;
+        limits::rigid(&self.front_back.rvec, &self.front_back.tvec)
+            .map_err(|e| e.within("front_back"))?;
         limits::finite(&self.bend).map_err(|m| m.at("bend"))?;
         limits::finite(&[self.bend_scale, self.sigma]).map_err(|m| m.at("sigma"))
     }
