@@ -131,7 +131,7 @@ fn non_finite_values_are_refused() {
     refused(
         &run,
         &[&format!(
-            "fx.toml:{line}: projector[0].sim.intrinsics.fx: NaN is not a positive focal length"
+            "fx.toml:{line}: projector[0].sim.intrinsics.fx: NaN is not a focal length in [1, 1e7] px"
         )],
     );
     let mut c = correspondences();

@@ -802,6 +802,11 @@ impl StackReader {
         }
     }
 
+    /// The stack folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
     /// Full scale of the samples (2^bits − 1).
     pub fn full_scale(&self) -> f32 {
         ((1u32 << self.info.bits) - 1) as f32

@@ -128,10 +128,19 @@ pub fn image_size(width: u32, height: u32) -> Result<(), Invalid> {
     Ok(())
 }
 
+/// A number as a refusal shows it: plainly, or as `1e308` when very large or small (Rust
+/// writes every digit of a large `f64`).
+pub fn shown(v: f64) -> String {
+    match v != 0.0 && v.is_finite() && !(1e-6..1e9).contains(&v.abs()) {
+        true => format!("{v:e}"),
+        false => format!("{v}"),
+    }
+}
+
 /// `Err` unless every value is finite.
 pub fn finite(values: &[f64]) -> Result<(), Invalid> {
     match values.iter().find(|v| !v.is_finite()) {
-        Some(v) => Err(Invalid(format!("{v} is not a finite number"))),
+        Some(v) => Err(Invalid(format!("{} is not a finite number", shown(*v)))),
         None => Ok(()),
     }
 }
@@ -139,7 +148,11 @@ pub fn finite(values: &[f64]) -> Result<(), Invalid> {
 /// `Err` unless `v` is finite and in `[0, max]`.
 pub fn non_negative(v: f64, max: f64) -> Result<(), Invalid> {
     if !(v.is_finite() && (0.0..=max).contains(&v)) {
-        return Err(Invalid(format!("{v} is not a number in [0, {max}]")));
+        return Err(Invalid(format!(
+            "{} is not a number in [0, {}]",
+            shown(v),
+            shown(max)
+        )));
     }
     Ok(())
 }
@@ -147,7 +160,12 @@ pub fn non_negative(v: f64, max: f64) -> Result<(), Invalid> {
 /// `Err` unless `v` is finite and in `[min, max]`.
 pub fn within(v: f64, min: f64, max: f64) -> Result<(), Invalid> {
     if !(v.is_finite() && (min..=max).contains(&v)) {
-        return Err(Invalid(format!("{v} is not a number in [{min}, {max}]")));
+        return Err(Invalid(format!(
+            "{} is not a number in [{}, {}]",
+            shown(v),
+            shown(min),
+            shown(max)
+        )));
     }
     Ok(())
 }
@@ -159,15 +177,17 @@ pub fn within(v: f64, min: f64, max: f64) -> Result<(), Invalid> {
 pub fn rigid(rvec: &[f64; 3], tvec: &[f64; 3]) -> Result<(), crate::ValidationError> {
     finite(rvec).map_err(|m| m.at("rvec"))?;
     finite(tvec).map_err(|m| m.at("tvec"))?;
-    let norm = |v: &[f64; 3]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let norm = |v: &[f64; 3]| v[0].hypot(v[1]).hypot(v[2]);
     let angle = norm(rvec);
     if angle > std::f64::consts::TAU + 1e-9 {
+        let angle = shown(angle);
         return Err(Invalid(format!("a rotation of {angle} rad: at most 2π")).at("rvec"));
     }
     let distance = norm(tvec);
     if distance > MAX_DISTANCE_MM {
         return Err(Invalid(format!(
-            "a translation of {distance:e} mm: at most {MAX_DISTANCE_MM:e} mm"
+            "a translation of {} mm: at most {MAX_DISTANCE_MM:e} mm",
+            shown(distance)
         ))
         .at("tvec"));
     }
@@ -248,6 +268,10 @@ mod tests {
         assert!(device_name("cam 0").is_ok());
         assert!(within(3.0, 1.0, 3.0).is_ok() && within(0.5, 1.0, 3.0).is_err());
         assert!(within(f64::NAN, 1.0, 3.0).is_err());
+        assert_eq!(shown(1e308), "1e308");
+        assert_eq!(shown(1e-320), "1e-320");
+        assert_eq!(shown(-2.5), "-2.5");
+        assert_eq!(shown(f64::NAN), "NaN");
         assert!(rigid(&[0.0, 3.0, 0.0], &[1e5, 0.0, 0.0]).is_ok());
         let e = rigid(&[0.0; 3], &[1e308, 0.0, 0.0]).unwrap_err();
         assert_eq!(e.at, "tvec");

@@ -57,7 +57,7 @@ pub fn inside(folder: &Path, relative: &str) -> Result<PathBuf, Invalid> {
         return Err(Invalid(format!(
             "{relative:?} is not a path inside {} (relative, no .., at most \
              {MAX_PATH_BYTES} bytes)",
-            shown(folder)
+            folder_shown(folder)
         )));
     }
     let path = folder.join(relative);
@@ -77,7 +77,7 @@ pub fn contained(folder: &Path, path: &Path) -> Result<(), Invalid> {
         return Err(Invalid(format!(
             "{} leads out of {} (to {})",
             path.display(),
-            shown(folder),
+            folder_shown(folder),
             real.display()
         )));
     }
@@ -85,7 +85,7 @@ pub fn contained(folder: &Path, path: &Path) -> Result<(), Invalid> {
 }
 
 /// A folder as a refusal shows it (`the current folder` for the empty path).
-fn shown(folder: &Path) -> String {
+fn folder_shown(folder: &Path) -> String {
     match folder.as_os_str().is_empty() {
         true => "the current folder".into(),
         false => folder.display().to_string(),

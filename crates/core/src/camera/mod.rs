@@ -64,7 +64,8 @@ impl Intrinsics {
                 return Err(ValidationError::new(
                     field,
                     format!(
-                        "{v} is not a focal length in [{MIN_FOCAL_PX}, {MAX_FOCAL_PX:e}] px"
+                        "{} is not a focal length in [{MIN_FOCAL_PX}, {MAX_FOCAL_PX:e}] px",
+                        crate::limits::shown(v)
                     ),
                 ));
             }
