@@ -363,8 +363,8 @@ pub fn calibrate_file(
     stereo: &[String],
 ) -> Result<FileOutcome, AppError> {
     let c = read_correspondences(input)?;
-    let _lock = crate::lock::FolderLock::acquire(out)?;
     let board = Board::resolve_in(&c.board, input, "board")?;
+    let _lock = crate::lock::FolderLock::acquire(out)?;
     if let Some(name) = reference {
         let names = c.devices.iter().map(|d| d.name.as_str());
         options.bundle.reference = device_index(input, names, name)?;
