@@ -413,3 +413,20 @@ fn rig_values_name_their_file_line_and_range() {
         "camera[0].sim.pose.eye: 1e300 is not a number in [-1000000, 1000000]",
     );
 }
+
+#[test]
+fn a_board_file_travels_with_the_files_that_name_it() {
+    let dir = scratch("board-in-folder");
+    let hex600 = hexcal::board::Board::hex600();
+    let named = hexcal::app::calibrate::board_in_folder(&hex600, &dir).unwrap();
+    assert_eq!(named, "hex600");
+    assert!(!dir.join("board.toml").exists(), "a built-in board is named");
+    let mut own = hex600.clone();
+    own.name = "hex600".into();
+    own.pitch = 21.0;
+    let named = hexcal::app::calibrate::board_in_folder(&own, &dir).unwrap();
+    assert_eq!(named, "board.toml");
+    let file = dir.join("held-out.json");
+    let read = hexcal::board::Board::resolve_in(&named, &file, "board").unwrap();
+    assert_eq!(read, own);
+}
