@@ -414,7 +414,8 @@ fn names_that_become_paths_stay_in_their_folder() {
     let out = dir.join("deep/out");
     // A scene's name is the output files' name.
     for bad in ["../../escaped", "/tmp/hexcal-escaped"] {
-        let scene = hexcal::sim::DEFAULT_SCENE.replace("name = \"view\"", &format!("name = {bad:?}"));
+        let scene =
+            hexcal::sim::DEFAULT_SCENE.replace("name = \"view\"", &format!("name = {bad:?}"));
         assert_ne!(scene, hexcal::sim::DEFAULT_SCENE);
         let path = file(&dir, "scene.toml", &scene);
         let run = hexcal(&[
@@ -426,7 +427,10 @@ fn names_that_become_paths_stay_in_their_folder() {
         ]);
         refused(
             &run,
-            &["scene.toml name: ", &format!("{bad:?} is not a plain file name")],
+            &[
+                "scene.toml name: ",
+                &format!("{bad:?} is not a plain file name"),
+            ],
         );
         assert!(!dir.join("escaped.png").exists() && !out.exists());
     }
@@ -435,14 +439,21 @@ fn names_that_become_paths_stay_in_their_folder() {
     // board or a file inside that file's folder: a valid board file one folder up is not.
     let inner = dir.join("inner");
     std::fs::create_dir_all(&inner).unwrap();
-    file(&dir, "board.toml", &hexcal::board::Board::hex600().to_toml());
+    file(
+        &dir,
+        "board.toml",
+        &hexcal::board::Board::hex600().to_toml(),
+    );
     let outside = dir.join("board.toml");
     for bad in ["../board.toml", outside.to_str().unwrap()] {
         let mut c = correspondences();
         c.board = bad.into();
         refused(
             &calibrate(&inner, &c),
-            &["corr.json: board: ", &format!("{bad:?} is not a path inside")],
+            &[
+                "corr.json: board: ",
+                &format!("{bad:?} is not a path inside"),
+            ],
         );
         assert!(!inner.join("out").exists());
     }
@@ -532,12 +543,15 @@ fn verify_refuses_nonsense_and_skips_degenerate_pairs() {
     let dir = scratch("refuse-verify");
     let c = correspondences();
     let run = calibrate(&dir, &c);
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
     let input = dir.join("corr.json");
-    let good: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("out/calibration.json")).unwrap(),
-    )
-    .unwrap();
+    let good: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("out/calibration.json")).unwrap())
+            .unwrap();
     let with = |name: &str, edit: &dyn Fn(&mut serde_json::Value)| {
         let mut v = good.clone();
         edit(&mut v);
@@ -584,7 +598,9 @@ fn verify_refuses_nonsense_and_skips_degenerate_pairs() {
         &["corr.json: no device pair gives figures", "no baseline"],
     );
     // Values no calibration has: refused naming the calibration file and the value.
-    let far = with("far.json", &|v| v["devices"][0]["pose"]["tvec"][0] = 1e308.into());
+    let far = with("far.json", &|v| {
+        v["devices"][0]["pose"]["tvec"][0] = 1e308.into()
+    });
     refused(
         &verify(&far, &input),
         &["far.json: devices[0].pose.tvec: a translation of 1e308 mm"],

@@ -281,8 +281,14 @@ fn a_stack_that_does_not_belong_is_refused_by_name() {
     let mut deeper = stack_of(&info, 0);
     deeper.bits = 16;
     let err = error_of(&deeper);
-    assert!(err.starts_with(&format!("{}: width: ", file.display())), "{err}");
-    assert!(err.contains("16 bits; camera \"cam0\" of the dataset is"), "{err}");
+    assert!(
+        err.starts_with(&format!("{}: width: ", file.display())),
+        "{err}"
+    );
+    assert!(
+        err.contains("16 bits; camera \"cam0\" of the dataset is"),
+        "{err}"
+    );
     let mut other = stack_of(&info, 0);
     let rig = format!("{SMALL_RIG}[sequence]\nfringe_counts = [7, 9]\n");
     let rig = hexcal::rig::file::RigFile::parse(&rig, "small.toml").unwrap();
@@ -329,8 +335,14 @@ fn pose_json_values_are_checked() {
     );
     refused(&|p| p.cameras.clear(), "cameras: no camera");
     refused(&|p| p.pose = 3, "pose: 3 in the folder of pose 0");
-    refused(&|p| p.seconds = 1e308, "seconds: 1e308 is not a number in [0, 86400]");
-    refused(&|p| p.timeline[4][1] = -2.0, "timeline[4][1]: -2 is not a number");
+    refused(
+        &|p| p.seconds = 1e308,
+        "seconds: 1e308 is not a number in [0, 86400]",
+    );
+    refused(
+        &|p| p.timeline[4][1] = -2.0,
+        "timeline[4][1]: -2 is not a number",
+    );
     refused(
         &|p| p.timeline[0][3] = 0.5,
         "timeline[0][3]: 0.5 retries is not a whole number",
@@ -420,7 +432,10 @@ fn a_board_file_travels_with_the_files_that_name_it() {
     let hex600 = hexcal::board::Board::hex600();
     let named = hexcal::app::calibrate::board_in_folder(&hex600, &dir).unwrap();
     assert_eq!(named, "hex600");
-    assert!(!dir.join("board.toml").exists(), "a built-in board is named");
+    assert!(
+        !dir.join("board.toml").exists(),
+        "a built-in board is named"
+    );
     let mut own = hex600.clone();
     own.name = "hex600".into();
     own.pitch = 21.0;

@@ -53,7 +53,10 @@ pub fn write(corpus: &Path) -> io::Result<()> {
     )?;
     for (from, to) in [
         ("rigs/sim-turntable.toml", "script/sim-turntable.toml"),
-        ("rigs/turntable-example.toml", "script/turntable-example.toml"),
+        (
+            "rigs/turntable-example.toml",
+            "script/turntable-example.toml",
+        ),
     ] {
         let text = std::fs::read_to_string(repo.join(from))?;
         std::fs::create_dir_all(corpus.join("script"))?;

@@ -333,8 +333,12 @@ impl PoseFile for PoseInfo {
         limits::non_negative(self.seconds, limits::MAX_POSE_SECONDS)
             .map_err(|m| m.at("seconds"))?;
         let frames = info.sequence.frame_count();
-        limits::count(self.timeline.len(), frames, "timeline entries (frames of the sequence)")
-            .map_err(|m| m.at("timeline"))?;
+        limits::count(
+            self.timeline.len(),
+            frames,
+            "timeline entries (frames of the sequence)",
+        )
+        .map_err(|m| m.at("timeline"))?;
         for (i, t) in self.timeline.iter().enumerate() {
             for (j, v) in t[..3].iter().enumerate() {
                 limits::non_negative(*v, 1e3 * limits::MAX_POSE_SECONDS)

@@ -242,8 +242,8 @@ pub fn verify<'py>(
                     })
             })
             .collect::<PyResult<Vec<_>>>()?;
-        let board = Board::resolve_in(&c.board, std::path::Path::new(&origin), "board")
-            .map_err(error)?;
+        let board =
+            Board::resolve_in(&c.board, std::path::Path::new(&origin), "board").map_err(error)?;
         let verification = py.detach(|| verify_pairs(&board, &devices, &c.views));
         let checks = verification.checks;
         if checks.is_empty() {

@@ -591,7 +591,10 @@ mod verification {
                 .filter(|k| (k.first.as_str(), k.second.as_str()) == (c, p))
                 .count()
         };
-        assert!(both(camera, projector) > 0, "the pair is checked when sound");
+        assert!(
+            both(camera, projector) > 0,
+            "the pair is checked when sound"
+        );
         // A projector placed at its camera's pose: no baseline.
         let mut devices = cal.devices.clone();
         devices[index(projector)].pose = devices[index(camera)].pose;
@@ -605,13 +608,20 @@ mod verification {
             .iter()
             .filter(|s| (s.first.as_str(), s.second.as_str()) == (camera, projector));
         assert_eq!(noted.count(), both(camera, projector));
-        assert!(v.skipped[0].to_string().contains("no baseline"), "{}", v.skipped[0]);
+        assert!(
+            v.skipped[0].to_string().contains("no baseline"),
+            "{}",
+            v.skipped[0]
+        );
         // A device a long way off (what a pose of 1e308 mm gives): its pairs are skipped,
         // no figure is NaN, and every other pair is still checked.
         let mut devices = cal.devices.clone();
         devices[index(camera)].pose.translation.vector.x = 1e308;
         let v = verify(&rig.board, &devices, &test);
-        assert!(v.checks.iter().all(|k| k.first != camera && k.second != camera));
+        assert!(v
+            .checks
+            .iter()
+            .all(|k| k.first != camera && k.second != camera));
         assert!(v
             .checks
             .iter()

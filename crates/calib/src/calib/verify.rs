@@ -167,15 +167,16 @@ fn check_pair(
         pose,
         reason,
     };
-    Some(
-        pair_figures(board, devices, (i, j), second_is_camera, side, pose, pairs)
-            .map_err(skipped),
-    )
+    Some(pair_figures(board, devices, (i, j), second_is_camera, side, pose, pairs).map_err(skipped))
 }
 
 /// `Err` unless the triangulated `points` lie in front of devices `i` and `j` and their
 /// baseline subtends at least [`MIN_TRIANGULATION_DEG`] there.
-fn triangulable(devices: &[Device], (i, j): (usize, usize), points: &[Point3<f64>]) -> Result<(), String> {
+fn triangulable(
+    devices: &[Device],
+    (i, j): (usize, usize),
+    points: &[Point3<f64>],
+) -> Result<(), String> {
     let centre = |d: &Device| d.pose.inverse() * Point3::origin();
     let (a, b) = (centre(&devices[i]), centre(&devices[j]));
     let baseline = (a - b).norm();
@@ -185,7 +186,11 @@ fn triangulable(devices: &[Device], (i, j): (usize, usize), points: &[Point3<f64
         ));
     }
     for d in [i, j] {
-        if points.iter().any(|p| !((devices[d].pose * p).z > 0.0)) {
+        let behind = |p: &Point3<f64>| {
+            let z = (devices[d].pose * p).z;
+            z.is_nan() || z <= 0.0
+        };
+        if points.iter().any(behind) {
             return Err(format!(
                 "the triangulated circles are not in front of {}",
                 devices[d].name
@@ -196,7 +201,7 @@ fn triangulable(devices: &[Device], (i, j): (usize, usize), points: &[Point3<f64
     let centroid = points.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
     let (ca, cb) = (centroid - a.coords, centroid - b.coords);
     let angle = ca.angle(&cb).to_degrees();
-    if !(angle >= MIN_TRIANGULATION_DEG) {
+    if angle.is_nan() || angle < MIN_TRIANGULATION_DEG {
         return Err(format!(
             "a baseline of {baseline:.1} mm subtends {angle:.2}° at the board (at least \
              {MIN_TRIANGULATION_DEG}°)"
@@ -249,7 +254,8 @@ fn pair_figures(
         // centre (§7), so the raw rays meet there: compare with that point's nominal
         // position, the circle centre moved by its offset on the board (found with the
         // fitted pose; the ~0.1 mm offset barely depends on the pose's small error).
-        let ref_from_side = fit_rigid(&nominal, &first).ok_or_else(no_fit)? * board.side_transform(side);
+        let ref_from_side =
+            fit_rigid(&nominal, &first).ok_or_else(no_fit)? * board.side_transform(side);
         let normal = ref_from_side.rotation * Vector3::z();
         let q = ref_from_side.translation.vector;
         let moved = pairs

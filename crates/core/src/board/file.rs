@@ -258,8 +258,13 @@ mod tests {
             ("/etc/passwd", "is not a path inside"),
             ("nothing.toml", "neither a built-in board"),
         ] {
-            let e = Board::resolve_in(bad, &file, "board").unwrap_err().to_string();
-            assert!(e.starts_with(&format!("{}: board: ", file.display())), "{e}");
+            let e = Board::resolve_in(bad, &file, "board")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.starts_with(&format!("{}: board: ", file.display())),
+                "{e}"
+            );
             assert!(e.contains(says), "{e}");
         }
         std::fs::remove_dir_all(&dir).unwrap();

@@ -912,7 +912,10 @@ fn check_truth(
         .check()
         .map_err(|e| e.map_at(|f| at(&format!("sim.distortion.{f}"))))?;
     let far = limits::MAX_DISTANCE_MM;
-    for (key, point) in [("sim.pose.eye", t.pose.eye), ("sim.pose.target", t.pose.target)] {
+    for (key, point) in [
+        ("sim.pose.eye", t.pose.eye),
+        ("sim.pose.target", t.pose.target),
+    ] {
         for v in point {
             limits::within(v, -far, far).map_err(|m| m.at(at(key)))?;
         }
