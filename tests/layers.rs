@@ -372,6 +372,7 @@ const MODULES: &[(&str, &[&str])] = &[
             "tomlspan",
             "invalid",
             "limits",
+            "paths",
             "board",
             "camera",
             "pattern",

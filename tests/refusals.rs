@@ -131,7 +131,7 @@ fn non_finite_values_are_refused() {
     refused(
         &run,
         &[&format!(
-            "fx.toml:{line}: projector[0].sim.intrinsics.fx: NaN is not a positive focal length"
+            "fx.toml:{line}: projector[0].sim.intrinsics.fx: NaN is not a focal length in [1, 1e7] px"
         )],
     );
     let mut c = correspondences();
@@ -405,6 +405,214 @@ fn closed_pipes_never_panic() {
     assert_eq!(
         hexcal(&["no-such-command"], closed_pipe(), closed_pipe()),
         Some(1)
+    );
+}
+
+#[test]
+fn names_that_become_paths_stay_in_their_folder() {
+    let dir = scratch("refuse-traversal");
+    let out = dir.join("deep/out");
+    // A scene's name is the output files' name.
+    for bad in ["../../escaped", "/tmp/hexcal-escaped"] {
+        let scene =
+            hexcal::sim::DEFAULT_SCENE.replace("name = \"view\"", &format!("name = {bad:?}"));
+        assert_ne!(scene, hexcal::sim::DEFAULT_SCENE);
+        let path = file(&dir, "scene.toml", &scene);
+        let run = hexcal(&[
+            "simulate",
+            "--scene",
+            path.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        refused(
+            &run,
+            &[
+                "scene.toml name: ",
+                &format!("{bad:?} is not a plain file name"),
+            ],
+        );
+        assert!(!dir.join("escaped.png").exists() && !out.exists());
+    }
+    assert!(!Path::new("/tmp/hexcal-escaped.png").exists());
+    // A board named by a correspondences file, a dataset or a held-out file is a built-in
+    // board or a file inside that file's folder: a valid board file one folder up is not.
+    let inner = dir.join("inner");
+    std::fs::create_dir_all(&inner).unwrap();
+    file(
+        &dir,
+        "board.toml",
+        &hexcal::board::Board::hex600().to_toml(),
+    );
+    let outside = dir.join("board.toml");
+    for bad in ["../board.toml", outside.to_str().unwrap()] {
+        let mut c = correspondences();
+        c.board = bad.into();
+        refused(
+            &calibrate(&inner, &c),
+            &[
+                "corr.json: board: ",
+                &format!("{bad:?} is not a path inside"),
+            ],
+        );
+        assert!(!inner.join("out").exists());
+    }
+    let mut c = correspondences();
+    c.board = "hex601".into();
+    refused(
+        &calibrate(&inner, &c),
+        &[&format!(
+            "corr.json: board: \"hex601\" is neither a built-in board (hex600) nor a board file \
+             in {}",
+            inner.display()
+        )],
+    );
+    let rig = hexcal::rig::file::RigFile::parse(SMALL_RIG, "small.toml").unwrap();
+    let mut info = rig.dataset_info(&rig.sequence().unwrap());
+    info.board = "../board.toml".into();
+    hexcal::dataset::Dataset::create_or_resume(&inner.join("data"), info).unwrap();
+    let run = hexcal(&[
+        "calibrate",
+        inner.join("data").to_str().unwrap(),
+        "--out",
+        inner.join("cal").to_str().unwrap(),
+    ]);
+    refused(
+        &run,
+        &["data/dataset.json: board: \"../board.toml\" is not a path inside"],
+    );
+}
+
+#[test]
+fn a_frame_linked_out_of_its_stack_is_refused() {
+    let dir = scratch("refuse-symlink");
+    let stack = dir.join("cam0");
+    std::fs::create_dir_all(&stack).unwrap();
+    let rig = hexcal::rig::file::RigFile::parse(SMALL_RIG, "small.toml").unwrap();
+    let info = rig.dataset_info(&rig.sequence().unwrap());
+    let n = info.sequence.frame_count();
+    let s = hexcal::dataset::StackInfo {
+        camera: "cam0".into(),
+        width: 960,
+        height: 600,
+        bits: 8,
+        sequence: info.sequence.clone(),
+        frames: (0..n)
+            .map(|k| hexcal::dataset::FrameEntry {
+                index: k,
+                file: format!("frame-{k:03}.png"),
+                counter: k as u64,
+                timestamp_ns: 0,
+                exposure_us: 1.0,
+            })
+            .collect(),
+    };
+    file(&stack, "stack.json", &serde_json::to_string(&s).unwrap());
+    // A readable 960 × 600 PNG outside the stack folder, linked in as frame 0.
+    let secret = dir.join("secret.png");
+    image::GrayImage::new(960, 600).save(&secret).unwrap();
+    let link = stack.join("frame-000.png");
+    std::os::unix::fs::symlink(&secret, &link).unwrap();
+    let run = hexcal(&[
+        "decode",
+        stack.to_str().unwrap(),
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    refused(
+        &run,
+        &[
+            "camera cam0, frame 0 (",
+            &format!("{} leads out of {}", link.display(), stack.display()),
+        ],
+    );
+}
+
+/// `hexcal verify --calibration CAL INPUT`.
+fn verify(calibration: &Path, input: &Path) -> Output {
+    hexcal(&[
+        "verify",
+        "--calibration",
+        calibration.to_str().unwrap(),
+        input.to_str().unwrap(),
+    ])
+}
+
+#[test]
+fn verify_refuses_nonsense_and_skips_degenerate_pairs() {
+    let dir = scratch("refuse-verify");
+    let c = correspondences();
+    let run = calibrate(&dir, &c);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let input = dir.join("corr.json");
+    let good: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("out/calibration.json")).unwrap())
+            .unwrap();
+    let with = |name: &str, edit: &dyn Fn(&mut serde_json::Value)| {
+        let mut v = good.clone();
+        edit(&mut v);
+        file(&dir, name, &v.to_string())
+    };
+    let sound = verify(&dir.join("out/calibration.json"), &input);
+    let table = String::from_utf8_lossy(&sound.stdout).into_owned();
+    assert!(sound.status.success(), "{table}");
+    let rows = |t: &str, first: &str, second: &str| {
+        t.lines()
+            .filter(|l| l.split_whitespace().take(2).eq([first, second]))
+            .count()
+    };
+    let pairs = rows(&table, "cam0", "proj0");
+    assert!(pairs > 0, "{table}");
+    // proj0 placed at cam0's pose: no baseline; skipped with a note, never reported.
+    let index = |name: &str| {
+        let devices = good["devices"].as_array().unwrap();
+        devices.iter().position(|d| d["name"] == name).unwrap()
+    };
+    let (cam0, proj0) = (index("cam0"), index("proj0"));
+    let coaxial = with("coaxial.json", &|v| {
+        v["devices"][proj0]["pose"] = v["devices"][cam0]["pose"].clone();
+    });
+    let run = verify(&coaxial, &input);
+    let text = String::from_utf8_lossy(&run.stdout).into_owned();
+    assert!(run.status.success(), "{text}");
+    assert_eq!(rows(&text, "cam0", "proj0"), 0, "{text}");
+    let notes = text
+        .lines()
+        .filter(|l| l.starts_with("note: cam0–proj0 at pose "))
+        .filter(|l| l.contains("no baseline to triangulate over"))
+        .count();
+    assert_eq!(notes, pairs, "{text}");
+    assert!(!text.contains("NaN"), "{text}");
+    // Every device at one place: nothing left to report.
+    let one_place = with("one-place.json", &|v| {
+        for d in v["devices"].as_array_mut().unwrap() {
+            d["pose"] = serde_json::json!({"rvec": [0.0, 0.0, 0.0], "tvec": [0.0, 0.0, 0.0]});
+        }
+    });
+    refused(
+        &verify(&one_place, &input),
+        &["corr.json: no device pair gives figures", "no baseline"],
+    );
+    // Values no calibration has: refused naming the calibration file and the value.
+    let far = with("far.json", &|v| {
+        v["devices"][0]["pose"]["tvec"][0] = 1e308.into()
+    });
+    refused(
+        &verify(&far, &input),
+        &["far.json: devices[0].pose.tvec: a translation of 1e308 mm"],
+    );
+    let tiny = with("tiny.json", &|v| {
+        v["devices"][proj0]["intrinsics"]["fx"] = 1e-320.into()
+    });
+    refused(
+        &verify(&tiny, &input),
+        &[&format!(
+            "tiny.json: devices[{proj0}].intrinsics.fx: 1e-320 is not a focal length"
+        )],
     );
 }
 

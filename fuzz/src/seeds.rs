@@ -1,6 +1,7 @@
 //! The generated part of the seed corpus (`hexcal-fuzz seed`): small, valid instances of
 //! every JSON file hexcal reads, protocol frames, images. The TOML seeds are copies of the
-//! repository's rig, board and scene files (`rigs/`) and `corpus/rig/small.toml`.
+//! repository's rig, board and scene files (`rigs/`) and `corpus/rig/small.toml`; the
+//! script seeds are the positioner and script sections of its scripted rigs.
 
 use hexcal::calib::solve::{calibrate, CalibrateOptions};
 use hexcal::calib::synthetic::SyntheticRig;
@@ -50,10 +51,38 @@ pub fn write(corpus: &Path) -> io::Result<()> {
         corpus.join("scene/default.toml"),
         hexcal::sim::DEFAULT_SCENE,
     )?;
+    for (from, to) in [
+        ("rigs/sim-turntable.toml", "script/sim-turntable.toml"),
+        (
+            "rigs/turntable-example.toml",
+            "script/turntable-example.toml",
+        ),
+    ] {
+        let text = std::fs::read_to_string(repo.join(from))?;
+        std::fs::create_dir_all(corpus.join("script"))?;
+        std::fs::write(corpus.join(to), script_section(&text))?;
+    }
     correspondences(corpus)?;
     dataset_files(corpus)?;
     firmware(corpus)?;
     images(corpus)
+}
+
+/// The positioners and script of a rig file: from its first `[[positioner]]` (or
+/// `[[script]]`) to its first device table.
+fn script_section(rig: &str) -> &str {
+    let start = ["[[positioner]]", "[[script]]"]
+        .iter()
+        .filter_map(|t| rig.find(t))
+        .min()
+        .unwrap_or(rig.len());
+    let rest = &rig[start..];
+    let end = ["[[camera]]", "[[projector]]", "[trigger]"]
+        .iter()
+        .filter_map(|t| rest.find(t))
+        .min()
+        .unwrap_or(rest.len());
+    &rest[..end]
 }
 
 /// A small synthetic correspondences file and the calibration file it gives.

@@ -31,6 +31,13 @@ pub const TARGETS: &[Target] = &[
         run: rig,
     },
     Target {
+        name: "script",
+        about: "a rig file's positioners and capture script (after a fixed rig): parse, check, \
+                unroll and plan",
+        parser: true,
+        run: script,
+    },
+    Target {
         name: "board",
         about: "board file (TOML): parse, validate, lattice, circles and marker cells",
         parser: true,
@@ -151,6 +158,30 @@ fn rig(data: &[u8]) -> String {
         }
     }
     outcome(&sequence)
+}
+
+/// The rig a `script` input follows: the small simulated rig (seven board poses: a script
+/// of more captures needs a sim positioner to move the board).
+const SCRIPT_RIG: &str = include_str!("../corpus/rig/small.toml");
+
+fn script(data: &[u8]) -> String {
+    let text = format!("{SCRIPT_RIG}\n{}", String::from_utf8_lossy(data));
+    let rig = match hexcal::rig::file::RigFile::parse(&text, "rig.toml") {
+        Ok(r) => r,
+        Err(e) => return class(&e.to_string()),
+    };
+    let plan = hexcal::app::script::plan_of(&rig);
+    if let Ok(Some(plan)) = &plan {
+        assert!(
+            plan.duration_s.is_finite() && plan.duration_s >= 0.0,
+            "a checked script plans {} s",
+            plan.duration_s
+        );
+        for step in &plan.steps {
+            let _ = serde_json::to_string(step).expect("a planned step serialises");
+        }
+    }
+    outcome(&plan)
 }
 
 fn board(data: &[u8]) -> String {

@@ -10,7 +10,7 @@ use crate::calib::diagnostics::{Diagnosis, Target};
 use crate::calib::geometric::{calibrate_registering, GeometricParams};
 pub use crate::calib::solve::CalibrateOptions;
 use crate::calib::solve::Calibration;
-use crate::calib::verify::{verify, PairCheck};
+use crate::calib::verify::{verify, Verification};
 use crate::dataset::{Dataset, DatasetInfo};
 use crate::observations::CameraView;
 use crate::observations::DeviceKind;
@@ -108,13 +108,20 @@ pub(crate) fn finish(
     let geometric = GeometricParams::default();
     let poses = held_from.min(all.len());
     let cal = calibrate_registering(board, devices, poses, &used, options, &geometric)?;
-    let verification = verify_held_out(board, &cal, &held, held_from);
+    let Verification {
+        checks: verification,
+        skipped,
+    } = verify_held_out(board, &cal, &held, held_from);
+    let mut warnings = warnings.to_vec();
+    warnings.extend(skipped.iter().map(|s| format!("verification: {s}")));
+    let warnings = &warnings[..];
     let diagnosis = Diagnosis::of(&cal, &verification, warnings, &target);
     std::fs::create_dir_all(dir).map_err(AppError::io(dir))?;
     let mut files = crate::report::write_outputs(&cal, &diagnosis.rows, dir, stereo)?.files;
     if !held.is_empty() {
         let path = dir.join(HELD_OUT_FILE);
-        let text = held_out_file(board, devices, &held, held_from, all.len());
+        let board_value = board_in_folder(board, dir)?;
+        let text = held_out_file(&board_value, devices, &held, held_from, all.len());
         crate::atomic::write(&path, text.as_bytes()).map_err(AppError::io(&path))?;
         files.push(path);
     }
@@ -156,9 +163,24 @@ pub(crate) fn finish(
 /// `hexcal verify DIR`.
 pub const HELD_OUT_FILE: &str = "held-out.json";
 
-/// The held-out views as a correspondences file (devices as given, poses renumbered from 0).
+/// The name of the board file a board file written into `dir` is known by.
+pub const BOARD_FILE: &str = "board.toml";
+
+/// The `board` value a file written into `dir` gives for `board`: a built-in board's name,
+/// else [`BOARD_FILE`], written into `dir` (files name boards inside their own folder).
+pub fn board_in_folder(board: &Board, dir: &Path) -> Result<String, AppError> {
+    if Board::builtin(&board.name).as_ref() == Some(board) {
+        return Ok(board.name.clone());
+    }
+    let path = dir.join(BOARD_FILE);
+    crate::atomic::write(&path, board.to_toml().as_bytes()).map_err(AppError::io(&path))?;
+    Ok(BOARD_FILE.into())
+}
+
+/// The held-out views as a correspondences file (devices as given, poses renumbered from 0;
+/// `board` the board value, [`board_in_folder`]).
 fn held_out_file(
-    board: &Board,
+    board: &str,
     devices: &[DeviceInfo],
     held: &[CameraView],
     held_from: usize,
@@ -172,7 +194,7 @@ fn held_out_file(
         })
         .collect();
     let c = Correspondences {
-        board: board.name.clone(),
+        board: board.to_owned(),
         devices: devices.to_vec(),
         poses: poses - held_from,
         views,
@@ -187,7 +209,7 @@ fn verify_held_out(
     cal: &Calibration,
     held: &[CameraView],
     held_from: usize,
-) -> Vec<PairCheck> {
+) -> Verification {
     let kept = |d: usize| cal.device_index.iter().position(|&i| i == d);
     let views: Vec<CameraView> = held
         .iter()
@@ -209,13 +231,14 @@ fn verify_held_out(
         .collect();
     let devices: Vec<Device> = cal.devices.clone();
     // Each check names its pose as the run numbered it (the held-out poses' real index).
-    verify(board, &devices, &views)
-        .into_iter()
-        .map(|k| PairCheck {
-            pose: k.pose + held_from,
-            ..k
-        })
-        .collect()
+    let mut verification = verify(board, &devices, &views);
+    for k in &mut verification.checks {
+        k.pose += held_from;
+    }
+    for k in &mut verification.skipped {
+        k.pose += held_from;
+    }
+    verification
 }
 
 /// `hexcal calibrate DATASET`: every complete pose's views (from `views.json`, or decoded
@@ -230,7 +253,7 @@ pub fn calibrate_dataset(
     events: &mut dyn FnMut(&Event),
 ) -> Result<Outcome, AppError> {
     let data = Dataset::open(root)?;
-    let board = Board::resolve(&data.info.board)?;
+    let board = Board::resolve_in(&data.info.board, &root.join("dataset.json"), "board")?;
     let devices = devices_of(&data.info);
     check_stereo(stereo, &devices)?;
     let poses = data.completed()?;
@@ -313,7 +336,7 @@ pub fn read_correspondences(path: &Path) -> Result<Correspondences, AppError> {
 /// The board a correspondences file names, its views checked against it (none on the back
 /// of a single-sided board); errors name `path`.
 fn board_of(c: &Correspondences, path: &Path) -> Result<Board, AppError> {
-    let board = Board::resolve(&c.board)?;
+    let board = Board::resolve_in(&c.board, path, "board")?;
     crate::observations::check_sides(&board, &c.views)
         .map_err(|e| AppError::Invalid(e.in_file(path)))?;
     Ok(board)
@@ -356,8 +379,8 @@ pub fn calibrate_file(
 ) -> Result<FileOutcome, AppError> {
     let c = read_correspondences(input)?;
     check_stereo(stereo, &c.devices)?;
-    let _lock = crate::lock::FolderLock::acquire(out)?;
     let board = board_of(&c, input)?;
+    let _lock = crate::lock::FolderLock::acquire(out)?;
     if let Some(name) = reference {
         let names = c.devices.iter().map(|d| d.name.as_str());
         options.bundle.reference = device_index(input, names, name)?;
@@ -391,7 +414,7 @@ pub fn calibrate_file(
 /// `calibration` is needed), a calibration folder or a run's folder (its `calibration/`);
 /// a folder gives its [`HELD_OUT_FILE`] and, unless `calibration` names another, its
 /// `calibration.json`.
-pub fn verify_input(input: &Path, calibration: Option<&Path>) -> Result<Vec<PairCheck>, AppError> {
+pub fn verify_input(input: &Path, calibration: Option<&Path>) -> Result<Verification, AppError> {
     if !input.is_dir() {
         let calibration = calibration.ok_or_else(|| {
             AppError::Input(format!(
@@ -419,8 +442,9 @@ pub fn verify_input(input: &Path, calibration: Option<&Path>) -> Result<Vec<Pair
 }
 
 /// The held-out poses of the correspondences file `input` triangulated with the devices of
-/// the calibration file `calibration`.
-pub fn verify_file(calibration: &Path, input: &Path) -> Result<Vec<PairCheck>, AppError> {
+/// the calibration file `calibration`; refused when no pair gives figures (naming why each
+/// pair gave none).
+pub fn verify_file(calibration: &Path, input: &Path) -> Result<Verification, AppError> {
     let text = crate::limits::read_text(calibration).map_err(AppError::io(calibration))?;
     let cal = crate::report::CalibrationFile::from_json(&text, &calibration.display().to_string())?;
     let c = read_correspondences(input)?;
@@ -449,14 +473,19 @@ pub fn verify_file(calibration: &Path, input: &Path) -> Result<Vec<PairCheck>, A
         })
         .collect::<Result<Vec<_>, AppError>>()?;
     let board = board_of(&c, input)?;
-    let checks = verify(&board, &devices, &c.views);
-    if checks.is_empty() {
-        return Err(AppError::Input(format!(
-            "{}: no device pair shares ten circles of a pose",
-            input.display()
-        )));
+    let verification = verify(&board, &devices, &c.views);
+    if verification.checks.is_empty() {
+        let why = match verification.skipped.first() {
+            None => "no device pair shares ten circles of a pose".to_string(),
+            Some(first) => format!(
+                "no device pair gives figures with the devices of {} ({} pairs; {first})",
+                calibration.display(),
+                verification.skipped.len()
+            ),
+        };
+        return Err(AppError::Input(format!("{}: {why}", input.display())));
     }
-    Ok(checks)
+    Ok(verification)
 }
 
 /// The devices of the dataset at `out` (of `hexcal run`) that its calibration
@@ -574,6 +603,10 @@ fn excluded(cal: &Calibration) -> Vec<String> {
 
 /// `hexcal verify`: [`verify_input`]'s checks as the verification table.
 pub fn verification_table(input: &Path, calibration: Option<&Path>) -> Result<String, AppError> {
-    let checks = verify_input(input, calibration)?;
-    Ok(crate::report::format_verification(&checks))
+    let verification = verify_input(input, calibration)?;
+    let mut table = crate::report::format_verification(&verification.checks);
+    for skipped in &verification.skipped {
+        table += &format!("note: {skipped}\n");
+    }
+    Ok(table)
 }

@@ -50,12 +50,21 @@ pub struct Prepared {
 }
 
 /// Lock the dataset folder `out` (one writer per folder), open the devices of `rig` and
-/// create or resume the dataset for it; the rig file is copied into the folder once.
+/// create or resume the dataset for it; the rig file is copied into the folder once, and a
+/// board file as `board.toml`.
 pub fn prepare(rig: &LoadedRig, out: &Path) -> Result<Prepared, AppError> {
     let lock = FolderLock::acquire(out)?;
     let opened = crate::rig::open(&rig.file)?;
-    let info = rig.file.dataset_info(&opened.sequence);
+    let mut info = rig.file.dataset_info(&opened.sequence);
+    // A board file is copied into the dataset: dataset.json names boards inside its folder.
+    let board_file = crate::board::Board::builtin(&info.board).is_none();
+    if board_file {
+        info.board = super::calibrate::BOARD_FILE.into();
+    }
     let data = Dataset::create_or_resume(out, info)?;
+    if board_file {
+        super::calibrate::board_in_folder(&opened.board, out)?;
+    }
     let rig_copy = out.join("rig.toml");
     if !rig_copy.exists() {
         crate::atomic::write(&rig_copy, rig.text.as_bytes()).map_err(AppError::io(&rig_copy))?;

@@ -16,7 +16,7 @@ use crate::invalid::{Invalid, ValidationError};
 use crate::observations::CameraView;
 use crate::pattern::Sequence;
 use crate::phase::check::StackVerdict;
-use crate::phase::files::decode_dir;
+use crate::phase::files::decode_stack;
 use crate::phase::{CompactStack, DecodedStack, Decoder, FrameRef};
 use crossbeam_channel::Receiver;
 use serde::{Deserialize, Serialize};
@@ -72,13 +72,12 @@ pub fn refusal(verdict: &StackVerdict) -> String {
     format!("stack refused: {}", verdict.summary())
 }
 
-/// The stored plain frame of a camera-only pose (`frame-000.png` in `dir`) as a float image.
-fn read_plain_frame(dir: &std::path::Path) -> Result<FloatImage, DatasetError> {
-    let stack = StackReader::open(dir)?;
+/// The stored plain frame of a camera-only pose (its frame 0) as a float image.
+fn read_plain_frame(stack: &StackReader) -> Result<FloatImage, DatasetError> {
     let pixels = stack.frame(0)?;
     let (w, h) = (stack.info.width, stack.info.height);
     float_image(w, h, &Pixels::Gray16(pixels)).ok_or_else(|| DatasetError::Invalid {
-        path: dir.to_owned(),
+        path: stack.dir().to_owned(),
         reason: format!("frame 0 is not {w}×{h}"),
     })
 }
@@ -449,19 +448,23 @@ pub fn process_stored(data: &Dataset, board: &Board, k: usize) -> PoseViews {
         .iter()
         .enumerate()
         .map(|(c, entry)| {
-            let dir = data.stack_dir(k, &entry.name);
             let at = ViewAt {
                 camera: c,
                 pose: k,
                 first_projector: cameras,
             };
+            let result = data.stack(k, &entry.name).map_err(|e| e.to_string());
             let result = match data.info.sequence.is_camera_only() {
-                true => read_plain_frame(&dir)
-                    .map(|image| process_image(&image, &entry.name, board, &[], at))
-                    .map_err(|e| e.to_string()),
-                false => decode_dir(&dir)
-                    .map(|d| process_decoded(&d, board, c, k, cameras))
-                    .map_err(|e| e.to_string()),
+                true => result.and_then(|stack| {
+                    read_plain_frame(&stack)
+                        .map(|image| process_image(&image, &entry.name, board, &[], at))
+                        .map_err(|e| e.to_string())
+                }),
+                false => result.and_then(|stack| {
+                    decode_stack(&stack)
+                        .map(|d| process_decoded(&d, board, c, k, cameras))
+                        .map_err(|e| e.to_string())
+                }),
             };
             result
                 .unwrap_or_else(|e| StackResult::failed(&entry.name, data.info.projectors.len(), e))

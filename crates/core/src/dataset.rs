@@ -300,8 +300,11 @@ impl StackInfo {
     }
 }
 
-/// `pose.json` and `captured.json`: its own pose index, cameras of the dataset, finite
-/// non-negative times.
+/// `pose.json` and `captured.json`: its own pose index; one or more cameras of the dataset,
+/// each once; the capture time within [`limits::MAX_POSE_SECONDS`] and the timeline's
+/// times within as many milliseconds; at most one timeline entry per frame of the
+/// sequence; retries whole numbers up to [`limits::MAX_FRAME_RETRIES`] per frame (`dropped`
+/// is a camera's counter gaps, any count).
 impl PoseFile for PoseInfo {
     fn check(&self, pose: usize, info: &DatasetInfo) -> Result<(), ValidationError> {
         if self.pose != pose {
@@ -310,6 +313,9 @@ impl PoseFile for PoseInfo {
                 format!("{} in the folder of pose {pose}", self.pose),
             ));
         }
+        if self.cameras.is_empty() {
+            return Err(ValidationError::new("cameras", "no camera"));
+        }
         for (i, c) in self.cameras.iter().enumerate() {
             if !info.cameras.iter().any(|e| &e.name == c) {
                 return Err(ValidationError::new(
@@ -317,10 +323,36 @@ impl PoseFile for PoseInfo {
                     format!("{c:?} is not a camera of the dataset"),
                 ));
             }
+            if let Some(first) = self.cameras[..i].iter().position(|e| e == c) {
+                return Err(ValidationError::new(
+                    format!("cameras[{i}]"),
+                    format!("{c:?} is already cameras[{first}]"),
+                ));
+            }
         }
-        limits::non_negative(self.seconds, limits::MAX_DURATION_MS).map_err(|m| m.at("seconds"))?;
+        limits::non_negative(self.seconds, limits::MAX_POSE_SECONDS)
+            .map_err(|m| m.at("seconds"))?;
+        let frames = info.sequence.frame_count();
+        limits::count(
+            self.timeline.len(),
+            frames,
+            "timeline entries (frames of the sequence)",
+        )
+        .map_err(|m| m.at("timeline"))?;
         for (i, t) in self.timeline.iter().enumerate() {
-            limits::finite(t).map_err(|m| m.at(format!("timeline[{i}]")))?;
+            for (j, v) in t[..3].iter().enumerate() {
+                limits::non_negative(*v, 1e3 * limits::MAX_POSE_SECONDS)
+                    .map_err(|m| m.at(format!("timeline[{i}][{j}]")))?;
+            }
+            let retries = t[3];
+            if retries.fract() != 0.0 {
+                return Err(ValidationError::new(
+                    format!("timeline[{i}][3]"),
+                    format!("{retries} retries is not a whole number"),
+                ));
+            }
+            limits::non_negative(retries, f64::from(limits::MAX_FRAME_RETRIES))
+                .map_err(|m| m.at(format!("timeline[{i}][3]")))?;
         }
         Ok(())
     }
@@ -434,6 +466,50 @@ impl Dataset {
     /// Stack folder of camera `camera` at pose `pose`.
     pub fn stack_dir(&self, pose: usize, camera: &str) -> PathBuf {
         self.pose_dir(pose).join(camera)
+    }
+
+    /// The stack of camera `camera` at pose `pose`, opened as [`StackReader::open`] opens it
+    /// and refused, naming its `stack.json` and field, unless it belongs there: the camera
+    /// of its folder, with that camera's size and bits and the dataset's sequence (a stack
+    /// copied from another camera's folder or another capture is not read).
+    pub fn stack(&self, pose: usize, camera: &str) -> Result<StackReader, DatasetError> {
+        let dir = self.stack_dir(pose, camera);
+        let stack = StackReader::open(&dir)?;
+        let refuse = |at: &str, message: String| {
+            DatasetError::Check(ValidationError::new(at, message).in_file(dir.join("stack.json")))
+        };
+        let info = &stack.info;
+        let Some(entry) = self.info.cameras.iter().find(|c| c.name == camera) else {
+            return Err(refuse(
+                "camera",
+                format!("{camera:?} is not a camera of the dataset"),
+            ));
+        };
+        if info.camera != camera {
+            return Err(refuse(
+                "camera",
+                format!(
+                    "the stack of camera {:?} in the folder of camera {camera:?}",
+                    info.camera
+                ),
+            ));
+        }
+        if (info.width, info.height, info.bits) != (entry.width, entry.height, entry.bits) {
+            return Err(refuse(
+                "width",
+                format!(
+                    "{}×{} px, {} bits; camera {camera:?} of the dataset is {}×{} px, {} bits",
+                    info.width, info.height, info.bits, entry.width, entry.height, entry.bits
+                ),
+            ));
+        }
+        if info.sequence != self.info.sequence {
+            return Err(refuse(
+                "sequence",
+                "not the sequence of dataset.json (a stack of another capture)".into(),
+            ));
+        }
+        Ok(stack)
     }
 
     /// The completed pose `pose`, if it is (its `pose.json` checked).
@@ -683,7 +759,8 @@ impl StackReader {
     }
 
     /// Frame k as 16-bit samples (8-bit files widen); any size or depth other than the
-    /// stack's, or an unreadable file, is an error naming the camera and frame.
+    /// stack's, an unreadable file, or a symbolic link out of the stack folder is an error
+    /// naming the camera and frame.
     pub fn frame(&self, k: usize) -> Result<Vec<u16>, DatasetError> {
         let entry = &self.info.frames[k];
         let path = self.dir.join(&entry.file);
@@ -693,6 +770,7 @@ impl StackReader {
             path: path.clone(),
             reason,
         };
+        crate::paths::inside(&self.dir, &entry.file).map_err(|m| err(m.0))?;
         let reader = image::ImageReader::open(&path).map_err(|e| err(e.to_string()))?;
         let img = crate::images::decode(reader).map_err(|e| err(e.to_string()))?;
         if (img.width(), img.height()) != (self.info.width, self.info.height) {
@@ -715,6 +793,11 @@ impl StackReader {
                 self.info.bits
             ))),
         }
+    }
+
+    /// The stack folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
     }
 
     /// Full scale of the samples (2^bits − 1).

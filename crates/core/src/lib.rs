@@ -4,8 +4,9 @@
 //! projector model ([`camera`]), the phase-shift sequence ([`pattern`]), images ([`images`]),
 //! the dataset format ([`dataset`]), the observations that are the seam between the image
 //! stages and calibration ([`observations`]), the limits on what is read ([`limits`]), the
-//! refusals of what is read ([`invalid`]), atomic file writes ([`atomic`]) and the stop
-//! request long stages poll ([`stop`]). A user who only needs the camera model and the
+//! refusals of what is read ([`invalid`]), atomic file writes ([`atomic`]), the stop
+//! request long stages poll ([`stop`]) and the checks that keep every path a file names
+//! inside its folder ([`paths`]). A user who only needs the camera model and the
 //! calibration files depends on this crate (and `hexcal-calib`) alone.
 #![warn(missing_docs)]
 
@@ -18,6 +19,7 @@ pub mod invalid;
 pub mod limits;
 pub mod lock;
 pub mod observations;
+pub mod paths;
 pub mod pattern;
 pub mod stop;
 pub mod tomlspan;

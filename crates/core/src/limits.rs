@@ -44,6 +44,34 @@ pub const MAX_REPEATS: u32 = 1_000;
 /// The longest time any rig-file duration may give (ms): one hour.
 pub const MAX_DURATION_MS: f64 = 3.6e6;
 
+/// The longest capture of one board pose (`seconds` of pose.json, s): one day.
+pub const MAX_POSE_SECONDS: f64 = 86_400.0;
+
+/// Triggers repeated for one frame of a sequence (over its repeats), as pose.json records.
+pub const MAX_FRAME_RETRIES: u32 = 1_000_000;
+
+/// The shortest focal length of a camera or projector model (px): below one pixel per
+/// unit of normalised image coordinate no lens images anything.
+pub const MIN_FOCAL_PX: f64 = 1.0;
+
+/// The longest focal length of a camera or projector model (px): 10⁷ px is a 10 m lens
+/// on 1 µm pixels.
+pub const MAX_FOCAL_PX: f64 = 1e7;
+
+/// The largest |cx|, |cy| of a model (px): ten times the largest image side (a
+/// projector's principal point may lie well outside its raster, not that far).
+pub const MAX_PRINCIPAL_POINT_PX: f64 = 10.0 * MAX_IMAGE_SIDE as f64;
+
+/// The largest |coefficient| of a lens distortion model (dimensionless).
+pub const MAX_DISTORTION: f64 = 1e6;
+
+/// The longest distance of a device pose or board transform (mm): one kilometre.
+pub const MAX_DISTANCE_MM: f64 = 1e6;
+
+/// The widest camera gain (dB), either sign: 100 dB is a factor of 10⁵ in amplitude,
+/// beyond any sensor's analogue and digital gain together.
+pub const MAX_GAIN_DB: f64 = 100.0;
+
 /// The widest blur of a simulated sensor (Gaussian σ, px).
 pub const MAX_PSF_SIGMA_PX: f64 = 100.0;
 
@@ -100,10 +128,19 @@ pub fn image_size(width: u32, height: u32) -> Result<(), Invalid> {
     Ok(())
 }
 
+/// A number as a refusal shows it: plainly, or as `1e308` when very large or small (Rust
+/// writes every digit of a large `f64`).
+pub fn shown(v: f64) -> String {
+    match v != 0.0 && v.is_finite() && !(1e-6..1e9).contains(&v.abs()) {
+        true => format!("{v:e}"),
+        false => format!("{v}"),
+    }
+}
+
 /// `Err` unless every value is finite.
 pub fn finite(values: &[f64]) -> Result<(), Invalid> {
     match values.iter().find(|v| !v.is_finite()) {
-        Some(v) => Err(Invalid(format!("{v} is not a finite number"))),
+        Some(v) => Err(Invalid(format!("{} is not a finite number", shown(*v)))),
         None => Ok(()),
     }
 }
@@ -111,7 +148,48 @@ pub fn finite(values: &[f64]) -> Result<(), Invalid> {
 /// `Err` unless `v` is finite and in `[0, max]`.
 pub fn non_negative(v: f64, max: f64) -> Result<(), Invalid> {
     if !(v.is_finite() && (0.0..=max).contains(&v)) {
-        return Err(Invalid(format!("{v} is not a number in [0, {max}]")));
+        return Err(Invalid(format!(
+            "{} is not a number in [0, {}]",
+            shown(v),
+            shown(max)
+        )));
+    }
+    Ok(())
+}
+
+/// `Err` unless `v` is finite and in `[min, max]`.
+pub fn within(v: f64, min: f64, max: f64) -> Result<(), Invalid> {
+    if !(v.is_finite() && (min..=max).contains(&v)) {
+        return Err(Invalid(format!(
+            "{} is not a number in [{}, {}]",
+            shown(v),
+            shown(min),
+            shown(max)
+        )));
+    }
+    Ok(())
+}
+
+/// `Err` unless a rigid transform read as a rotation vector `rvec` (rad) and a translation
+/// `tvec` (mm) is one: finite, the rotation at most 2π (a longer vector is no rotation
+/// anyone writes) and the translation within [`MAX_DISTANCE_MM`]. The error names `rvec`
+/// or `tvec`.
+pub fn rigid(rvec: &[f64; 3], tvec: &[f64; 3]) -> Result<(), crate::ValidationError> {
+    finite(rvec).map_err(|m| m.at("rvec"))?;
+    finite(tvec).map_err(|m| m.at("tvec"))?;
+    let norm = |v: &[f64; 3]| v[0].hypot(v[1]).hypot(v[2]);
+    let angle = norm(rvec);
+    if angle > std::f64::consts::TAU + 1e-9 {
+        let angle = shown(angle);
+        return Err(Invalid(format!("a rotation of {angle} rad: at most 2π")).at("rvec"));
+    }
+    let distance = norm(tvec);
+    if distance > MAX_DISTANCE_MM {
+        return Err(Invalid(format!(
+            "a translation of {} mm: at most {MAX_DISTANCE_MM:e} mm",
+            shown(distance)
+        ))
+        .at("tvec"));
     }
     Ok(())
 }
@@ -188,5 +266,17 @@ mod tests {
             .message()
             .contains("100"));
         assert!(device_name("cam 0").is_ok());
+        assert!(within(3.0, 1.0, 3.0).is_ok() && within(0.5, 1.0, 3.0).is_err());
+        assert!(within(f64::NAN, 1.0, 3.0).is_err());
+        assert_eq!(shown(1e308), "1e308");
+        assert_eq!(shown(1e-320), "1e-320");
+        assert_eq!(shown(-2.5), "-2.5");
+        assert_eq!(shown(f64::NAN), "NaN");
+        assert!(rigid(&[0.0, 3.0, 0.0], &[1e5, 0.0, 0.0]).is_ok());
+        let e = rigid(&[0.0; 3], &[1e308, 0.0, 0.0]).unwrap_err();
+        assert_eq!(e.at, "tvec");
+        assert!(e.message.contains("at most 1e6 mm"), "{e}");
+        assert_eq!(rigid(&[7.0, 0.0, 0.0], &[0.0; 3]).unwrap_err().at, "rvec");
+        assert_eq!(rigid(&[0.0; 3], &[f64::NAN; 3]).unwrap_err().at, "tvec");
     }
 }

@@ -257,6 +257,18 @@ pub enum SequenceError {
     },
 }
 
+impl SequenceError {
+    /// What is wrong, without the leading "sequence: " (for a refusal that names the
+    /// sequence's place in a file itself).
+    pub fn what(&self) -> String {
+        let text = self.to_string();
+        match text.strip_prefix("sequence: ") {
+            Some(rest) => rest.to_owned(),
+            None => text,
+        }
+    }
+}
+
 /// x mod n as the nearest residue to 0, written with a true minus sign.
 fn signed_residue(x: u32, n: u32) -> String {
     let r = x % n;

@@ -29,7 +29,8 @@ pub fn calibrate(
 ) -> PyResult<Calibration> {
     guard(|| {
         let (c, origin) = self::correspondences(correspondences)?;
-        let board = Board::resolve(&c.board).map_err(error)?;
+        let board =
+            Board::resolve_in(&c.board, std::path::Path::new(&origin), "board").map_err(error)?;
         let mut options = CalibrateOptions::default();
         options.bundle.fix_k3 = fix_k3;
         options.bundle.refine_flatness = refine_flatness;

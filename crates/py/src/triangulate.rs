@@ -242,12 +242,16 @@ pub fn verify<'py>(
                     })
             })
             .collect::<PyResult<Vec<_>>>()?;
-        let board = Board::resolve(&c.board).map_err(error)?;
-        let checks = py.detach(|| verify_pairs(&board, &devices, &c.views));
+        let board =
+            Board::resolve_in(&c.board, std::path::Path::new(&origin), "board").map_err(error)?;
+        let verification = py.detach(|| verify_pairs(&board, &devices, &c.views));
+        let checks = verification.checks;
         if checks.is_empty() {
-            return Err(error(format!(
-                "{origin}: no device pair shares ten circles of a pose"
-            )));
+            let why = match verification.skipped.first() {
+                None => "no device pair shares ten circles of a pose".to_string(),
+                Some(first) => format!("no device pair gives figures ({first})"),
+            };
+            return Err(error(format!("{origin}: {why}")));
         }
         checks
             .iter()

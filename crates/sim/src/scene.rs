@@ -270,9 +270,12 @@ impl Imaging {
 }
 
 impl Scene {
-    /// The camera (size within [`hexcal_core::limits`], finite positive focal lengths, finite
-    /// distortion), the pose (finite) and the board (as [`Board::validate`] requires).
+    /// The output name (a plain file name, [`hexcal_core::paths::file_name`]), the camera
+    /// (as [`CameraModel::check`](hexcal_core::camera::CameraModel::check) requires), the
+    /// pose (finite) and the board (as [`Board::validate`] requires).
     fn check(&self) -> Result<(), SimError> {
+        hexcal_core::paths::file_name(&self.name)
+            .map_err(|m| SimError::Scene(format!("name: {m} (it names the output files)")))?;
         self.camera
             .check()
             .map_err(|e| SimError::Scene(format!("[camera] {e}")))?;

@@ -542,6 +542,23 @@ mod verification {
 
     /// Calibrate on poses 0–7 of a 10-pose rig, verify on poses 8 and 9.
     fn held_out(sigma: f64) -> Vec<super::super::verify::PairCheck> {
+        let (rig, cal, test) = calibrated(sigma);
+        let verification = verify(&rig.board, &cal.devices, &test);
+        assert_eq!(verification.skipped, []);
+        let checks = verification.checks;
+        assert!(checks.iter().any(|c| c.second.starts_with("proj")));
+        assert!(checks.iter().any(|c| c.second.starts_with("cam")));
+        checks
+    }
+
+    /// The paper rig calibrated on poses 0–7 of 10, and the views of poses 8 and 9.
+    fn calibrated(
+        sigma: f64,
+    ) -> (
+        SyntheticRig,
+        super::super::solve::Calibration,
+        Vec<hexcal_core::observations::CameraView>,
+    ) {
         let rig = SyntheticRig::paper(10, sigma, 51);
         let views = rig.views();
         let (train, test): (Vec<_>, Vec<_>) = views.into_iter().partition(|v| v.pose < 8);
@@ -554,10 +571,64 @@ mod verification {
         )
         .unwrap();
         assert_eq!(cal.devices.len(), rig.devices.len());
-        let checks = verify(&rig.board, &cal.devices, &test);
-        assert!(checks.iter().any(|c| c.second.starts_with("proj")));
-        assert!(checks.iter().any(|c| c.second.starts_with("cam")));
-        checks
+        (rig, cal, test)
+    }
+
+    #[test]
+    fn degenerate_pairs_are_skipped_never_reported() {
+        let (rig, cal, test) = calibrated(1e-6);
+        let all = verify(&rig.board, &cal.devices, &test);
+        let pairs_of = |name: &str| {
+            all.checks
+                .iter()
+                .filter(|c| c.first == name || c.second == name)
+                .count()
+        };
+        let (camera, projector) = ("cam0", "proj0");
+        let index = |name: &str| cal.devices.iter().position(|d| d.name == name).unwrap();
+        let both = |c: &str, p: &str| {
+            all.checks
+                .iter()
+                .filter(|k| (k.first.as_str(), k.second.as_str()) == (c, p))
+                .count()
+        };
+        assert!(
+            both(camera, projector) > 0,
+            "the pair is checked when sound"
+        );
+        // A projector placed at its camera's pose: no baseline.
+        let mut devices = cal.devices.clone();
+        devices[index(projector)].pose = devices[index(camera)].pose;
+        let v = verify(&rig.board, &devices, &test);
+        assert!(v
+            .checks
+            .iter()
+            .all(|k| (k.first.as_str(), k.second.as_str()) != (camera, projector)));
+        let noted = v
+            .skipped
+            .iter()
+            .filter(|s| (s.first.as_str(), s.second.as_str()) == (camera, projector));
+        assert_eq!(noted.count(), both(camera, projector));
+        assert!(
+            v.skipped[0].to_string().contains("no baseline"),
+            "{}",
+            v.skipped[0]
+        );
+        // A device a long way off (what a pose of 1e308 mm gives): its pairs are skipped,
+        // no figure is NaN, and every other pair is still checked.
+        let mut devices = cal.devices.clone();
+        devices[index(camera)].pose.translation.vector.x = 1e308;
+        let v = verify(&rig.board, &devices, &test);
+        assert!(v
+            .checks
+            .iter()
+            .all(|k| k.first != camera && k.second != camera));
+        assert!(v
+            .checks
+            .iter()
+            .all(|k| k.length_rms.is_finite() && k.flatness_rms.is_finite()));
+        assert_eq!(v.skipped.len(), pairs_of(camera));
+        assert_eq!(v.checks.len(), all.checks.len() - pairs_of(camera));
     }
 
     #[test]

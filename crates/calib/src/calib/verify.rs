@@ -6,7 +6,8 @@
 //! between board points against the nominal ones, VDI/VDE 2634 style) and their flatness.
 //! Camera observations are ellipse centres: each pair first triangulates them, fits the
 //! board pose to the points, predicts every observation's perspective bias (§8) from it,
-//! and triangulates again with the bias removed.
+//! and triangulates again with the bias removed. A pair whose figures cannot be trusted (no
+//! baseline, points behind a device, non-finite figures) is skipped with the reason.
 
 use super::bundle::Device;
 use super::circle::ellipse_center;
@@ -35,6 +36,43 @@ pub struct PairCheck {
     /// RMS distance of the points from their best-fit plane (mm).
     pub flatness_rms: f64,
 }
+
+/// A device pair of a held-out pose that shares ten circles but gives no figures to trust,
+/// and why (no baseline, points behind a device, parallel rays, figures not finite).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct SkippedPair {
+    /// First device (a camera).
+    pub first: String,
+    /// Second device (a camera or a projector).
+    pub second: String,
+    /// Board pose index.
+    pub pose: usize,
+    /// Why the pair gives no figures.
+    pub reason: String,
+}
+
+impl std::fmt::Display for SkippedPair {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}–{} at pose {} not checked: {}",
+            self.first, self.second, self.pose, self.reason
+        )
+    }
+}
+
+/// What [`verify`] gives: the pairs checked, and the pairs that could not be.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Verification {
+    /// Figures of every pair checked.
+    pub checks: Vec<PairCheck>,
+    /// Pairs with ten shared circles that gave no figures, with the reason.
+    pub skipped: Vec<SkippedPair>,
+}
+
+/// The smallest angle (degrees) the baseline of a pair may subtend at the triangulated
+/// board: below it the pair's depth is a guess (1° gives ~57× the pixel error in depth).
+pub const MIN_TRIANGULATION_DEG: f64 = 1.0;
 
 /// One device's ray through a pixel, in the reference frame: origin and unit direction;
 /// `None` where the lens model cannot be inverted.
@@ -109,6 +147,8 @@ struct Pairing {
     second: Point2<f64>,
 }
 
+/// The pair `(i, j)` of one side of one pose: `None` with fewer than ten shared circles,
+/// else its figures or why it gives none ([`SkippedPair`]).
 fn check_pair(
     board: &Board,
     devices: &[Device],
@@ -117,10 +157,69 @@ fn check_pair(
     side: Side,
     pose: usize,
     pairs: &[Pairing],
-) -> Option<PairCheck> {
+) -> Option<Result<PairCheck, SkippedPair>> {
     if pairs.len() < 10 {
         return None;
     }
+    let skipped = |reason: String| SkippedPair {
+        first: devices[i].name.clone(),
+        second: devices[j].name.clone(),
+        pose,
+        reason,
+    };
+    Some(pair_figures(board, devices, (i, j), second_is_camera, side, pose, pairs).map_err(skipped))
+}
+
+/// `Err` unless the triangulated `points` lie in front of devices `i` and `j` and their
+/// baseline subtends at least [`MIN_TRIANGULATION_DEG`] there.
+fn triangulable(
+    devices: &[Device],
+    (i, j): (usize, usize),
+    points: &[Point3<f64>],
+) -> Result<(), String> {
+    let centre = |d: &Device| d.pose.inverse() * Point3::origin();
+    let (a, b) = (centre(&devices[i]), centre(&devices[j]));
+    let baseline = (a - b).norm();
+    if !baseline.is_finite() || baseline < 1e-6 {
+        return Err(format!(
+            "no baseline to triangulate over (the devices are {baseline:.4} mm apart)"
+        ));
+    }
+    for d in [i, j] {
+        let behind = |p: &Point3<f64>| {
+            let z = (devices[d].pose * p).z;
+            z.is_nan() || z <= 0.0
+        };
+        if points.iter().any(behind) {
+            return Err(format!(
+                "the triangulated circles are not in front of {}",
+                devices[d].name
+            ));
+        }
+    }
+    let n = points.len() as f64;
+    let centroid = points.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
+    let (ca, cb) = (centroid - a.coords, centroid - b.coords);
+    let angle = ca.angle(&cb).to_degrees();
+    if angle.is_nan() || angle < MIN_TRIANGULATION_DEG {
+        return Err(format!(
+            "a baseline of {baseline:.1} mm subtends {angle:.2}° at the board (at least \
+             {MIN_TRIANGULATION_DEG}°)"
+        ));
+    }
+    Ok(())
+}
+
+/// The figures of a pair with ten or more shared circles, or why it gives none.
+fn pair_figures(
+    board: &Board,
+    devices: &[Device],
+    (i, j): (usize, usize),
+    second_is_camera: bool,
+    side: Side,
+    pose: usize,
+    pairs: &[Pairing],
+) -> Result<PairCheck, String> {
     let nominal: Vec<Point3<f64>> = pairs.iter().map(|p| board.point(side, p.hex)).collect();
     let triangulate = |bias_i: &dyn Fn(&Pairing) -> Point2<f64>,
                        bias_j: &dyn Fn(&Pairing) -> Point2<f64>| {
@@ -129,11 +228,14 @@ fn check_pair(
             .map(|p| midpoint(ray(&devices[i], bias_i(p))?, ray(&devices[j], bias_j(p))?))
             .collect::<Option<Vec<_>>>()
     };
-    let first = triangulate(&|p| p.first, &|p| p.second)?;
+    let parallel = || "rays through shared circles are parallel or not defined".to_string();
+    let no_fit = || "the board pose fit to the points does not converge".to_string();
+    let first = triangulate(&|p| p.first, &|p| p.second).ok_or_else(parallel)?;
+    triangulable(devices, (i, j), &first)?;
     let (points, nominal) = if second_is_camera {
         // Fit the pose to the points, remove each camera's ellipse-centre bias predicted
         // from it (§8), triangulate again.
-        let ref_from_board = fit_rigid(&nominal, &first)?;
+        let ref_from_board = fit_rigid(&nominal, &first).ok_or_else(no_fit)?;
         let debias = |d: usize, p: &Pairing, pixel: Point2<f64>| {
             let dev = &devices[d];
             let face = dev.pose * ref_from_board * board.side_transform(side);
@@ -144,14 +246,16 @@ fn check_pair(
                 _ => pixel,
             }
         };
-        let points = triangulate(&|p| debias(i, p, p.first), &|p| debias(j, p, p.second))?;
+        let points = triangulate(&|p| debias(i, p, p.first), &|p| debias(j, p, p.second))
+            .ok_or_else(parallel)?;
         (points, nominal)
     } else {
         // A projector pixel belongs to the board point behind the camera's observed ellipse
         // centre (§7), so the raw rays meet there: compare with that point's nominal
         // position, the circle centre moved by its offset on the board (found with the
         // fitted pose; the ~0.1 mm offset barely depends on the pose's small error).
-        let ref_from_side = fit_rigid(&nominal, &first)? * board.side_transform(side);
+        let ref_from_side =
+            fit_rigid(&nominal, &first).ok_or_else(no_fit)? * board.side_transform(side);
         let normal = ref_from_side.rotation * Vector3::z();
         let q = ref_from_side.translation.vector;
         let moved = pairs
@@ -162,7 +266,8 @@ fn check_pair(
                 let on_side = ref_from_side.inverse() * x;
                 Some(board.side_transform(side) * Point3::new(on_side.x, on_side.y, 0.0))
             })
-            .collect::<Option<Vec<_>>>()?;
+            .collect::<Option<Vec<_>>>()
+            .ok_or_else(parallel)?;
         (first, moved)
     };
     let (mut sq, mut max, mut n) = (0.0, 0.0f64, 0usize);
@@ -174,7 +279,7 @@ fn check_pair(
             n += 1;
         }
     }
-    Some(PairCheck {
+    let check = PairCheck {
         first: devices[i].name.clone(),
         second: devices[j].name.clone(),
         pose,
@@ -182,12 +287,18 @@ fn check_pair(
         length_rms: (sq / n as f64).sqrt(),
         length_max: max,
         flatness_rms: flatness(&points),
-    })
+    };
+    let figures = [check.length_rms, check.length_max, check.flatness_rms];
+    if figures.iter().any(|v| !v.is_finite()) {
+        return Err("its figures are not finite numbers".into());
+    }
+    Ok(check)
 }
 
 /// Check every camera–camera pair that sees a common side of a held-out pose, and every
-/// camera–projector pair; `views` index `devices` (anchored views only are used).
-pub fn verify(board: &Board, devices: &[Device], views: &[CameraView]) -> Vec<PairCheck> {
+/// camera–projector pair; `views` index `devices` (anchored views only are used). A pair
+/// without figures to trust is skipped, with the reason, never reported as a result.
+pub fn verify(board: &Board, devices: &[Device], views: &[CameraView]) -> Verification {
     // Per (pose, side): camera d → hex → ellipse centre; projector p → (camera, hex) → pixel.
     type PerSide = BTreeMap<usize, BTreeMap<Hex, Point2<f64>>>;
     let mut cams: BTreeMap<(usize, Side), PerSide> = BTreeMap::new();
@@ -241,7 +352,14 @@ pub fn verify(board: &Board, devices: &[Device], views: &[CameraView]) -> Vec<Pa
             }
         }
     }
-    out
+    let mut verification = Verification::default();
+    for result in out {
+        match result {
+            Ok(check) => verification.checks.push(check),
+            Err(skipped) => verification.skipped.push(skipped),
+        }
+    }
+    verification
 }
 
 /// RMS of the pairs' length errors (mm), if any pair was checked.

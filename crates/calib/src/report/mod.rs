@@ -304,7 +304,8 @@ impl CalibrationFile {
 
     /// The first problem of a calibration file: the JSON path and what is wrong. Devices within
     /// [`hexcal_core::limits::MAX_DEVICES`] with unique names, models as
-    /// [`CameraModel::check`] requires, finite poses and figures, and a reference among them.
+    /// [`CameraModel::check`] requires, poses as [`hexcal_core::limits::rigid`] requires,
+    /// finite figures, and a reference among them.
     pub fn check(&self) -> Result<(), ValidationError> {
         use hexcal_core::limits;
         limits::count(self.devices.len(), limits::MAX_DEVICES, "devices")
@@ -320,8 +321,7 @@ impl CalibrationFile {
                 ));
             }
             d.model().check().map_err(|e| e.map_at(at))?;
-            limits::finite(&d.pose.rvec).map_err(|m| m.at(at("pose.rvec")))?;
-            limits::finite(&d.pose.tvec).map_err(|m| m.at(at("pose.tvec")))?;
+            limits::rigid(&d.pose.rvec, &d.pose.tvec).map_err(|e| e.within(at("pose")))?;
             limits::count(
                 d.lens_std.len(),
                 hexcal_core::camera::LENS_PARAM_COUNT,
@@ -352,8 +352,7 @@ impl CalibrationFile {
 fn check_front_back(f: &CalibrationFile) -> Result<(), ValidationError> {
     match (&f.front_back, f.board_sides) {
         (Some(fb), Sides::Two) => {
-            hexcal_core::limits::finite(&fb.rvec).map_err(|m| m.at("front_back.rvec"))?;
-            hexcal_core::limits::finite(&fb.tvec).map_err(|m| m.at("front_back.tvec"))
+            hexcal_core::limits::rigid(&fb.rvec, &fb.tvec).map_err(|e| e.within("front_back"))
         }
         (None, Sides::One) => Ok(()),
         (Some(_), Sides::One) => Err(ValidationError::new(

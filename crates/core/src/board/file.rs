@@ -77,6 +77,10 @@ pub enum BoardError {
         names = builtin_names()
     )]
     Unknown(String),
+    /// A file's board value is neither a built-in board nor a board file inside the file's
+    /// folder: the file, the value's JSON path and what is wrong.
+    #[error(transparent)]
+    Named(crate::ValidationError),
 }
 
 impl BoardError {
@@ -85,6 +89,7 @@ impl BoardError {
         match self {
             BoardError::Parse { field, .. } => field.as_deref(),
             BoardError::Invalid { invalid, .. } => Some(&invalid.field),
+            BoardError::Named(e) => Some(&e.at),
             BoardError::Read { .. } | BoardError::Unknown(_) => None,
         }
     }
@@ -93,6 +98,7 @@ impl BoardError {
     pub fn line(&self) -> Option<usize> {
         match self {
             BoardError::Parse { line, .. } | BoardError::Invalid { line, .. } => *line,
+            BoardError::Named(e) => e.line,
             BoardError::Read { .. } | BoardError::Unknown(_) => None,
         }
     }
@@ -129,6 +135,11 @@ impl Board {
         parse(text, "<string>")
     }
 
+    /// The board as a board file's text ([`Board::from_toml_str`] reads it back equal).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a board serialises as TOML")
+    }
+
     /// Read and validate a board file.
     pub fn load(path: impl AsRef<Path>) -> Result<Board, BoardError> {
         let path = path.as_ref();
@@ -147,6 +158,30 @@ impl Board {
         let path = Path::new(name_or_path);
         if !path.exists() {
             return Err(BoardError::Unknown(name_or_path.to_owned()));
+        }
+        Board::load(path)
+    }
+
+    /// The board the value `value` at `field` (a JSON path) of the file `file` names: a
+    /// built-in name, else a board file inside the folder that holds `file`
+    /// ([`crate::paths::inside`]). Anything else is refused naming `file` and `field`; a
+    /// board file that does not read is refused as [`Board::load`] refuses it.
+    pub fn resolve_in(value: &str, file: &Path, field: &str) -> Result<Board, BoardError> {
+        if let Some(b) = Board::builtin(value) {
+            return Ok(b);
+        }
+        let named = |m: crate::Invalid| BoardError::Named(m.at(field).in_file(file));
+        let folder = file.parent().unwrap_or(Path::new(""));
+        let path = crate::paths::inside(folder, value).map_err(named)?;
+        if !path.is_file() {
+            return Err(named(crate::Invalid(format!(
+                "{value:?} is neither a built-in board ({}) nor a board file in {}",
+                builtin_names(),
+                match folder.as_os_str().is_empty() {
+                    true => "the current folder".into(),
+                    false => folder.display().to_string(),
+                }
+            ))));
         }
         Board::load(path)
     }
@@ -204,6 +239,39 @@ mod tests {
         let e = Board::load("no/such/board.toml").unwrap_err();
         assert!(matches!(e, BoardError::Read { .. }));
         assert!(e.to_string().contains("no/such/board.toml"), "{e}");
+    }
+
+    #[test]
+    fn a_board_file_is_written_as_read() {
+        let mut b = Board::hex600();
+        b.name = "copy".into();
+        b.pitch = 21.0;
+        assert_eq!(Board::from_toml_str(&b.to_toml()).unwrap(), b);
+    }
+
+    #[test]
+    fn a_named_board_stays_in_its_folder() {
+        let dir = std::env::temp_dir().join(format!("hexcal-board-in-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("c.json");
+        std::fs::write(dir.join("b.toml"), Board::hex600().to_toml()).unwrap();
+        assert!(Board::resolve_in("hex600", &file, "board").is_ok());
+        assert!(Board::resolve_in("b.toml", &file, "board").is_ok());
+        for (bad, says) in [
+            ("../b.toml", "is not a path inside"),
+            ("/etc/passwd", "is not a path inside"),
+            ("nothing.toml", "neither a built-in board"),
+        ] {
+            let e = Board::resolve_in(bad, &file, "board")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.starts_with(&format!("{}: board: ", file.display())),
+                "{e}"
+            );
+            assert!(e.contains(says), "{e}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -54,18 +54,25 @@ pub struct CameraModel {
 
 impl Intrinsics {
     /// The first problem of intrinsics read from a file: the field and what is wrong; focal
-    /// lengths must be finite and positive, the principal point finite.
+    /// lengths in [[`MIN_FOCAL_PX`](crate::limits::MIN_FOCAL_PX),
+    /// [`MAX_FOCAL_PX`](crate::limits::MAX_FOCAL_PX)], the principal point within
+    /// [`MAX_PRINCIPAL_POINT_PX`](crate::limits::MAX_PRINCIPAL_POINT_PX).
     pub fn check(&self) -> Result<(), ValidationError> {
+        use crate::limits::{MAX_FOCAL_PX, MAX_PRINCIPAL_POINT_PX, MIN_FOCAL_PX};
         for (field, v) in [("fx", self.fx), ("fy", self.fy)] {
-            if !(v.is_finite() && v > 0.0) {
+            if !(v.is_finite() && (MIN_FOCAL_PX..=MAX_FOCAL_PX).contains(&v)) {
                 return Err(ValidationError::new(
                     field,
-                    format!("{v} is not a positive focal length (px)"),
+                    format!(
+                        "{} is not a focal length in [{MIN_FOCAL_PX}, {MAX_FOCAL_PX:e}] px",
+                        crate::limits::shown(v)
+                    ),
                 ));
             }
         }
         for (field, v) in [("cx", self.cx), ("cy", self.cy)] {
-            crate::limits::finite(&[v]).map_err(|m| m.at(field))?;
+            crate::limits::within(v, -MAX_PRINCIPAL_POINT_PX, MAX_PRINCIPAL_POINT_PX)
+                .map_err(|m| m.at(field))?;
         }
         Ok(())
     }
@@ -73,7 +80,8 @@ impl Intrinsics {
 
 impl Distortion {
     /// The first problem of coefficients read from a file: the coefficient and what is wrong;
-    /// every coefficient must be finite.
+    /// every coefficient must be finite and within
+    /// [`MAX_DISTORTION`](crate::limits::MAX_DISTORTION).
     pub fn check(&self) -> Result<(), ValidationError> {
         let d = self;
         let named = [
@@ -86,8 +94,9 @@ impl Distortion {
             ("k5", d.k5),
             ("k6", d.k6),
         ];
+        let most = crate::limits::MAX_DISTORTION;
         for (field, v) in named {
-            crate::limits::finite(&[v]).map_err(|m| m.at(field))?;
+            crate::limits::within(v, -most, most).map_err(|m| m.at(field))?;
         }
         Ok(())
     }

@@ -768,8 +768,8 @@ impl RigFile {
         Ok(())
     }
 
-    /// One camera: image size, bits, an exposure that fits the frame, finite gain, driver
-    /// and ground truth.
+    /// One camera: image size, bits, an exposure that fits the frame, a gain within
+    /// ±[`limits::MAX_GAIN_DB`], driver and ground truth.
     fn check_camera(
         &self,
         c: &CameraSpec,
@@ -794,7 +794,8 @@ impl RigFile {
                 ),
             ));
         }
-        limits::finite(&[c.gain_db]).map_err(|m| m.at(at("gain_db")))?;
+        limits::within(c.gain_db, -limits::MAX_GAIN_DB, limits::MAX_GAIN_DB)
+            .map_err(|m| m.at(at("gain_db")))?;
         if let Some(f) = &c.format {
             if f.is_empty()
                 || f.len() > 32
@@ -898,7 +899,8 @@ impl RigFile {
         Ok(())
     }
 
-    /// `[sequence]`: enough fringe counts, each and the steps within the limits.
+    /// `[sequence]`: enough fringe counts, each and the steps within the limits, and a
+    /// sequence the projectors can show ([`RigFile::sequence`]).
     fn check_sequence(&self) -> Result<(), ValidationError> {
         let s = &self.sequence;
         if self.projectors.is_empty() && *s != SequenceSpec::default() {
@@ -930,7 +932,14 @@ impl RigFile {
                 format!("{n} steps: at most {}", limits::MAX_PHASE_STEPS),
             ));
         }
-        Ok(())
+        self.sequence().map(drop).map_err(|e| {
+            let at = match &e {
+                SequenceError::Counts { .. } => "sequence.fringe_counts".to_string(),
+                SequenceError::Projector { projector, .. } => format!("projector[{projector}]"),
+                _ => "sequence.steps".to_string(),
+            };
+            ValidationError::new(at, e.what())
+        })
     }
 
     /// `[poses]`: present for a simulated rig, a count within the limit, finite ranges,
@@ -950,12 +959,12 @@ impl RigFile {
             return Err(ValidationError::new("poses.count", "at least one pose"));
         }
         limits::count(p.count, limits::MAX_POSES, "poses").map_err(|m| m.at("poses.count"))?;
-        for (key, v) in [
-            ("yaw_deg", p.yaw_deg),
-            ("tilt_deg", p.tilt_deg),
-            ("shift_mm", p.shift_mm),
+        for (key, v, most) in [
+            ("yaw_deg", p.yaw_deg, 180.0),
+            ("tilt_deg", p.tilt_deg, 90.0),
+            ("shift_mm", p.shift_mm, limits::MAX_DISTANCE_MM),
         ] {
-            limits::finite(&[v]).map_err(|m| m.at(format!("poses.{key}")))?;
+            limits::non_negative(v, most).map_err(|m| m.at(format!("poses.{key}")))?;
         }
         if let Some(k) = p.absent.iter().find(|&&k| k >= p.count) {
             return Err(ValidationError::new(
@@ -1038,8 +1047,15 @@ fn check_truth(
     t.distortion
         .check()
         .map_err(|e| e.map_at(|f| at(&format!("sim.distortion.{f}"))))?;
-    limits::finite(&t.pose.eye).map_err(|m| m.at(at("sim.pose.eye")))?;
-    limits::finite(&t.pose.target).map_err(|m| m.at(at("sim.pose.target")))?;
+    let far = limits::MAX_DISTANCE_MM;
+    for (key, point) in [
+        ("sim.pose.eye", t.pose.eye),
+        ("sim.pose.target", t.pose.target),
+    ] {
+        for v in point {
+            limits::within(v, -far, far).map_err(|m| m.at(at(key)))?;
+        }
+    }
     if t.pose.eye == t.pose.target {
         return Err(ValidationError::new(at("sim.pose"), "eye equals target"));
     }

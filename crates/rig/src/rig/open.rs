@@ -24,8 +24,8 @@ pub enum OpenError {
     /// The board file.
     #[error("board: {0}")]
     Board(#[from] BoardError),
-    /// The phase-shift sequence the projectors ask for.
-    #[error("sequence: {0}")]
+    /// The phase-shift sequence the projectors ask for (its message says "sequence: ").
+    #[error("{0}")]
     Sequence(#[from] SequenceError),
     /// The simulated devices.
     #[error("{0}")]

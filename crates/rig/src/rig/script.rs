@@ -306,9 +306,13 @@ fn check_protocol(p: &PositionerSpec, at: &dyn Fn(&str) -> String) -> Result<(),
 }
 
 fn check_stage(s: &SimStageSpec, at: &dyn Fn(&str) -> String) -> Result<(), ValidationError> {
-    limits::finite(&s.centre).map_err(|m| m.at(at("sim.centre")))?;
-    limits::finite(&s.offset).map_err(|m| m.at(at("sim.offset")))?;
-    limits::finite(&[s.roll_deg]).map_err(|m| m.at(at("sim.roll_deg")))?;
+    let far = limits::MAX_DISTANCE_MM;
+    for (key, point) in [("sim.centre", s.centre), ("sim.offset", s.offset)] {
+        for v in point {
+            limits::within(v, -far, far).map_err(|m| m.at(at(key)))?;
+        }
+    }
+    limits::within(s.roll_deg, -360.0, 360.0).map_err(|m| m.at(at("sim.roll_deg")))?;
     if !(s.speed_deg_s > 0.0 && s.speed_deg_s <= 1e4) {
         return Err(ValidationError::new(
             at("sim.speed_deg_s"),

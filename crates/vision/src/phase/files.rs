@@ -32,7 +32,12 @@ pub enum DecodeFilesError {
 
 /// Decode the stack in `dir` (frame by frame: one group of frames is held at a time).
 pub fn decode_dir(dir: &Path) -> Result<DecodedStack, DecodeFilesError> {
-    let stack = StackReader::open(dir)?;
+    decode_stack(&StackReader::open(dir)?)
+}
+
+/// Decode an opened stack (e.g. one [`hexcal_core::dataset::Dataset::stack`] checked
+/// against its dataset), frame by frame.
+pub fn decode_stack(stack: &StackReader) -> Result<DecodedStack, DecodeFilesError> {
     let info = &stack.info;
     let mut decoder = Decoder::<u16>::new(
         &info.sequence,

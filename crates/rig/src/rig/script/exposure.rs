@@ -82,7 +82,8 @@ impl Unroller<'_> {
             }
         }
         if let Some(g) = s.gain_db {
-            limits::finite(&[g]).map_err(|m| m.at(key("gain_db")))?;
+            limits::within(g, -limits::MAX_GAIN_DB, limits::MAX_GAIN_DB)
+                .map_err(|m| m.at(key("gain_db")))?;
         }
         let cameras = s.cameras.clone().unwrap_or_default();
         if s.cameras.is_some() && cameras.is_empty() {
