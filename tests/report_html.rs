@@ -78,7 +78,7 @@ fn report_renders_as_a_page_with_figures() {
         r.error = nalgebra::Vector2::new(50.0, -30.0);
         r.outlier = true;
     }
-    let checks = verify(&rig.board, &cal.devices, &test);
+    let checks = verify(&rig.board, &cal.devices, &test).checks;
     assert!(!checks.is_empty());
     let dir = scratch("report-html");
     let page = dir.join("report.html");
