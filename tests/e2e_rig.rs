@@ -159,7 +159,13 @@ fn rendered_views_calibrate_the_rig() {
         eprintln!("{}: focal error {:.4} %", est.name, 100.0 * e);
         assert!(e.abs() <= 1e-3, "{} focal error {e}", est.name);
     }
-    let checks = hexcal::calib::verify::verify(&rig.board, &cal.devices, &test).checks;
+    let verification = hexcal::calib::verify::verify(&rig.board, &cal.devices, &test);
+    assert!(
+        verification.skipped.is_empty(),
+        "{:?}",
+        verification.skipped
+    );
+    let checks = verification.checks;
     let rms =
         (checks.iter().map(|c| c.length_rms.powi(2)).sum::<f64>() / checks.len() as f64).sqrt();
     eprintln!(
