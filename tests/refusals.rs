@@ -665,3 +665,20 @@ fn first_contact_mistakes_say_what_was_meant() {
     );
     assert!(!data.exists(), "nothing written before the refusal");
 }
+
+/// A board typo in a rig file names its line and the built-in boards.
+#[test]
+fn a_board_typo_in_a_rig_file_names_its_line_and_the_built_in_boards() {
+    let dir = scratch("board-typo");
+    let (text, line) = rig_with("board = \"hex600\"", "board = \"hex60\"");
+    let rig = file(&dir, "rig.toml", &text);
+    let run = hexcal(&["run", "--rig", rig.to_str().unwrap(), "--dry-run"]);
+    refused(
+        &run,
+        &[
+            &format!("rig.toml:{line}: board: "),
+            "\"hex60\"",
+            "built-in board (hex600)",
+        ],
+    );
+}

@@ -677,6 +677,7 @@ impl RigFile {
     /// number is finite and physically possible, every count and size within
     /// [`hexcal_core::limits`], every name unique and usable as a folder name.
     fn check(&self) -> Result<(), ValidationError> {
+        self.check_board_name()?;
         self.check_timing()?;
         if self.cameras.is_empty() {
             return Err(ValidationError::new(
@@ -723,6 +724,22 @@ impl RigFile {
         }
         let simulated = self.cameras.iter().any(|c| c.driver == CameraDriver::Sim);
         self.check_script(simulated)
+    }
+
+    /// `board`: a built-in board's name or the path of a board file (ending `.toml`); a
+    /// name that is neither (a typo of `hex600`) is refused naming the built-in boards.
+    fn check_board_name(&self) -> Result<(), ValidationError> {
+        let path_like = self.board.ends_with(".toml") || self.board.contains(['/', '\\']);
+        if path_like || Board::builtin(&self.board).is_some() {
+            return Ok(());
+        }
+        Err(ValidationError::new(
+            "board",
+            format!(
+                "{} (a board file's path ends in .toml, relative to the rig file)",
+                BoardError::Unknown(self.board.clone())
+            ),
+        ))
     }
 
     /// `[timing]`: durations finite, positive where they must be, at most an hour.

@@ -360,7 +360,7 @@ mod tests {
         let rig = paper()
             .with("poses.count = 2")
             .with("timing.repeats = 4")
-            .with("board = \"hex400\"")
+            .with("board = \"boards/mine.toml\"")
             .table("[trigger]\nport = \"sim\"")
             .without(&["cam2", "proj1"])
             .edit("cam1", |c| {
@@ -373,7 +373,10 @@ mod tests {
             })
             .parse()
             .unwrap();
-        assert_eq!((rig.board.as_str(), rig.timing.repeats), ("hex400", 4));
+        assert_eq!(
+            (rig.board.as_str(), rig.timing.repeats),
+            ("boards/mine.toml", 4)
+        );
         assert_eq!(rig.poses.as_ref().unwrap().count, 2);
         let cam1 = &rig.cameras[1];
         assert_eq!((cam1.exposure_ms, cam1.trigger_line), (5.0, Some(1)));
