@@ -17,7 +17,7 @@ use std::path::{Component, Path, PathBuf};
 pub const MAX_PATH_BYTES: usize = 4096;
 
 /// `Err` unless `name` is a plain file name: not empty, at most
-/// [`MAX_NAME_BYTES`](crate::limits::MAX_NAME_BYTES), no `/`, `\`, control character, and
+/// [`MAX_NAME_BYTES`], no `/`, `\`, control character, and
 /// not `.` or `..`.
 pub fn file_name(name: &str) -> Result<(), Invalid> {
     if name.is_empty() {
