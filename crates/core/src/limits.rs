@@ -197,8 +197,14 @@ pub fn rigid(rvec: &[f64; 3], tvec: &[f64; 3]) -> Result<(), crate::ValidationEr
 /// `Err` unless `name` can name a device, and so a folder or file: not empty, at most
 /// [`MAX_NAME_BYTES`], no `/`, `\`, control character, and not `.` or `..`.
 pub fn device_name(name: &str) -> Result<(), Invalid> {
+    plain_name(name, "a device needs a name", "cannot name a folder")
+}
+
+/// `Err` unless `name` is not empty (else `empty`), at most [`MAX_NAME_BYTES`], and has no
+/// `/`, `\`, control character and is not `.` or `..` (else "`name` `not`").
+pub(crate) fn plain_name(name: &str, empty: &str, not: &str) -> Result<(), Invalid> {
     if name.is_empty() {
-        return Err(Invalid::new("a device needs a name"));
+        return Err(Invalid::new(empty));
     }
     if name.len() > MAX_NAME_BYTES {
         return Err(Invalid(format!(
@@ -213,7 +219,7 @@ pub fn device_name(name: &str) -> Result<(), Invalid> {
             .any(|c| c == '/' || c == '\\' || c.is_control())
     {
         return Err(Invalid(format!(
-            "{name:?} cannot name a folder (no /, \\, control characters, . or ..)"
+            "{name:?} {not} (no /, \\, control characters, . or ..)"
         )));
     }
     Ok(())

@@ -10,36 +10,20 @@
 //! symbolic link ([`contained`]).
 
 use crate::invalid::Invalid;
-use crate::limits::MAX_NAME_BYTES;
 use std::path::{Component, Path, PathBuf};
 
 /// The longest path inside a folder a file may name (bytes).
 pub const MAX_PATH_BYTES: usize = 4096;
 
 /// `Err` unless `name` is a plain file name: not empty, at most
-/// [`MAX_NAME_BYTES`], no `/`, `\`, control character, and
+/// [`MAX_NAME_BYTES`](crate::limits::MAX_NAME_BYTES), no `/`, `\`, control character, and
 /// not `.` or `..`.
 pub fn file_name(name: &str) -> Result<(), Invalid> {
-    if name.is_empty() {
-        return Err(Invalid::new("an empty name cannot name a file"));
-    }
-    if name.len() > MAX_NAME_BYTES {
-        return Err(Invalid(format!(
-            "a name of {} bytes: at most {MAX_NAME_BYTES}",
-            name.len()
-        )));
-    }
-    if name == "."
-        || name == ".."
-        || name
-            .chars()
-            .any(|c| c == '/' || c == '\\' || c.is_control())
-    {
-        return Err(Invalid(format!(
-            "{name:?} is not a plain file name (no /, \\, control characters, . or ..)"
-        )));
-    }
-    Ok(())
+    crate::limits::plain_name(
+        name,
+        "an empty name cannot name a file",
+        "is not a plain file name",
+    )
 }
 
 /// The path `relative` names inside `folder`: `Err` unless it is relative, not empty, at

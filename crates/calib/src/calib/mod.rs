@@ -92,6 +92,6 @@ pub enum CalibError {
 }
 
 #[cfg(test)]
-mod single_sided_tests;
+pub(crate) mod single_sided_tests;
 #[cfg(test)]
 mod tests;

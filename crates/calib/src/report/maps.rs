@@ -28,24 +28,31 @@ pub struct ImageMap {
     pub values: Vec<Option<f64>>,
 }
 
+/// The cell counts (across, down) of a grid of about [`CELLS`] cells across the longer side
+/// of `model`'s image, and `f` at every cell centre, row by row.
+fn on_cells<T>(model: &CameraModel, f: impl Fn(Point2<f64>) -> T) -> ([usize; 2], Vec<T>) {
+    let (w, h) = (model.width as f64, model.height as f64);
+    let cell = w.max(h) / CELLS as f64;
+    let cells = [
+        (w / cell).round().max(1.0) as usize,
+        (h / cell).round().max(1.0) as usize,
+    ];
+    let values = (0..cells[0] * cells[1])
+        .map(|i| {
+            let (cx, cy) = ((i % cells[0]) as f64 + 0.5, (i / cells[0]) as f64 + 0.5);
+            f(Point2::new(
+                cx * w / cells[0] as f64 - 0.5,
+                cy * h / cells[1] as f64 - 0.5,
+            ))
+        })
+        .collect();
+    (cells, values)
+}
+
 impl ImageMap {
     /// `f` at every cell centre of a grid of about [`CELLS`] cells across the longer side.
     fn of(model: &CameraModel, f: impl Fn(Point2<f64>) -> Option<f64>) -> ImageMap {
-        let (w, h) = (model.width as f64, model.height as f64);
-        let cell = w.max(h) / CELLS as f64;
-        let cells = [
-            (w / cell).round().max(1.0) as usize,
-            (h / cell).round().max(1.0) as usize,
-        ];
-        let values = (0..cells[0] * cells[1])
-            .map(|i| {
-                let (cx, cy) = ((i % cells[0]) as f64 + 0.5, (i / cells[0]) as f64 + 0.5);
-                f(Point2::new(
-                    cx * w / cells[0] as f64 - 0.5,
-                    cy * h / cells[1] as f64 - 0.5,
-                ))
-            })
-            .collect();
+        let (cells, values) = on_cells(model, f);
         ImageMap {
             size: [model.width, model.height],
             cells,
@@ -119,19 +126,14 @@ pub fn distortion_map(model: &CameraModel) -> (ImageMap, Vec<Option<[f64; 2]>>) 
         let q = pinhole.project(&Point3::from(ray))?;
         Some([p.x - q.x, p.y - q.y])
     };
-    let vectors_map = ImageMap::of(model, |p| shift(p).map(|[x, y]| x.hypot(y)));
-    let [cw, ch] = vectors_map.cells;
-    let (w, h) = (model.width as f64, model.height as f64);
-    let vectors = (0..cw * ch)
-        .map(|i| {
-            let (cx, cy) = ((i % cw) as f64 + 0.5, (i / cw) as f64 + 0.5);
-            shift(Point2::new(
-                cx * w / cw as f64 - 0.5,
-                cy * h / ch as f64 - 0.5,
-            ))
-        })
-        .collect();
-    (vectors_map, vectors)
+    let (cells, vectors) = on_cells(model, shift);
+    let values = vectors.iter().map(|v| v.map(|[x, y]| x.hypot(y))).collect();
+    let map = ImageMap {
+        size: [model.width, model.height],
+        cells,
+        values,
+    };
+    (map, vectors)
 }
 
 /// Picture width (SVG units) of a map.

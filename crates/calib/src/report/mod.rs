@@ -601,3 +601,42 @@ pub fn format_verification(checks: &[crate::calib::verify::PairCheck]) -> String
 }
 
 pub use crate::calib::verify::verification_rms;
+
+#[cfg(test)]
+mod tests {
+    use super::CalibrationFile;
+    use crate::calib::single_sided_tests::rigs;
+    use crate::calib::solve::{calibrate, CalibrateOptions};
+    use hexcal_core::board::Sides;
+
+    /// A single-sided board's calibration file says it is single-sided and has no side
+    /// transform; one written into it is refused by its path.
+    #[test]
+    fn a_single_sided_boards_file_has_no_side_transform() {
+        let (_, single) = rigs(7);
+        let cal = calibrate(
+            &single.board,
+            &single.device_infos(),
+            single.boards.len(),
+            &single.views(),
+            &CalibrateOptions::default(),
+        )
+        .unwrap();
+        assert!(cal.solution.front_back.is_none() && cal.solution.held.is_empty());
+        let file = CalibrationFile::new(&cal);
+        let json = file.to_json();
+        assert!(json.contains("\"board_sides\": 1"), "{json}");
+        assert!(!json.contains("front_back"), "{json}");
+        let back = CalibrationFile::from_json(&json, "c.json").unwrap();
+        assert_eq!((back.board_sides, back.front_back), (Sides::One, None));
+        // A side transform written into a single-sided board's file is refused by its path.
+        let forged = json.replacen(
+            "\"board_sides\": 1,",
+            "\"board_sides\": 1, \"front_back\": {\"rvec\": [0, 3.1, 0], \"tvec\": [0, 0, -10]},",
+            1,
+        );
+        let e = CalibrationFile::from_json(&forged, "c.json").unwrap_err();
+        assert!(e.to_string().contains("front_back"), "{e}");
+        assert!(e.to_string().contains("single-sided"), "{e}");
+    }
+}
