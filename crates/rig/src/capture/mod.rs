@@ -269,7 +269,10 @@ impl Session {
 
     /// Projector names, in order.
     pub fn projector_names(&self) -> Vec<String> {
-        self.projectors.iter().map(|p| p.name().to_string()).collect()
+        self.projectors
+            .iter()
+            .map(|p| p.name().to_string())
+            .collect()
     }
 
     /// The timing the session captures with.

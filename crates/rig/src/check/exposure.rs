@@ -23,6 +23,8 @@ pub const RESPONSE_LEVELS: [u8; 9] = [0, 32, 64, 96, 128, 160, 192, 224, 255];
 const TOLERANCE: f64 = 0.03;
 /// Most exposure settings tried per camera.
 const MAX_ROUNDS: usize = 8;
+/// Levels closer to black than this (DN) are left out of the gamma fit.
+const QUANTA_ABOVE_BLACK: f64 = 5.0;
 /// The shortest exposure set (µs).
 const MIN_EXPOSURE_US: f64 = 10.0;
 
@@ -216,7 +218,12 @@ fn whites(
     let levels = (white.iter().zip(&masks))
         .map(|((v, full), m)| {
             let mut lit: Vec<f32> = match m {
-                Some(m) => v.iter().zip(m).filter(|(_, &k)| k).map(|(x, _)| *x).collect(),
+                Some(m) => v
+                    .iter()
+                    .zip(m)
+                    .filter(|(_, &k)| k)
+                    .map(|(x, _)| *x)
+                    .collect(),
                 None => v.clone(),
             };
             let k = ((0.99 * lit.len() as f64) as usize).min(lit.len().saturating_sub(1));
@@ -303,7 +310,13 @@ fn measure_response(
     let slides: Vec<Vec<Slide>> = (RESPONSE_LEVELS.iter())
         .map(|&l| {
             (0..n)
-                .map(|q| if q == p { Slide::Level(l) } else { Slide::Black })
+                .map(|q| {
+                    if q == p {
+                        Slide::Level(l)
+                    } else {
+                        Slide::Black
+                    }
+                })
                 .collect()
         })
         .collect();
@@ -319,7 +332,7 @@ fn measure_response(
         .map(|(c, camera)| {
             let take = |l: usize, t: usize| &frames[l][t][c];
             let full = take(0, 0).1;
-            let mask = lit_mask(&take(0, 0).0, &take(last, 0).0, 0.02 * full);
+            let mask = lit_mask(&take(0, 0).0, &take(last, 0).0, 0.08 * full);
             let values = |l: usize, t: usize| &frames[l][t][c].0;
             response(camera, projector, mask.as_deref(), &values, full)
         })
@@ -356,10 +369,14 @@ fn response<'a>(
     let mut var = 0.0;
     for l in 0..levels {
         let (a, b) = (take(l, 0), take(l, 1));
-        r.mean_dn.push(0.5 * (mean_over(a, mask) + mean_over(b, mask)));
+        r.mean_dn
+            .push(0.5 * (mean_over(a, mask) + mean_over(b, mask)));
         let d: Vec<f32> = a.iter().zip(b).map(|(x, y)| x - y).collect();
         let md = mean_over(&d, mask);
-        let sq: Vec<f32> = d.iter().map(|x| (f64::from(*x) - md).powi(2) as f32).collect();
+        let sq: Vec<f32> = d
+            .iter()
+            .map(|x| (f64::from(*x) - md).powi(2) as f32)
+            .collect();
         var += mean_over(&sq, mask) / 2.0;
     }
     // Pixel noise averaged over levels; a mean of two takes over `count` pixels.
@@ -396,7 +413,8 @@ fn fit_gamma(m: &[f64], sigma: f64) -> (f64, f64) {
         let y = (mi - black) / range;
         // Noise of y from the three means it is made of.
         let sy = sigma * (1.0 + y * y + (1.0 - y) * (1.0 - y)).sqrt() / range;
-        if y <= 5.0 * sy {
+        // Within a few quanta of black a mean carries the rounding's bias, not light.
+        if y <= 5.0 * sy || mi - black < QUANTA_ABOVE_BLACK {
             continue;
         }
         let w = (y / sy).powi(2);
@@ -425,13 +443,21 @@ impl std::fmt::Display for ExposureReport {
                 c.exposure_us,
                 c.gain_db,
                 c.white,
-                if c.converged { "" } else { " (short of target)" }
+                if c.converged {
+                    ""
+                } else {
+                    " (short of target)"
+                }
             )?;
         }
         writeln!(f, "response (levels {:?}):", RESPONSE_LEVELS)?;
         for r in &self.responses {
             if !r.seen {
-                writeln!(f, "  {} × {}: not lit in this camera's view", r.camera, r.projector)?;
+                writeln!(
+                    f,
+                    "  {} × {}: not lit in this camera's view",
+                    r.camera, r.projector
+                )?;
                 continue;
             }
             writeln!(

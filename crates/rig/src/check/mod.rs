@@ -73,7 +73,9 @@ fn mean_over(v: &[f32], mask: &[bool]) -> f64 {
         .iter()
         .zip(mask)
         .filter(|(_, &m)| m)
-        .fold((0.0f64, 0usize), |(s, c), (&x, _)| (s + f64::from(x), c + 1));
+        .fold((0.0f64, 0usize), |(s, c), (&x, _)| {
+            (s + f64::from(x), c + 1)
+        });
     sum / count.max(1) as f64
 }
 

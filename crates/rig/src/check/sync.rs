@@ -154,7 +154,12 @@ pub fn check_sync(session: &mut Session, plan: &SyncPlan) -> Result<SyncReport, 
     }
     for (c, camera) in cameras.iter().enumerate() {
         for (p, projector) in projectors.iter().enumerate() {
-            pairs.push(analyse(camera, projector, by_projector[p][c].as_ref(), plan));
+            pairs.push(analyse(
+                camera,
+                projector,
+                by_projector[p][c].as_ref(),
+                plan,
+            ));
         }
     }
     let worst = (pairs.iter().filter(|p| p.seen))
@@ -272,7 +277,10 @@ fn coded(
 fn decode(m: f64, means: &[f64; 6]) -> Option<usize> {
     let mut sorted = *means;
     sorted.sort_by(f64::total_cmp);
-    let spacing = sorted.windows(2).map(|w| w[1] - w[0]).fold(f64::MAX, f64::min);
+    let spacing = sorted
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .fold(f64::MAX, f64::min);
     let (code, d) = (means.iter().enumerate())
         .map(|(i, r)| (i, (m - r).abs()))
         .min_by(|a, b| a.1.total_cmp(&b.1))?;

@@ -14,7 +14,10 @@ fn session(rig: SimRig) -> (Session, Duration) {
     let opened = crate::rig::open(&rig).unwrap();
     opened.world.as_ref().unwrap().place(0);
     let s = Session::start(opened.devices, &opened.sequence).unwrap();
-    (s, Duration::from_secs_f64(1e-3 * rig.timing.frame_period_ms))
+    (
+        s,
+        Duration::from_secs_f64(1e-3 * rig.timing.frame_period_ms),
+    )
 }
 
 #[test]
@@ -45,7 +48,10 @@ fn sync_names_lag_repeats_and_drops_per_camera_and_projector() {
     let step = 100.0 / 9.0;
     let p0 = pair("front", "p0");
     assert!(p0.seen);
-    assert!(p0.latency_ms >= lag && p0.latency_ms <= lag + step + 5.0, "{p0:?}");
+    assert!(
+        p0.latency_ms >= lag && p0.latency_ms <= lag + step + 5.0,
+        "{p0:?}"
+    );
     assert_eq!(p0.latency_frames, (p0.latency_ms / 20.0).ceil() as u32);
     assert!(p0.dropped.is_empty(), "{p0:?}");
     assert!((2..=3).contains(&p0.repeated.len()), "{p0:?}");
@@ -85,4 +91,58 @@ fn short_sync_passes_a_lag_the_settle_time_covers() {
     assert!(p0.latency_ms >= 5.0 && p0.latency_ms < 20.0, "{p0:?}");
     assert!(p0.dropped.is_empty() && p0.late_at_run.is_empty());
     assert!(report.to_string().contains("sync OK"));
+}
+
+#[test]
+fn exposure_converges_and_recovers_gamma_and_a_clipping_projector_is_warned() {
+    // p0 uncorrected gamma 2.2 (the rig's default); p1's light stops growing above level 200.
+    let rig = tiny().edit("p1", |p| p.with("sim_display = { clip_level = 200 }"));
+    let (mut s, period) = session(rig);
+    let plan = |white_level, max_exposure_us| ExposurePlan {
+        white_level,
+        max_exposure_us,
+        max_gain_db: 24.0,
+        wait: Duration::ZERO,
+        set_exposure: true,
+    };
+    assert_eq!(period, Duration::from_millis(20));
+    // Half scale by exposure alone.
+    let half = check_exposure(&mut s, &plan(0.5, 20_000.0)).unwrap();
+    println!("{half}");
+    for c in &half.cameras {
+        assert!(c.converged && (c.white - 0.5).abs() <= 0.03, "{c:?}");
+        assert!(c.exposure_us <= 20_000.0 && c.gain_db == 0.0, "{c:?}");
+    }
+    assert_eq!(s.exposures()[0], (half.cameras[0].exposure_us, 0.0));
+    // Gamma from the response at this exposure, within 4σ of its noise. (With gain added
+    // below, a bias of about 0.005 — 6σ — appears that is not explained yet.)
+    let g = (half.responses.iter())
+        .find(|x| x.projector == "p0" && x.seen)
+        .unwrap();
+    assert!(g.gamma_sigma > 0.0 && g.gamma_sigma < 0.05, "{g:?}");
+    assert!((g.gamma - 2.2).abs() <= 4.0 * g.gamma_sigma, "{g:?}");
+    // 0.8 with at most 4 ms of exposure: the rest is gain.
+    let report = check_exposure(&mut s, &plan(0.8, 4_000.0)).unwrap();
+    s.finish().unwrap();
+    println!("{report}");
+    for c in &report.cameras {
+        assert!(c.converged && (c.white - 0.8).abs() <= 0.03, "{c:?}");
+        assert!(c.exposure_us == 4_000.0 && c.gain_db > 0.0, "{c:?}");
+    }
+    let r = |c: &str, p: &str| {
+        (report.responses.iter())
+            .find(|x| x.camera == c && x.projector == p)
+            .unwrap()
+    };
+    assert!(!r("front", "p1").seen && !r("back", "p0").seen);
+    let p0 = r("front", "p0");
+    assert!(!p0.clips && !p0.non_monotone, "{p0:?}");
+    let p1 = r("back", "p1");
+    assert!(p1.clips, "{p1:?}");
+    let warnings = report.warnings();
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(
+        warnings[0].starts_with("back × p1: the response clips"),
+        "{warnings:?}"
+    );
 }

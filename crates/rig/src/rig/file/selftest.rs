@@ -149,7 +149,10 @@ impl super::RigFile {
     pub fn fully_simulated(&self) -> bool {
         use super::{CameraDriver, ProjectorDriver};
         self.cameras.iter().all(|c| c.driver == CameraDriver::Sim)
-            && self.projectors.iter().all(|p| p.driver == ProjectorDriver::Sim)
+            && self
+                .projectors
+                .iter()
+                .all(|p| p.driver == ProjectorDriver::Sim)
             && (self.trigger.as_ref()).is_none_or(|t| t.port == crate::rig::SIMULATED_PORT)
     }
 }
