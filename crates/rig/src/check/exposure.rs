@@ -299,6 +299,9 @@ fn split((exposure, gain): (f64, f64), scale: f64, plan: &ExposurePlan) -> (f64,
     ((e * 10.0).round() / 10.0, (g * 100.0).round() / 100.0)
 }
 
+/// Every camera's samples and full scale of one take.
+type Takes = Vec<(Vec<f32>, f32)>;
+
 /// Projector `p`'s response through every camera: each level shown alone, taken twice.
 fn measure_response(
     session: &mut Session,
@@ -321,7 +324,7 @@ fn measure_response(
         })
         .collect();
     // Per level, per take, per camera.
-    let mut frames: Vec<Vec<Vec<(Vec<f32>, f32)>>> = vec![Vec::new(); slides.len()];
+    let mut frames: Vec<Vec<Takes>> = vec![Vec::new(); slides.len()];
     let waits = [plan.wait, plan.wait + Duration::from_millis(1)];
     session.probe(&slides, &waits, &mut |t: ProbeTake| {
         frames[t.slide].push(t.frames.iter().map(samples).collect());
