@@ -20,7 +20,7 @@ pub use hexcal_calib::{calib, report};
 pub use hexcal_core::{
     atomic, board, camera, dataset, images, invalid, limits, lock, observations, pattern, stop,
 };
-pub use hexcal_rig::{capture, rig};
+pub use hexcal_rig::{capture, check, rig};
 pub use hexcal_sim as sim;
 pub use hexcal_vision::{correspond, detect, grid, phase};
 

@@ -382,7 +382,7 @@ const MODULES: &[(&str, &[&str])] = &[
         ],
     ),
     ("crates/vision", &["phase", "detect", "grid", "correspond"]),
-    ("crates/rig", &["rig", "capture"]),
+    ("crates/rig", &["rig", "capture", "check"]),
     ("crates/calib", &["calib", "report"]),
     (
         "crates/py",

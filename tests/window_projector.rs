@@ -158,6 +158,7 @@ fn slides_on_screen_match_the_patterns_pixel_for_pixel() {
                     Slide::Black,
                     Slide::Pattern(n / 2 + 3),
                     Slide::Pattern(n - 1),
+                    Slide::Level(128),
                 ];
                 for slide in slides {
                     p.show(slide).unwrap();
@@ -165,6 +166,16 @@ fn slides_on_screen_match_the_patterns_pixel_for_pixel() {
                         Slide::Black => vec![0; 1280 * 800],
                         Slide::White => vec![255; 1280 * 800],
                         Slide::Pattern(k) => seq.pattern_image(0, k).into_raw(),
+                        // A flat level goes through the inverse-gamma table as patterns do.
+                        Slide::Level(l) => vec![
+                            match response {
+                                ProjectorResponse::Linearised { gamma } => {
+                                    hexcal::pattern::inverse_gamma_lut(gamma)[usize::from(l)]
+                                }
+                                _ => l,
+                            };
+                            1280 * 800
+                        ],
                     };
                     let (bad, first) = mismatches(&expect);
                     assert_eq!(

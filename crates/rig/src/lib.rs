@@ -7,4 +7,5 @@
 #![warn(missing_docs)]
 
 pub mod capture;
+pub mod check;
 pub mod rig;

@@ -485,6 +485,43 @@ impl StackRenderer {
         self.sensor.expose(self.size, signal, seed)
     }
 
+    /// A frame outside the sequence with projector p showing the flat intended level
+    /// `levels[p]` (its light through the projector's response table); `n` numbers it for
+    /// its noise, as in [`Self::flat_frame`].
+    pub fn levels_frame(&self, levels: &[u8], n: u64) -> Frame {
+        let flat = |[x0, y0, x1, y1]: [usize; 4]| {
+            let w = self.size.width as usize;
+            let mut irr = vec![0.0f32; (x1 - x0) * (y1 - y0)];
+            for (by, row) in irr.chunks_mut(x1 - x0).enumerate() {
+                let base = (y0 + by) * w + x0;
+                for (bx, out) in row.iter_mut().enumerate() {
+                    let i = base + bx;
+                    let e: f32 = (self.truth.iter().zip(&self.gains))
+                        .zip(self.light.iter().zip(levels))
+                        .filter(|((t, _), _)| t.lit(i))
+                        .map(|((_, g), (l, &level))| g * l[usize::from(level)])
+                        .sum();
+                    *out = self.albedo[by * (x1 - x0) + bx] * e;
+                }
+            }
+            irr
+        };
+        let seed = self.seed ^ 0x1e7e_15ee ^ n.wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        self.sensor.expose(self.size, &self.signal(flat), seed)
+    }
+
+    /// Projector p's light stops growing above intended level `level` (a projector whose
+    /// response clips), in every frame rendered from now on.
+    pub fn clip_light(&mut self, p: usize, level: u8) {
+        if let Some(table) = self.light.get_mut(p) {
+            let top = table[usize::from(level)];
+            for l in table.iter_mut() {
+                *l = l.min(top);
+            }
+            self.flat_signal = Default::default();
+        }
+    }
+
     /// The whole frame's noise-free signal of the ambient light plus the projectors'
     /// irradiance `lit` gives inside the lit box (what [`Self::expose`] forms band by band).
     fn signal(&self, lit: impl FnOnce([usize; 4]) -> Vec<f32>) -> Vec<f32> {

@@ -69,6 +69,27 @@ pub enum CaptureError {
     /// A preview frame could not be taken (between poses; no pose is harmed).
     #[error("preview: {0}")]
     Preview(DeviceError),
+    /// A self-test's frame could not be taken ([`Session::probe`]).
+    #[error("self-test, slide {slide}: {source}")]
+    Probe {
+        /// Index of the slide set shown.
+        slide: usize,
+        /// What the device said.
+        source: DeviceError,
+    },
+}
+
+/// One exposure of [`Session::probe`]: every camera's frame of one slide set, at one wait.
+#[derive(Clone, Debug)]
+pub struct ProbeTake {
+    /// Index of the slide set shown.
+    pub slide: usize,
+    /// Index of the wait asked for.
+    pub wait: usize,
+    /// Time from the projectors told to show the slides to the trigger, as it happened.
+    pub after: Duration,
+    /// Every camera's frame, in camera order.
+    pub frames: Vec<CameraFrame>,
 }
 
 enum Command {
@@ -246,6 +267,33 @@ impl Session {
         self.workers.iter().map(|w| w.name.clone()).collect()
     }
 
+    /// Projector names, in order.
+    pub fn projector_names(&self) -> Vec<String> {
+        self.projectors
+            .iter()
+            .map(|p| p.name().to_string())
+            .collect()
+    }
+
+    /// The timing the session captures with.
+    pub fn timing(&self) -> &CaptureTiming {
+        &self.timing
+    }
+
+    /// Each camera's (exposure µs, gain dB) set now, in order.
+    pub fn exposures(&self) -> Vec<(f64, f64)> {
+        self.workers.iter().map(|w| w.current).collect()
+    }
+
+    /// From now on, captures use `settings[i]` as camera i's configured exposure (µs) and
+    /// gain (dB) — what [`Session::set_exposures`] restores — and set it now.
+    pub fn configure_exposures(&mut self, settings: &[(f64, f64)]) -> Result<(), CaptureError> {
+        for (w, s) in self.workers.iter_mut().zip(settings) {
+            w.configured = *s;
+        }
+        self.set_exposures(&[])
+    }
+
     /// The pixel format each configured camera delivers (its driver's name), in order.
     pub fn pixel_formats(&self) -> Vec<Option<String>> {
         self.workers
@@ -382,6 +430,74 @@ impl Session {
         }
         timeline.total = start.elapsed();
         Ok(timeline)
+    }
+
+    /// The self-tests' lockstep (docs/design.md §11b): show `slides[i]` (one slide per
+    /// projector) for i in order, and after each, at every delay of `waits` (ascending, from
+    /// the moment the projectors were told), take one frame from every camera (no repeats)
+    /// and hand it to `sink`. The timing of the rig file is not used: `waits` is.
+    pub fn probe(
+        &mut self,
+        slides: &[Vec<Slide>],
+        waits: &[Duration],
+        sink: &mut dyn FnMut(ProbeTake) -> Result<(), SinkError>,
+    ) -> Result<(), CaptureError> {
+        if slides.iter().any(|s| s.len() != self.projectors.len()) {
+            return Err(CaptureError::Setup(format!(
+                "a self-test slide set per projector ({}) is needed",
+                self.projectors.len()
+            )));
+        }
+        self.shown = None;
+        if let Some(t) = self.trigger.as_mut() {
+            let takes = (slides.len() * waits.len()) as u32;
+            t.arm(takes * (1 + self.timing.retries))
+                .map_err(|source| CaptureError::Probe { slide: 0, source })?;
+        }
+        let taken = self.probe_all(slides, waits, sink);
+        if let Some(t) = self.trigger.as_mut() {
+            let disarmed = t.disarm().map_err(|source| CaptureError::Probe {
+                slide: slides.len(),
+                source,
+            });
+            if taken.is_ok() {
+                disarmed?;
+            }
+        }
+        taken
+    }
+
+    fn probe_all(
+        &mut self,
+        slides: &[Vec<Slide>],
+        waits: &[Duration],
+        sink: &mut dyn FnMut(ProbeTake) -> Result<(), SinkError>,
+    ) -> Result<(), CaptureError> {
+        for (i, set) in slides.iter().enumerate() {
+            let err = |source| CaptureError::Probe { slide: i, source };
+            for (p, slide) in self.projectors.iter_mut().zip(set) {
+                p.show(*slide).map_err(err)?;
+            }
+            let shown = Instant::now();
+            for (j, wait) in waits.iter().enumerate() {
+                std::thread::sleep(wait.saturating_sub(shown.elapsed()));
+                self.drain()?;
+                let after = shown.elapsed();
+                let frames = match self.take_all(0, i) {
+                    Ok((frames, _, _)) => frames,
+                    Err(CaptureError::Frame { source, .. }) => return Err(err(source)),
+                    Err(e) => return Err(e),
+                };
+                let take = ProbeTake {
+                    slide: i,
+                    wait: j,
+                    after,
+                    frames,
+                };
+                sink(take).map_err(|e| CaptureError::Setup(format!("self-test: {e}")))?;
+            }
+        }
+        Ok(())
     }
 
     /// Discard late frames in every camera (acknowledged, so none is pending after).

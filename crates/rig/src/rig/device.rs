@@ -74,6 +74,10 @@ pub enum Slide {
     White,
     /// Frame k of the prepared sequence.
     Pattern(usize),
+    /// A flat field of intended level L/255, sent as pattern levels are (through the
+    /// projector's inverse-gamma table when the sequence linearises it): the self-tests'
+    /// frame codes and response levels (docs/design.md §11b).
+    Level(u8),
 }
 
 /// A projector.

@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+pub mod selftest;
 pub mod steps;
 
 /// Camera drivers.
@@ -188,6 +189,9 @@ pub struct ProjectorSpec {
     /// Ground truth (`sim` only).
     #[serde(default)]
     pub sim: Option<SimTruth>,
+    /// How a simulated display misbehaves (`sim` only; docs/rig-file.md, "Self-tests").
+    #[serde(default)]
+    pub sim_display: Option<selftest::SimDisplay>,
 }
 
 fn default_gamma() -> f64 {
@@ -439,6 +443,9 @@ pub struct RigFile {
     /// The capture script: steps run in order by `hexcal run`.
     #[serde(default)]
     pub script: Vec<steps::StepSpec>,
+    /// When `run` checks sync and sets the exposure (docs/rig-file.md, "Self-tests").
+    #[serde(default)]
+    pub checks: selftest::ChecksSpec,
     /// The folder of the rig file (board files are relative to it); "." for parsed text.
     #[serde(skip, default = "current_folder")]
     pub base: PathBuf,
@@ -722,6 +729,7 @@ impl RigFile {
                 format!("{t} mm is not a length error to aim for (0 < t ≤ 1000 mm)"),
             ));
         }
+        self.checks.check()?;
         let simulated = self.cameras.iter().any(|c| c.driver == CameraDriver::Sim);
         self.check_script(simulated)
     }
@@ -888,6 +896,16 @@ impl RigFile {
                 ))
             }
             _ => {}
+        }
+        match (&p.sim_display, p.driver) {
+            (Some(d), ProjectorDriver::Sim) => d.check(at)?,
+            (Some(_), _) => {
+                return Err(ValidationError::new(
+                    at("sim_display"),
+                    "only for a simulated projector",
+                ))
+            }
+            (None, _) => {}
         }
         check_truth(p.sim.as_ref(), at)
     }

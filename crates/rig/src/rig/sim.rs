@@ -9,7 +9,8 @@
 //! Faults can be injected per camera (stop delivering, drop frames) for the engine's tests.
 
 use super::device::{Camera, CameraConfig, DeviceError, Projector, Slide};
-use super::file::{LookAt, PosesSpec, RigFile, SimFormat, SimTruth};
+use super::file::selftest::SimDisplay;
+use super::file::{LookAt, PosesSpec, ProjectorDriver, RigFile, SimFormat, SimTruth};
 use hexcal_core::board::Board;
 use hexcal_core::camera::CameraModel;
 use hexcal_core::images::to_grey::{jpeg_luma, to_pixels, BayerBalance, Cfa};
@@ -21,7 +22,7 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand::{rngs::StdRng, Rng, SeedableRng};
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Why a simulated rig could not be set up.
 #[derive(Debug, thiserror::Error)]
@@ -69,8 +70,27 @@ pub struct SimDevice {
 #[derive(Clone, Debug)]
 struct State {
     pose: usize,
+    /// What each projector's light on the board shows now.
     slides: Vec<Slide>,
     sequence: Option<Sequence>,
+    /// Per projector, slides shown but not yet on the board (a display with
+    /// [`SimDisplay`] lag), with the time each appears, in order.
+    queued: Vec<VecDeque<(Instant, Slide)>>,
+    /// Per projector, the slides shown so far (counts its drops and repeats).
+    shows: Vec<u64>,
+}
+
+impl State {
+    /// Move the queued slides due by `now` onto the board.
+    fn advance(&mut self, now: Instant) {
+        for (slide, queue) in self.slides.iter_mut().zip(&mut self.queued) {
+            while queue.front().is_some_and(|(t, _)| *t <= now) {
+                if let Some((_, s)) = queue.pop_front() {
+                    *slide = s;
+                }
+            }
+        }
+    }
 }
 
 /// The shared world of a simulated rig: ground truth and current state.
@@ -88,6 +108,8 @@ pub struct SimWorld {
     pub formats: Vec<SimFormat>,
     /// Faults injected into poses' stacks.
     pub faults: Vec<super::file::SimFault>,
+    /// Each simulated projector's display faults, if any.
+    displays: Vec<Option<SimDisplay>>,
     imaging: Imaging,
     state: Mutex<State>,
     /// Trigger pulses on the cameras' lines so far (see [`WiredTrigger`]).
@@ -182,7 +204,7 @@ impl SimWorld {
     /// The world of `rig`'s simulated devices on `board` (devices of other drivers are left
     /// out); fails naming the device whose truth is missing or the missing `[poses]`.
     pub fn new(rig: &RigFile, board: Board) -> Result<SimWorld, SimRigError> {
-        use super::file::{CameraDriver, ProjectorDriver};
+        use super::file::CameraDriver;
         let cameras = rig
             .cameras
             .iter()
@@ -217,7 +239,15 @@ impl SimWorld {
                 pose: 0,
                 slides: vec![Slide::Black; projectors.len()],
                 sequence: None,
+                queued: vec![VecDeque::new(); projectors.len()],
+                shows: vec![0; projectors.len()],
             }),
+            displays: rig
+                .projectors
+                .iter()
+                .filter(|p| p.driver == ProjectorDriver::Sim)
+                .map(|p| p.sim_display)
+                .collect(),
             cameras,
             formats,
             projectors,
@@ -266,6 +296,42 @@ impl SimWorld {
         // A panicking device thread cannot leave the state half-written: every write is
         // one assignment.
         self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// What is on the board now: the state with every displayed slide due by now.
+    fn on_board(&self) -> State {
+        let mut state = self.lock();
+        state.advance(Instant::now());
+        state.clone()
+    }
+
+    /// Projector `p` is told to show `slide`: on the board at once, or as its display's
+    /// faults say (late by its lag, a repeat one refresh later still, a drop never).
+    fn show(&self, p: usize, slide: Slide) {
+        let now = Instant::now();
+        let mut state = self.lock();
+        state.advance(now);
+        state.shows[p] += 1;
+        let n = state.shows[p];
+        let Some(d) = self.displays.get(p).copied().flatten() else {
+            state.queued[p].clear();
+            state.slides[p] = slide;
+            return;
+        };
+        let every = |k: Option<u32>| k.is_some_and(|k| n % u64::from(k) == 0);
+        if every(d.drop_every) {
+            return;
+        }
+        let mut due = now + Duration::from_secs_f64(1e-3 * d.lag_ms);
+        if every(d.repeat_every) {
+            due += d.refresh();
+        }
+        // A display shows its frames in order.
+        if let Some((last, _)) = state.queued[p].back() {
+            due = due.max(*last);
+        }
+        state.queued[p].push_back((due, slide));
+        state.advance(now);
     }
 
     /// The simulated cameras and projectors of this world, as devices.
@@ -365,12 +431,15 @@ impl SimWorld {
 }
 
 /// What a simulated camera renders.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 enum Showing {
-    /// Frame k of the sequence (or of a camera-only rig's plain frames).
-    Pattern(usize),
+    /// Frame k of the sequence (or of a camera-only rig's plain frames), each projector
+    /// showing its pattern of the list (k, or an earlier one of a late display).
+    Pattern(usize, Vec<usize>),
     /// Every projector white (`true`) or black.
     Flat(bool),
+    /// Each projector a flat level of its own.
+    Levels(Vec<u8>),
 }
 
 /// Faults a simulated camera can be told to show.
@@ -558,18 +627,34 @@ impl SimCamera {
     fn showing(&self, state: &State) -> Result<(Showing, Sequence), DeviceError> {
         if self.world.projectors.is_empty() {
             return Ok((
-                Showing::Pattern(self.counter as usize),
+                Showing::Pattern(self.counter as usize, Vec::new()),
                 Sequence::camera_only(),
             ));
         }
         let all = |slide: Slide| state.slides.iter().all(|s| *s == slide);
-        let what = match state.slides.first() {
-            Some(&Slide::Pattern(k)) if all(Slide::Pattern(k)) => Showing::Pattern(k),
-            Some(&Slide::White) if all(Slide::White) => Showing::Flat(true),
-            Some(&Slide::Black) if all(Slide::Black) => Showing::Flat(false),
+        let patterns: Option<Vec<usize>> = (state.slides.iter())
+            .map(|s| match s {
+                Slide::Pattern(k) => Some(*k),
+                _ => None,
+            })
+            .collect();
+        let levels: Option<Vec<u8>> = (state.slides.iter())
+            .map(|s| match s {
+                Slide::Black => Some(0),
+                Slide::White => Some(255),
+                Slide::Level(l) => Some(*l),
+                Slide::Pattern(_) => None,
+            })
+            .collect();
+        let what = match (patterns, levels) {
+            (Some(shown), _) => Showing::Pattern(shown.iter().copied().max().unwrap_or(0), shown),
+            _ if all(Slide::White) => Showing::Flat(true),
+            _ if all(Slide::Black) => Showing::Flat(false),
+            (_, Some(levels)) => Showing::Levels(levels),
             _ => {
                 return Err(self.failed(format!(
-                    "the simulator renders lockstep frames only; projectors show {:?}",
+                    "the simulator renders patterns of every projector or flat fields of \
+                     every projector, not a mix; projectors show {:?}",
                     state.slides
                 )))
             }
@@ -589,7 +674,7 @@ impl SimCamera {
         if self.faults.stop_after.is_some_and(|n| self.counter >= n) {
             return Ok(());
         }
-        let state = self.world.lock().clone();
+        let state = self.world.on_board();
         let (what, sequence) = self.showing(&state)?;
         let board = self.world.board_at(state.pose).ok_or_else(|| {
             self.failed(format!(
@@ -617,12 +702,17 @@ impl SimCamera {
             if let SimFormat::Bayer(cfa) = self.world.formats[self.index] {
                 r.set_cfa(Some(cfa_response(cfa)));
             }
+            for (p, d) in self.world.displays.iter().enumerate() {
+                if let Some(level) = d.and_then(|d| d.clip_level) {
+                    r.clip_light(p, level);
+                }
+            }
             self.renderer = Some((state.pose, board, r));
         }
         let Some((_, _, renderer)) = &self.renderer else {
             unreachable!("set above")
         };
-        if what == Showing::Pattern(0) {
+        if matches!(&what, Showing::Pattern(0, _)) {
             *self.attempts.entry(state.pose).or_default() += 1;
         }
         let attempt = self.attempts.get(&state.pose).copied().unwrap_or(0);
@@ -630,11 +720,12 @@ impl SimCamera {
             .filter(|f| f.pose == state.pose && attempt <= f.attempts)
             .collect();
         let mut frame = match what {
-            Showing::Pattern(k) => {
+            Showing::Pattern(k, shown) => {
                 let change = changed(k, &faults, sequence.frame_count());
-                renderer.frame_changed(k, &lagged(k, &faults, &sequence), &change)
+                renderer.frame_changed(k, &lagged(k, shown, &faults), &change)
             }
             Showing::Flat(white) => renderer.flat_frame(white, self.counter),
+            Showing::Levels(levels) => renderer.levels_frame(&levels, self.counter),
         };
         self.brighten(&mut frame.data, frame.bits);
         if let Some(gain) = faults.iter().find_map(|f| f.gain) {
@@ -704,9 +795,8 @@ impl SimCamera {
 }
 
 /// The pattern each projector shows in frame k under `faults`: the previous frame's for a
-/// lagged projector in its frames, else frame k's.
-fn lagged(k: usize, faults: &[&super::file::SimFault], sequence: &Sequence) -> Vec<usize> {
-    let mut shown = vec![k; sequence.projectors().len()];
+/// lagged projector in its frames, else what its display shows (`shown`).
+fn lagged(k: usize, mut shown: Vec<usize>, faults: &[&super::file::SimFault]) -> Vec<usize> {
     for lag in faults.iter().filter_map(|f| f.lag) {
         if (lag.frames[0]..=lag.frames[1]).contains(&k) && k > 0 {
             if let Some(p) = shown.get_mut(lag.projector) {
@@ -899,7 +989,7 @@ impl Projector for SimProjector {
     }
 
     fn show(&mut self, slide: Slide) -> Result<(), DeviceError> {
-        self.world.lock().slides[self.index] = slide;
+        self.world.show(self.index, slide);
         Ok(())
     }
 }

@@ -552,6 +552,8 @@ pub struct WindowProjector {
     service: &'static Service,
     /// Frame k of the prepared sequence, as the window draws it.
     patterns: Vec<Content>,
+    /// The drive level of each intended level (the inverse-gamma table when linearised).
+    levels: [u8; 256],
 }
 
 impl WindowProjector {
@@ -587,6 +589,7 @@ impl WindowProjector {
             window,
             service,
             patterns: Vec::new(),
+            levels: std::array::from_fn(|l| l as u8),
         })
     }
 }
@@ -620,6 +623,12 @@ impl Projector for WindowProjector {
         }
         // The drive levels of `Sequence::pattern_image`, one line per frame.
         let level = |k, u: u32, v: u32| grey(sequence.drive(code, k, f64::from(u), f64::from(v)));
+        self.levels = match p.response {
+            hexcal_core::pattern::ProjectorResponse::Linearised { gamma } => {
+                hexcal_core::pattern::inverse_gamma_lut(gamma)
+            }
+            _ => std::array::from_fn(|l| l as u8),
+        };
         self.patterns = (0..sequence.frame_count())
             .map(|k| match sequence.frame(k).map(|f| f.direction) {
                 Some(Direction::Columns) => {
@@ -635,6 +644,7 @@ impl Projector for WindowProjector {
         let content = match slide {
             Slide::Black => Content::Level(0),
             Slide::White => Content::Level(255),
+            Slide::Level(l) => Content::Level(self.levels[usize::from(l)]),
             Slide::Pattern(k) => self
                 .patterns
                 .get(k)
