@@ -149,6 +149,24 @@ enum Command {
         /// (its held-out.json).
         input: PathBuf,
     },
+    /// Self-test a rig through its capture engine: `sync` (does every camera frame show the
+    /// slide it was triggered for: latency, dropped and repeated frames, the settle_ms that
+    /// is safe) or `exposure` (each camera's exposure and gain for the rig's white level,
+    /// each projector's response through each camera). Hold the board in view. Exit 1 when
+    /// the test fails.
+    Check {
+        /// sync or exposure.
+        test: hexcal::app::check::Which,
+        /// The rig file.
+        #[arg(long)]
+        rig: PathBuf,
+        /// Keep the rig file's exposures: only measure the projectors' responses.
+        #[arg(long)]
+        measure_only: bool,
+        /// Also write the report as JSON to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
     /// Send one command to a rig file's positioner as a move sends it, and print every line
     /// sent and received: for setting a positioner up.
     Positioner {
@@ -582,6 +600,26 @@ fn execute_other(command: Command) -> anyhow::Result<()> {
         Command::Verify { calibration, input } => {
             let table = hexcal::app::calibrate::verification_table(&input, calibration.as_deref())?;
             print!("{table}");
+        }
+        Command::Check {
+            test,
+            rig,
+            measure_only,
+            json,
+        } => {
+            let rig = hexcal::app::capture::LoadedRig::load(&rig)?;
+            let tested = hexcal::app::check::check(&rig, test, measure_only)?;
+            print!("{tested}");
+            if let Some(path) = json {
+                hexcal::app::check::write_json(&path, &tested)?;
+                println!("wrote {}", path.display());
+            }
+            if !tested.passed() {
+                anyhow::bail!("{}", tested.warnings().join("; "));
+            }
+            for w in tested.warnings() {
+                eprintln!("warning: {w}");
+            }
         }
         Command::Positioner { rig, name, command } => {
             let (lines, ended) = hexcal::app::script::positioner_exchange(&rig, &name, &command)?;

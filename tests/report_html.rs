@@ -93,6 +93,7 @@ fn report_renders_as_a_page_with_figures() {
                 &["poses 8 and 9 held out for verification".into()],
                 &Default::default(),
             ),
+            self_tests: &[],
         },
         &page,
     )

@@ -76,6 +76,8 @@ pub(crate) struct Collected<'a> {
     pub(crate) stereo: &'a [String],
     /// What the user needs: the warnings are judged against it.
     pub(crate) target: Target,
+    /// The rig's self-tests recorded in the dataset.
+    pub(crate) self_tests: Vec<super::check::SelfTests>,
 }
 
 /// Calibrate from the views of `all` poses (those from `held_from` on are held out and
@@ -94,6 +96,7 @@ pub(crate) fn finish(
         held_from,
         stereo,
         target,
+        self_tests,
     } = c;
     let views_of = |range: std::ops::Range<usize>| -> Vec<CameraView> {
         all[range]
@@ -113,6 +116,7 @@ pub(crate) fn finish(
         skipped,
     } = verify_held_out(board, &cal, &held, held_from);
     let mut warnings = warnings.to_vec();
+    warnings.extend(self_tests.iter().flat_map(|t| t.warnings()));
     warnings.extend(skipped.iter().map(|s| format!("verification: {s}")));
     let warnings = &warnings[..];
     let diagnosis = Diagnosis::of(&cal, &verification, warnings, &target);
@@ -136,6 +140,7 @@ pub(crate) fn finish(
             verification: &verification,
             title: &format!("hexcal calibration: {}", dir.display()),
             diagnosis: &diagnosis,
+            self_tests: &self_tests.iter().map(|t| t.to_string()).collect::<Vec<_>>(),
         },
         &path,
     )?;
@@ -299,6 +304,9 @@ pub fn calibrate_dataset(
             held_from,
             stereo,
             target,
+            self_tests: super::check::read_records(
+                &data.root().join(super::check::SELF_TESTS_FILE),
+            )?,
         },
         out,
         options,
@@ -397,6 +405,7 @@ pub fn calibrate_file(
             verification: &[],
             title: &format!("hexcal calibration of {}", input.display()),
             diagnosis: &diagnosis,
+            self_tests: &[],
         },
         &html,
     )?;

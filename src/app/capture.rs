@@ -138,6 +138,7 @@ pub fn capture_dataset(
     log: &mut dyn FnMut(Note),
 ) -> Result<CaptureSummary, AppError> {
     let (poses, exposures) = (options.poses, &options.exposures);
+    let rig_path = rig.path.clone();
     let Prepared {
         rig,
         opened,
@@ -163,6 +164,19 @@ pub fn capture_dataset(
         }
         // The board settles after it is placed.
         std::thread::sleep(pause);
+        if summary.captured.is_empty() {
+            if let Some(t) =
+                super::check::at_start((&rig, &rig_path), &mut session, data.root(), k)?
+            {
+                log(Note::Line(format!(
+                    "self-tests before pose {k}:\n{}",
+                    t.to_string().trim_end()
+                )));
+                for w in t.warnings() {
+                    log(Note::Line(format!("warning: {w}")));
+                }
+            }
+        }
         let mut writer = data.pose_writer(k)?;
         let timeline = exposed(&mut session, exposures.get(&k), |s| {
             Ok(s.capture_pose(k, &mut |f| Ok(writer.write(&f)?))?)

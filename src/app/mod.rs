@@ -18,6 +18,7 @@
 
 pub mod calibrate;
 pub mod capture;
+pub mod check;
 pub mod console;
 pub mod detect;
 pub mod guide;
@@ -125,6 +126,12 @@ pub enum AppError {
     /// Decoding a stack folder.
     #[error("{0}")]
     Decode(#[from] crate::phase::files::DecodeFilesError),
+    /// A self-test could not be done.
+    #[error("self-test: {0}")]
+    Check(#[from] crate::check::CheckError),
+    /// The sync test a run starts with failed (the line says what to set).
+    #[error("{0}")]
+    SyncFailed(String),
     /// A worker thread ended without its result.
     #[error("{0} panicked")]
     Thread(&'static str),

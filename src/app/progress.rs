@@ -102,6 +102,13 @@ pub enum Event {
         /// Their indices.
         poses: Vec<usize>,
     },
+    /// The rig's self-tests ran before the pose's capture (sync, exposure).
+    SelfTested {
+        /// The pose captured next.
+        pose: usize,
+        /// Their report (several lines).
+        report: String,
+    },
     /// Bundle adjustment started.
     Calibrating {
         /// Views used.
@@ -196,6 +203,9 @@ impl std::fmt::Display for Event {
                 write!(f, "; run the same command to resume")
             }
             Event::Resumed { poses } => write!(f, "resuming: poses {poses:?} already complete"),
+            Event::SelfTested { pose, report } => {
+                write!(f, "self-tests before pose {pose}:\n{}", report.trim_end())
+            }
             Event::Calibrating { views } => write!(f, "calibrating from {views} camera views"),
             Event::Finished {
                 sigma,

@@ -200,6 +200,7 @@ pub fn run(
         &options.stereo,
         &super::calibrate::devices_of_rig(&rig.file),
     )?;
+    let rig_path = rig.path.clone();
     let Prepared {
         rig,
         opened,
@@ -208,7 +209,7 @@ pub fn run(
     } = prepare(rig, out)?;
     let poses = options
         .poses
-        .or(rig.poses.map(|p| p.count))
+        .or(rig.poses.as_ref().map(|p| p.count))
         .ok_or_else(|| {
             AppError::Input("say how many poses (the rig file has no [poses] table)".into())
         })?;
@@ -218,6 +219,7 @@ pub fn run(
     let mut stream = Stream::new(data, &opened, poses, held_from, events);
     stream.views_tap = options.views_tap.clone();
     stream.retries = rig.timing.stack_retries;
+    stream.self_tests = Some((rig.clone(), rig_path));
     stream.resume()?;
     let mut session = Session::start(opened.devices, &opened.sequence)?;
     stream.data.record_formats(&session.pixel_formats())?;
@@ -260,6 +262,7 @@ pub fn run(
             uncertainty_px: rig.guidance.uncertainty_px,
             length_mm: rig.guidance.target_mm,
         },
+        self_tests: super::check::read_records(&data.root().join(super::check::SELF_TESTS_FILE))?,
     };
     let dir = out.join("calibration");
     let stopped = |during: &'static str| -> Result<AppError, AppError> {
@@ -334,6 +337,10 @@ fn capture_todo(
         };
         if options.stopped() || !placed || options.stopped() {
             c.interrupted = options.stopped().then_some(k);
+            break;
+        }
+        if let Err(e) = stream.self_test(session, k) {
+            c.failed = Some(e);
             break;
         }
         let captured = super::capture::exposed(session, options.exposures.get(&k), |s| {
@@ -423,12 +430,29 @@ struct Stream<'e> {
     views_tap: Option<ViewsTap>,
     /// Recaptures of a pose whose stack fails the stack check.
     retries: u32,
+    /// The rig whose self-tests (its `[checks]`) are due before the first capture.
+    self_tests: Option<(crate::rig::file::RigFile, std::path::PathBuf)>,
     done_tx: Sender<Result<Processed, AppError>>,
     done_rx: Receiver<Result<Processed, AppError>>,
     in_flight: Option<JoinHandle<()>>,
 }
 
 impl<'e> Stream<'e> {
+    /// The rig's self-tests when they are still due (before pose `k`, the first captured):
+    /// told as an event (recorded in the dataset, whence the report takes them).
+    fn self_test(&mut self, session: &mut Session, k: usize) -> Result<(), AppError> {
+        let Some((rig, path)) = self.self_tests.take() else {
+            return Ok(());
+        };
+        if let Some(t) = super::check::at_start((&rig, &path), session, self.data.root(), k)? {
+            (self.events)(&Event::SelfTested {
+                pose: k,
+                report: t.to_string(),
+            });
+        }
+        Ok(())
+    }
+
     /// A processed pose to the views tap, then told as an event.
     fn processed(&mut self, views: &PoseViews, held_out: bool) {
         if let Some(tap) = &self.views_tap {
@@ -462,6 +486,7 @@ impl<'e> Stream<'e> {
             events,
             views_tap: None,
             retries: 0,
+            self_tests: None,
             done_tx,
             done_rx,
             in_flight: None,

@@ -30,6 +30,8 @@ pub struct ReportInput<'a> {
     pub title: &'a str,
     /// The residual table and every warning, the report's own and the caller's.
     pub diagnosis: &'a Diagnosis,
+    /// The rig's self-test reports (sync, exposure), as text; may be empty.
+    pub self_tests: &'a [String],
 }
 
 const CAMERA_COLOUR: &str = "#1f77b4";
@@ -97,6 +99,12 @@ pub fn html_report(input: &ReportInput) -> String {
     uncertainty_section(&mut h, cal);
     if !input.verification.is_empty() {
         verification_section(&mut h, cal, input.verification);
+    }
+    if !input.self_tests.is_empty() {
+        h.push_str("<h2 id=\"self-tests\">Rig self-tests</h2>\n");
+        for t in input.self_tests {
+            let _ = writeln!(h, "<pre>{}</pre>", esc(t));
+        }
     }
     let _ = write!(
         h,
@@ -1467,6 +1475,7 @@ mod tests {
             verification,
             title: "Rig <A> & \"B\"",
             diagnosis: &Diagnosis::of(cal, verification, &warnings, &Default::default()),
+            self_tests: &["sync OK: every frame shows its own slide".into()],
         })
     }
 
@@ -1484,6 +1493,7 @@ mod tests {
         };
         let html = page(cal, &[check], vec!["board not seen in pose 9".into()]);
         assert_eq!(html.matches("<html").count(), 1);
+        assert!(html.contains("Rig self-tests</h2>\n<pre>sync OK: every frame"));
         assert_eq!(html.matches("</html>").count(), 1);
         assert_eq!(html.matches("<svg").count(), html.matches("</svg>").count());
         // Rig view plus five figures per device (residuals, histogram, coverage, the
@@ -1531,6 +1541,7 @@ mod tests {
             verification: &[],
             title: "strict",
             diagnosis: &Diagnosis::of(calibration(), &[], &[], &strict),
+            self_tests: &[],
         });
         assert!(!html.contains("<p class=\"ok\">None"));
         assert!(html.contains("the lens model extrapolates in its"));

@@ -50,10 +50,13 @@ pub struct CameraExposure {
     /// The camera.
     pub camera: String,
     /// Exposure set (µs).
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub exposure_us: f64,
     /// Gain set (dB).
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub gain_db: f64,
     /// The brightest board white reached, as a fraction of full scale.
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub white: f64,
     /// Whether it is within tolerance of the target.
     pub converged: bool,
@@ -75,14 +78,19 @@ pub struct Response {
     /// Mean camera value over the lit pixels at each level (DN).
     pub mean_dn: Vec<f64>,
     /// Noise of one mean (DN, 1σ), from the two takes.
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub sigma_dn: f64,
     /// The level-0 mean as a fraction of the level-255 mean (projector black and ambient).
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub black_ratio: f64,
     /// Gamma fitted to the normalised response (light ∝ level^γ); NaN when not measurable.
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub gamma: f64,
     /// Its 1σ uncertainty from the noise.
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub gamma_sigma: f64,
     /// Fraction of lit pixels at full scale at level 255.
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub saturated: f64,
     /// Whether some level is darker than the one below it beyond the noise.
     pub non_monotone: bool,
@@ -94,6 +102,7 @@ pub struct Response {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ExposureReport {
     /// The target white level.
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub white_level: f64,
     /// Per camera, its exposure (as configured when not set).
     pub cameras: Vec<CameraExposure>,

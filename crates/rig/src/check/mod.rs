@@ -35,6 +35,13 @@ pub enum CheckError {
     NoProjector,
 }
 
+/// A number as JSON writes it: a value not measured (NaN) is written as `null` and read
+/// back as NaN.
+fn f64_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    use serde::Deserialize;
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// A frame's samples as numbers, and its full scale.
 fn samples(f: &CameraFrame) -> (Vec<f32>, f32) {
     let full = ((1u32 << f.bits) - 1) as f32;

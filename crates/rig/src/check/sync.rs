@@ -90,10 +90,12 @@ pub struct SyncPair {
     pub seen: bool,
     /// Median time from show to the slide seen (ms; an upper bound within the wait
     /// resolution).
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub latency_ms: f64,
     /// The latency in the rig's pattern periods (rounded up).
     pub latency_frames: u32,
     /// The latest any frame was first seen (ms; upper bound).
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub worst_ms: f64,
     /// Frames never seen within the longest wait (the display dropped them).
     pub dropped: Vec<usize>,
@@ -111,12 +113,16 @@ pub struct SyncReport {
     /// The waits used (ms).
     pub waits_ms: Vec<f64>,
     /// The run's wait now (ms): latency plus settle.
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub run_wait_ms: f64,
     /// The rig's `settle_ms` now.
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub settle_ms: f64,
     /// The `settle_ms` at which every frame seen is seen at the run's wait.
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub safe_settle_ms: f64,
     /// The rig's pattern period (ms).
+    #[serde(deserialize_with = "super::f64_or_nan")]
     pub frame_period_ms: f64,
 }
 

@@ -43,6 +43,16 @@ pub struct ChecksSpec {
     /// Where the brightest board white should sit, as a fraction of full scale.
     #[serde(default = "default_white")]
     pub white_level: f64,
+    /// The most gain the exposure test may set (dB), once the exposure is at its longest.
+    #[serde(default = "default_max_gain")]
+    pub max_gain_db: f64,
+}
+
+/// Default of [`ChecksSpec::max_gain_db`]: more gain adds more noise than light.
+pub const DEFAULT_MAX_GAIN_DB: f64 = 12.0;
+
+fn default_max_gain() -> f64 {
+    DEFAULT_MAX_GAIN_DB
 }
 
 /// Default of [`ChecksSpec::white_level`].
@@ -58,13 +68,21 @@ impl Default for ChecksSpec {
             sync: CheckWhen::Auto,
             exposure: CheckWhen::Auto,
             white_level: DEFAULT_WHITE_LEVEL,
+            max_gain_db: DEFAULT_MAX_GAIN_DB,
         }
     }
 }
 
 impl ChecksSpec {
-    /// `white_level` within (0.1, 0.98].
+    /// `white_level` within (0.1, 0.98], `max_gain_db` within [0, 48].
     pub fn check(&self) -> Result<(), ValidationError> {
+        let g = self.max_gain_db;
+        if !(g.is_finite() && (0.0..=48.0).contains(&g)) {
+            return Err(ValidationError::new(
+                "checks.max_gain_db",
+                format!("{g} dB: a gain in [0, 48] dB"),
+            ));
+        }
         let w = self.white_level;
         if !(w.is_finite() && w > 0.1 && w <= 0.98) {
             return Err(ValidationError::new(
