@@ -1,6 +1,7 @@
 //! The window projector under Xvfb (docs/design.md §11): slides on screen pixel for pixel, errors
-//! naming the projector, a window destroyed or killed from outside, the X server gone, and a
-//! capture whose projector window is killed mid-sequence.
+//! naming the projector, a window destroyed or killed from outside, the X server gone, a
+//! capture whose projector window is killed mid-sequence, and the sync self-test through the
+//! capture engine with a camera that sees the screen.
 //!
 //! winit opens one X display per process, so every test runs in a child process of this
 //! test binary with its own Xvfb (DISPLAY set for the child only). Needs `Xvfb`, `xwd`
@@ -515,4 +516,103 @@ fn info(seq: &Sequence) -> DatasetInfo {
             })
             .to_vec(),
     }
+}
+
+/// A camera that sees the X screen: each trigger takes a screenshot (`xwd`) as an 8-bit grey
+/// frame, so what it sees is what the window projector has drawn at that moment.
+struct ScreenCamera {
+    frames: std::collections::VecDeque<hexcal::images::CameraFrame>,
+    counter: u64,
+}
+
+impl Camera for ScreenCamera {
+    fn name(&self) -> &str {
+        "screen"
+    }
+    fn configure(&mut self, _: &hexcal::rig::CameraConfig) -> Result<(), DeviceError> {
+        Ok(())
+    }
+    fn set_exposure_gain(&mut self, _: f64, _: f64) -> Result<(), DeviceError> {
+        Ok(())
+    }
+    fn start(&mut self) -> Result<(), DeviceError> {
+        Ok(())
+    }
+    fn trigger(&mut self) -> Result<(), DeviceError> {
+        let (width, height, px) = xvfb::screenshot(&display());
+        self.counter += 1;
+        self.frames.push_back(hexcal::images::CameraFrame {
+            width,
+            height,
+            bits: 8,
+            pixels: Pixels::Gray8(px.iter().map(|&p| (p & 0xff) as u8).collect()),
+            counter: self.counter,
+            timestamp_ns: self.counter * 1_000_000,
+            exposure_us: 1000.0,
+        });
+        Ok(())
+    }
+    fn next_frame(&mut self, _: Duration) -> Result<hexcal::images::CameraFrame, DeviceError> {
+        self.frames.pop_front().ok_or_else(|| DeviceError::Failed {
+            device: "screen".into(),
+            reason: "no frame".into(),
+        })
+    }
+    fn stop(&mut self) -> Result<(), DeviceError> {
+        Ok(())
+    }
+}
+
+#[test]
+fn sync_through_the_window_projector_sees_every_slide_at_once() {
+    // docs/design.md §11b: the sync test through the capture engine, the window projector
+    // full screen on Xvfb and a camera that sees the screen. Its `show` returns once the
+    // server has drawn the slide, so with no settle time every coded frame is seen at the
+    // first wait (0 ms after show returned): nothing dropped, repeated or early.
+    isolated(
+        "sync_through_the_window_projector_sees_every_slide_at_once",
+        (320, 200),
+        || {
+            use hexcal::check::sync::{check_sync, SyncPlan};
+            let projector = WindowProjector::open("p", "screen", 320, 200).unwrap();
+            let timing = CaptureTiming {
+                settle: Duration::ZERO,
+                latency: vec![Duration::ZERO],
+                frame_timeout: Duration::from_secs(2),
+                retries: 0,
+                repeats: 1,
+            };
+            let devices = RigDevices {
+                cameras: vec![Box::new(ScreenCamera {
+                    frames: Default::default(),
+                    counter: 0,
+                })],
+                configs: vec![hexcal::rig::CameraConfig {
+                    width: 320,
+                    height: 200,
+                    bits: 8,
+                    exposure_us: 1000.0,
+                    gain_db: 0.0,
+                    trigger: hexcal::rig::TriggerSource::Software,
+                }],
+                projectors: vec![Box::new(projector)],
+                trigger: None,
+                timing,
+            };
+            let seq = sequence(320, 200, ProjectorResponse::Linear);
+            let mut s = Session::start(devices, &seq).unwrap();
+            let period = Duration::from_millis(50);
+            let plan = SyncPlan::new(s.timing(), period, false, Some(Duration::from_millis(90)));
+            let report = check_sync(&mut s, &plan).unwrap();
+            s.finish().unwrap();
+            println!("{report}");
+            let p = &report.pairs[0];
+            assert!(p.seen, "{report}");
+            // Seen at the first wait (0 ms, as timed: well under the next wait, 10 ms).
+            assert!(p.latency_ms < 5.0, "{report}");
+            assert!(p.dropped.is_empty() && p.repeated.is_empty(), "{report}");
+            assert!(p.late_at_run.is_empty(), "{report}");
+            assert!(report.passed() && report.safe_settle_ms <= 1.0, "{report}");
+        },
+    );
 }
