@@ -8,7 +8,7 @@
 //! pixel plus the decoding noise docs/design.md §9 predicts (σ_u = 0.35, σ_v = 0.2 projector px).
 //!
 //! Acceptance (issue 5): camera RMS ≤ 0.1 px, projector RMS ≤ 0.15 px, focal error ≤ 0.1 %,
-//! held-out length error ≤ 0.1 mm RMS.
+//! held-out length error ≤ 0.1 mm RMS; (issue 34) no warning at the default target.
 
 use hexcal::board::Side;
 use hexcal::calib::solve::{calibrate, CalibrateOptions};
@@ -159,7 +159,9 @@ fn rendered_views_calibrate_the_rig() {
         eprintln!("{}: focal error {:.4} %", est.name, 100.0 * e);
         assert!(e.abs() <= 1e-3, "{} focal error {e}", est.name);
     }
-    let verification = hexcal::calib::verify::verify(&rig.board, &cal.devices, &test);
+    let noise = hexcal::calib::diagnostics::observation_noise(&cal);
+    let verification =
+        hexcal::calib::verify::verify_with_noise(&rig.board, &cal.devices, &test, &noise);
     assert!(
         verification.skipped.is_empty(),
         "{:?}",
@@ -176,5 +178,44 @@ fn rendered_views_calibrate_the_rig() {
         checks.len() >= 10 && rms <= 0.1,
         "{rms} mm over {} pairs",
         checks.len()
+    );
+    // A healthy rig (issue 34): no warning against the default target (1 px, 0.1 mm); every
+    // pair's length error is what its observations' noise predicts (39), within the target.
+    eprint!("{}", hexcal::report::format_verification(&checks));
+    let diagnosis =
+        hexcal::calib::diagnostics::Diagnosis::of(&cal, &checks, &[], &Default::default());
+    assert!(diagnosis.warnings.is_empty(), "{:#?}", diagnosis.warnings);
+    for c in &checks {
+        let p = c.predicted_rms.expect("every device's noise is known");
+        let excess = (c.length_rms.powi(2) - p.powi(2)).max(0.0).sqrt();
+        assert!(
+            excess <= 0.1,
+            "{}–{}: {} mm, noise predicts {p} mm",
+            c.first,
+            c.second,
+            c.length_rms
+        );
+    }
+    // The same rig with proj1 bumped after calibrating (0.1° about its own x axis, about
+    // 2.6 mm at the board): its pairs are warned about, and only they (besides the
+    // held-out RMS over all pairs, which it lifts above the target).
+    let mut bumped = cal.devices.clone();
+    let k = bumped.iter().position(|d| d.name == "proj1").unwrap();
+    let turn = nalgebra::UnitQuaternion::from_euler_angles(0.1f64.to_radians(), 0.0, 0.0);
+    bumped[k].pose = nalgebra::Isometry3::from_parts(Default::default(), turn) * bumped[k].pose;
+    let moved = hexcal::calib::verify::verify_with_noise(&rig.board, &bumped, &test, &noise);
+    let is_projector = |n: &str| n.starts_with("proj");
+    let w = hexcal::calib::diagnostics::verification_warnings(
+        &moved.checks,
+        is_projector,
+        &Default::default(),
+    );
+    eprintln!("{w:#?}");
+    let pairs: Vec<&String> = (w.iter())
+        .filter(|s| s.starts_with("Verification pair"))
+        .collect();
+    assert!(
+        !pairs.is_empty() && pairs.iter().all(|s| s.contains("–proj1 ")),
+        "{w:#?}"
     );
 }

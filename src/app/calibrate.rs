@@ -10,7 +10,7 @@ use crate::calib::diagnostics::{Diagnosis, Target};
 use crate::calib::geometric::{calibrate_registering, GeometricParams};
 pub use crate::calib::solve::CalibrateOptions;
 use crate::calib::solve::Calibration;
-use crate::calib::verify::{verify, Verification};
+use crate::calib::verify::{verify, verify_with_noise, Verification};
 use crate::dataset::{Dataset, DatasetInfo};
 use crate::observations::CameraView;
 use crate::observations::DeviceKind;
@@ -236,7 +236,8 @@ fn verify_held_out(
         .collect();
     let devices: Vec<Device> = cal.devices.clone();
     // Each check names its pose as the run numbered it (the held-out poses' real index).
-    let mut verification = verify(board, &devices, &views);
+    let noise = crate::calib::diagnostics::observation_noise(cal);
+    let mut verification = verify_with_noise(board, &devices, &views, &noise);
     for k in &mut verification.checks {
         k.pose += held_from;
     }

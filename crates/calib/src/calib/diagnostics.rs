@@ -81,6 +81,7 @@ impl Diagnosis {
             .chain(verification_warnings(verification, is_projector, target))
             .chain(extra.iter().cloned())
             .collect();
+        notes.extend(noise_limited_pairs(verification, target));
         Diagnosis {
             rows,
             warnings,
@@ -558,58 +559,51 @@ fn outlier_warnings(
     }
 }
 
+/// Each device's observation noise (px per axis, in `cal.devices` order): its inliers'
+/// residual RMS over √2 (the table's RMS is of residual vectors); NaN for a device without
+/// a row. What [`crate::calib::verify::verify_with_noise`] predicts pairs' errors from.
+pub fn observation_noise(cal: &Calibration) -> Vec<f64> {
+    let rows = residual_table(cal);
+    (cal.devices.iter())
+        .map(|d| match rows.iter().find(|r| r.name == d.name) {
+            Some(r) => r.rms / std::f64::consts::SQRT_2,
+            None => f64::NAN,
+        })
+        .collect()
+}
+
 /// A verification pair is out of family when its modified z-score among the pairs of its
 /// type, 0.6745·(x − median)/MAD of the length RMS x, exceeds this (Iglewicz and
 /// Hoaglin's cut-off for outliers; robust to the outliers themselves).
 pub const PAIR_Z: f64 = 3.5;
 
-/// Verification pairs out of family ([`PAIR_Z`]) among the pairs of their type (two
-/// cameras, or a camera and a projector, which triangulate with different precision),
-/// with at least three pairs of the type; `is_projector` tells a device's kind by name.
+/// Verification pairs whose error the calibration, not the measurement, makes and that
+/// miss the user's target, with at least three pairs of the type for the family test;
+/// `is_projector` tells a device's kind by name. A pair whose predicted noise is known
+/// ([`PairCheck::predicted_rms`], (39)) is warned about when what its noise does not
+/// explain, √(rms² − predicted²), exceeds the target; one without, when it is out of
+/// family ([`PAIR_Z`]) among the pairs of its type (two cameras, or a camera and a
+/// projector, which triangulate with different precision) and above the target.
 pub fn verification_warnings(
     checks: &[PairCheck],
     is_projector: impl Fn(&str) -> bool,
     target: &Target,
 ) -> Vec<String> {
     let kind = |k: &PairCheck| is_projector(&k.first) || is_projector(&k.second);
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        let n = v.len();
-        (v[(n - 1) / 2] + v[n / 2]) / 2.0
-    };
     let mut out = Vec::new();
     for k in checks {
-        let family: Vec<f64> = checks
-            .iter()
-            .filter(|o| kind(o) == kind(k))
-            .map(|o| o.length_rms)
-            .collect();
-        if family.len() < 3 {
-            continue;
-        }
-        let m = median(family.clone());
-        let mad = median(family.iter().map(|x| (x - m).abs()).collect());
-        let z = 0.6745 * (k.length_rms - m) / mad.max(1e-12 * m.max(1e-300));
-        // Out of family and above the target: a pair within the target is good enough.
-        if z > PAIR_Z && k.length_rms > target.length_mm {
-            out.push(format!(
+        let what = match k.predicted_rms {
+            Some(p) => calibration_part(k, p, target),
+            None => out_of_family(k, checks, &kind, target),
+        };
+        out.extend(what.map(|why| {
+            format!(
                 "Verification pair {}–{} (held-out pose {}): length RMS {:.4} mm (max {:.4} \
-                 mm) is out of family: the {} {} pairs' median is {m:.4} mm (robust z {z:.1}): \
-                 recheck these two devices (a moved device, a lens poorly covered where this \
-                 pose lies) before trusting their measurements.",
-                k.first,
-                k.second,
-                k.pose,
-                k.length_rms,
-                k.length_max,
-                family.len(),
-                if kind(k) {
-                    "camera–projector"
-                } else {
-                    "camera–camera"
-                },
-            ));
-        }
+                 mm) {why}: recheck these two devices (a moved device, a lens poorly covered \
+                 where this pose lies) before trusting their measurements.",
+                k.first, k.second, k.pose, k.length_rms, k.length_max,
+            )
+        }));
     }
     if let Some(rms) = super::verify::verification_rms(checks).filter(|r| *r > target.length_mm) {
         out.push(format!(
@@ -621,6 +615,75 @@ pub fn verification_warnings(
         ));
     }
     out
+}
+
+/// Why pair `k` of predicted noise `predicted` is the calibration's fault: the part of its
+/// length RMS the noise does not explain exceeds the target.
+fn calibration_part(k: &PairCheck, predicted: f64, target: &Target) -> Option<String> {
+    let excess = (k.length_rms.powi(2) - predicted.powi(2)).max(0.0).sqrt();
+    (excess > target.length_mm).then(|| {
+        format!(
+            "is {excess:.4} mm more than its observations' noise explains ({predicted:.4} mm \
+             through this pair's geometry), above your {} mm target",
+            target.length_mm
+        )
+    })
+}
+
+/// Why pair `k` is out of family among the `checks` of its `kind` and above the target.
+fn out_of_family(
+    k: &PairCheck,
+    checks: &[PairCheck],
+    kind: &dyn Fn(&PairCheck) -> bool,
+    target: &Target,
+) -> Option<String> {
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        (v[(n - 1) / 2] + v[n / 2]) / 2.0
+    };
+    let family: Vec<f64> = (checks.iter())
+        .filter(|o| kind(o) == kind(k))
+        .map(|o| o.length_rms)
+        .collect();
+    if family.len() < 3 {
+        return None;
+    }
+    let m = median(family.clone());
+    let mad = median(family.iter().map(|x| (x - m).abs()).collect());
+    let z = 0.6745 * (k.length_rms - m) / mad.max(1e-12 * m.max(1e-300));
+    // Out of family and above the target: a pair within the target is good enough.
+    (z > PAIR_Z && k.length_rms > target.length_mm).then(|| {
+        format!(
+            "is out of family: the {} {} pairs' median is {m:.4} mm (robust z {z:.1})",
+            family.len(),
+            if kind(k) {
+                "camera–projector"
+            } else {
+                "camera–camera"
+            },
+        )
+    })
+}
+
+/// Notes on held-out pairs whose observations' noise alone, through their triangulation
+/// geometry (39), gives a length error above the target: the pair's geometry, not the
+/// calibration, limits what it can measure.
+pub fn noise_limited_pairs(checks: &[PairCheck], target: &Target) -> Vec<String> {
+    (checks.iter())
+        .filter_map(|k| Some((k, k.predicted_rms?)))
+        .filter(|(_, p)| *p > target.length_mm)
+        .map(|(k, p)| {
+            format!(
+                "{}–{} (held-out pose {}): its observations' noise alone gives {p:.4} mm \
+                 (measured {:.4} mm) through this pair's triangulation geometry and this \
+                 pose's view, above your {} mm target: the measurement, not the calibration, \
+                 limits it; measure with a pair that sees the board across a wider angle and \
+                 less steeply.",
+                k.first, k.second, k.pose, k.length_rms, target.length_mm
+            )
+        })
+        .collect()
 }
 
 /// The report's own warnings: what the data could not determine (one line each,
@@ -964,6 +1027,7 @@ mod tests {
             length_rms: rms,
             length_max: 3.0 * rms,
             flatness_rms: 0.01,
+            predicted_rms: None,
         };
         let proj = |n: &str| n.starts_with("proj");
         let mut checks = vec![
@@ -985,5 +1049,28 @@ mod tests {
             w[0].contains("cam1–proj1") && w[0].contains("pose 9"),
             "{w:?}"
         );
+        // With each pair's predicted noise known, its own prediction is the yardstick:
+        // 0.148 mm of which noise explains 0.14 mm is the pair's geometry (a note, no
+        // warning); 0.2 mm where noise explains 0.05 mm is the calibration's.
+        let with = |mut k: PairCheck, p: f64| {
+            k.predicted_rms = Some(p);
+            k
+        };
+        let mut known: Vec<PairCheck> = checks.iter().map(|k| with(k.clone(), 0.04)).collect();
+        known[6] = with(pair("proj1", 0.148), 0.14);
+        assert!(verification_warnings(&known, proj, &PAIR_TARGET).is_empty());
+        let notes = noise_limited_pairs(&known, &PAIR_TARGET);
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(notes[0].starts_with(
+            "cam1–proj1 (held-out pose 9): its observations' noise alone gives 0.1400 mm"
+        ));
+        known[6] = with(pair("proj1", 0.2), 0.05);
+        let w = verification_warnings(&known, proj, &PAIR_TARGET);
+        assert_eq!(w.len(), 1, "{w:#?}");
+        assert!(
+            w[0].contains("is 0.1936 mm more than its observations' noise explains"),
+            "{w:?}"
+        );
+        assert!(noise_limited_pairs(&known, &PAIR_TARGET).is_empty());
     }
 }

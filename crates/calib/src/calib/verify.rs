@@ -14,7 +14,7 @@ use super::circle::ellipse_center;
 use hexcal_core::board::{Board, Hex, Side};
 use hexcal_core::observations::{CameraView, Frame};
 use nalgebra::{
-    Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
+    Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3,
 };
 use std::collections::BTreeMap;
 
@@ -35,6 +35,10 @@ pub struct PairCheck {
     pub length_max: f64,
     /// RMS distance of the points from their best-fit plane (mm).
     pub flatness_rms: f64,
+    /// The length RMS the devices' observation noise alone gives through this pair's
+    /// triangulation geometry (mm; docs/design.md (39)), when their noise is known.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub predicted_rms: Option<f64>,
 }
 
 /// A device pair of a held-out pose that shares ten circles but gives no figures to trust,
@@ -147,11 +151,122 @@ struct Pairing {
     second: Point2<f64>,
 }
 
+/// What every pair of a verification shares: the board, the devices and their noise (px
+/// per axis; may be short or empty: unknown).
+struct Context<'a> {
+    board: &'a Board,
+    devices: &'a [Device],
+    noise: &'a [f64],
+}
+
+impl Context<'_> {
+    /// The noise of devices i and j, when both are known.
+    fn noise_of(&self, i: usize, j: usize) -> Option<(f64, f64)> {
+        let known = |d: usize| (self.noise.get(d).copied()).filter(|s| s.is_finite() && *s > 0.0);
+        Some((known(i)?, known(j)?))
+    }
+}
+
+/// Step of the numerical Jacobian of a triangulated point (px).
+const JACOBIAN_STEP_PX: f64 = 0.05;
+
+/// Per shared circle, the covariance of its length-error point (mm²; docs/design.md
+/// (39)): the triangulated point less, for a camera–projector pair, its nominal point
+/// (where the camera's ray meets the board `plane`, point and normal), under noise σ_i,
+/// σ_j (px per axis) in the two devices' pixels; from a central-difference Jacobian.
+fn error_covariances(
+    devices: &[Device],
+    (i, j): (usize, usize),
+    (si, sj): (f64, f64),
+    plane: Option<(Vector3<f64>, Vector3<f64>)>,
+    pairs: &[Pairing],
+) -> Option<Vec<Matrix3<f64>>> {
+    let error = |a: Point2<f64>, b: Point2<f64>| -> Option<Vector3<f64>> {
+        let (ra, rb) = (ray(&devices[i], a)?, ray(&devices[j], b)?);
+        let x = midpoint(ra, rb)?.coords;
+        Some(match plane {
+            None => x,
+            Some((q, n)) => x - (ra.0.coords + ra.1 * (n.dot(&(q - ra.0.coords)) / n.dot(&ra.1))),
+        })
+    };
+    let h = JACOBIAN_STEP_PX;
+    let steps = [Vector2::new(h, 0.0), Vector2::new(0.0, h)];
+    pairs
+        .iter()
+        .map(|p| {
+            let mut cov = Matrix3::zeros();
+            for d in steps {
+                let di =
+                    (error(p.first + d, p.second)? - error(p.first - d, p.second)?) / (2.0 * h);
+                let dj =
+                    (error(p.first, p.second + d)? - error(p.first, p.second - d)?) / (2.0 * h);
+                cov += si * si * di * di.transpose() + sj * sj * dj * dj.transpose();
+            }
+            Some(cov)
+        })
+        .collect()
+}
+
+/// The length RMS the point covariances predict over all point pairs (mm; (39)): per pair
+/// a, b the variance gᵀ(Σ_a + Σ_b)g along their direction g.
+fn predicted_rms(points: &[Point3<f64>], covariances: &[Matrix3<f64>]) -> f64 {
+    let (mut var, mut n) = (0.0, 0usize);
+    for a in 0..points.len() {
+        for b in a + 1..points.len() {
+            let g = (points[a] - points[b]).normalize();
+            var += (g.transpose() * (covariances[a] + covariances[b]) * g)[(0, 0)];
+            n += 1;
+        }
+    }
+    (var / n.max(1) as f64).sqrt()
+}
+
+/// How much noisier this pose's observations are than the devices' noise says (at least 1;
+/// (39)): the points' scatter off a smooth surface (a quadric fitted in the plane's frame,
+/// which takes up a bend a calibration error would make) against the scatter the
+/// covariances predict along the plane's normal. A steep view's observations are noisier
+/// than a device's average; noise scatters point by point, a calibration error deforms
+/// smoothly. `None` when no plane or quadric can be fitted.
+fn noise_scale(points: &[Point3<f64>], covariances: &[Matrix3<f64>]) -> Option<f64> {
+    let n = points.len();
+    if n <= 12 {
+        return None;
+    }
+    let c = points.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n as f64;
+    let cov = points.iter().fold(Matrix3::zeros(), |m, p| {
+        m + (p.coords - c) * (p.coords - c).transpose()
+    });
+    let eig = cov.try_symmetric_eigen(f64::EPSILON, MAX_ITERATIONS)?;
+    let k = eig.eigenvalues.imin();
+    let normal = eig.eigenvectors.column(k).into_owned();
+    let (e1, e2) = (
+        eig.eigenvectors.column((k + 1) % 3),
+        eig.eigenvectors.column((k + 2) % 3),
+    );
+    // Least squares z = a + b·x + c·y + d·x² + e·xy + f·y² in the plane's frame.
+    let mut a = nalgebra::DMatrix::zeros(n, 6);
+    let mut z = nalgebra::DVector::zeros(n);
+    for (r, p) in points.iter().enumerate() {
+        let d = p.coords - c;
+        let (x, y) = (d.dot(&e1), d.dot(&e2));
+        for (col, v) in [1.0, x, y, x * x, x * y, y * y].into_iter().enumerate() {
+            a[(r, col)] = v;
+        }
+        z[r] = d.dot(&normal);
+    }
+    let fit = a.clone().svd(true, true).solve(&z, 1e-12).ok()?;
+    let scatter = ((&a * fit - &z).norm_squared() / (n - 6) as f64).sqrt();
+    let predicted = (covariances.iter())
+        .map(|s| (normal.transpose() * s * normal)[(0, 0)])
+        .sum::<f64>()
+        / n as f64;
+    Some((scatter / predicted.sqrt()).max(1.0)).filter(|k| k.is_finite())
+}
+
 /// The pair `(i, j)` of one side of one pose: `None` with fewer than ten shared circles,
 /// else its figures or why it gives none ([`SkippedPair`]).
 fn check_pair(
-    board: &Board,
-    devices: &[Device],
+    ctx: &Context,
     (i, j): (usize, usize),
     second_is_camera: bool,
     side: Side,
@@ -161,13 +276,14 @@ fn check_pair(
     if pairs.len() < 10 {
         return None;
     }
+    let devices = ctx.devices;
     let skipped = |reason: String| SkippedPair {
         first: devices[i].name.clone(),
         second: devices[j].name.clone(),
         pose,
         reason,
     };
-    Some(pair_figures(board, devices, (i, j), second_is_camera, side, pose, pairs).map_err(skipped))
+    Some(pair_figures(ctx, (i, j), second_is_camera, side, pose, pairs).map_err(skipped))
 }
 
 /// `Err` unless the triangulated `points` lie in front of devices `i` and `j` and their
@@ -212,14 +328,14 @@ fn triangulable(
 
 /// The figures of a pair with ten or more shared circles, or why it gives none.
 fn pair_figures(
-    board: &Board,
-    devices: &[Device],
+    ctx: &Context,
     (i, j): (usize, usize),
     second_is_camera: bool,
     side: Side,
     pose: usize,
     pairs: &[Pairing],
 ) -> Result<PairCheck, String> {
+    let (board, devices) = (ctx.board, ctx.devices);
     let nominal: Vec<Point3<f64>> = pairs.iter().map(|p| board.point(side, p.hex)).collect();
     let triangulate = |bias_i: &dyn Fn(&Pairing) -> Point2<f64>,
                        bias_j: &dyn Fn(&Pairing) -> Point2<f64>| {
@@ -232,6 +348,7 @@ fn pair_figures(
     let no_fit = || "the board pose fit to the points does not converge".to_string();
     let first = triangulate(&|p| p.first, &|p| p.second).ok_or_else(parallel)?;
     triangulable(devices, (i, j), &first)?;
+    let mut plane = None;
     let (points, nominal) = if second_is_camera {
         // Fit the pose to the points, remove each camera's ellipse-centre bias predicted
         // from it (§8), triangulate again.
@@ -258,6 +375,7 @@ fn pair_figures(
             fit_rigid(&nominal, &first).ok_or_else(no_fit)? * board.side_transform(side);
         let normal = ref_from_side.rotation * Vector3::z();
         let q = ref_from_side.translation.vector;
+        plane = Some((q, normal));
         let moved = pairs
             .iter()
             .map(|p| {
@@ -287,6 +405,10 @@ fn pair_figures(
         length_rms: (sq / n as f64).sqrt(),
         length_max: max,
         flatness_rms: flatness(&points),
+        predicted_rms: ctx.noise_of(i, j).and_then(|noise| {
+            let covariances = error_covariances(devices, (i, j), noise, plane, pairs)?;
+            Some(predicted_rms(&points, &covariances) * noise_scale(&points, &covariances)?)
+        }),
     };
     let figures = [check.length_rms, check.length_max, check.flatness_rms];
     if figures.iter().any(|v| !v.is_finite()) {
@@ -299,6 +421,23 @@ fn pair_figures(
 /// camera–projector pair; `views` index `devices` (anchored views only are used). A pair
 /// without figures to trust is skipped, with the reason, never reported as a result.
 pub fn verify(board: &Board, devices: &[Device], views: &[CameraView]) -> Verification {
+    verify_with_noise(board, devices, views, &[])
+}
+
+/// [`verify`], with each device's observation noise `noise[d]` (px per axis; the
+/// calibration's residual RMS): every pair of two devices of known noise also gets the
+/// length RMS that noise alone predicts ([`PairCheck::predicted_rms`]).
+pub fn verify_with_noise(
+    board: &Board,
+    devices: &[Device],
+    views: &[CameraView],
+    noise: &[f64],
+) -> Verification {
+    let ctx = Context {
+        board,
+        devices,
+        noise,
+    };
     // Per (pose, side): camera d → hex → ellipse centre; projector p → (camera, hex) → pixel.
     type PerSide = BTreeMap<usize, BTreeMap<Hex, Point2<f64>>>;
     let mut cams: BTreeMap<(usize, Side), PerSide> = BTreeMap::new();
@@ -323,15 +462,7 @@ pub fn verify(board: &Board, devices: &[Device], views: &[CameraView]) -> Verifi
             }
         }
         for (p, pairs) in by_proj {
-            out.extend(check_pair(
-                board,
-                devices,
-                (v.camera, p),
-                false,
-                side,
-                v.pose,
-                &pairs,
-            ));
+            out.extend(check_pair(&ctx, (v.camera, p), false, side, v.pose, &pairs));
         }
     }
     for (&(pose, side), per) in &cams {
@@ -348,7 +479,7 @@ pub fn verify(board: &Board, devices: &[Device], views: &[CameraView]) -> Verifi
                         })
                     })
                     .collect();
-                out.extend(check_pair(board, devices, (i, j), true, side, pose, &pairs));
+                out.extend(check_pair(&ctx, (i, j), true, side, pose, &pairs));
             }
         }
     }

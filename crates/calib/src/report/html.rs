@@ -1490,6 +1490,7 @@ mod tests {
             length_rms: 0.01234,
             length_max: 0.05678,
             flatness_rms: 0.00912,
+            predicted_rms: None,
         };
         let html = page(cal, &[check], vec!["board not seen in pose 9".into()]);
         assert_eq!(html.matches("<html").count(), 1);

@@ -579,13 +579,24 @@ pub struct Written {
 /// RMS and maximum, flatness; then the RMS over all pairs.
 pub fn format_verification(checks: &[crate::calib::verify::PairCheck]) -> String {
     let mut s = format!(
-        "{:<10} {:<10} {:>5} {:>7} {:>14} {:>14} {:>14}\n",
-        "first", "second", "pose", "points", "length RMS mm", "length max mm", "flatness mm"
+        "{:<10} {:<10} {:>5} {:>7} {:>14} {:>14} {:>14} {:>14}\n",
+        "first",
+        "second",
+        "pose",
+        "points",
+        "length RMS mm",
+        "from noise mm",
+        "length max mm",
+        "flatness mm"
     );
     for k in checks {
+        let noise = match k.predicted_rms {
+            Some(p) => format!("{p:.4}"),
+            None => "-".into(),
+        };
         s += &format!(
-            "{:<10} {:<10} {:>5} {:>7} {:>14.4} {:>14.4} {:>14.4}\n",
-            k.first, k.second, k.pose, k.points, k.length_rms, k.length_max, k.flatness_rms
+            "{:<10} {:<10} {:>5} {:>7} {:>14.4} {:>14} {:>14.4} {:>14.4}\n",
+            k.first, k.second, k.pose, k.points, k.length_rms, noise, k.length_max, k.flatness_rms
         );
     }
     match verification_rms(checks) {
