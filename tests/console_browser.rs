@@ -370,6 +370,9 @@ fn check_live_preview(page: &mut Page, file: &Path) {
         .unwrap()
         .iter()
         .all(|c| c["pose"] == ""));
+    page.eval(
+        "document.querySelector('#cameras figure[data-sees=\"1\"]').scrollIntoView({block: 'center'})",
+    );
     let png = screenshot(page, file);
     let r = page.eval(
         "(() => { const f = document.querySelector('#cameras figure[data-sees=\"1\"] canvas'); \
@@ -466,6 +469,10 @@ fn capture_until_done(page: &mut Page, shots: &Path) -> (usize, Option<Value>) {
 /// Screenshot the page into `file`; the first camera with a suggested outline must show its
 /// orange dashes.
 fn check_outline(page: &mut Page, file: &Path) {
+    // Below the next-pose panel: scrolled into view.
+    page.eval(
+        "document.querySelector('#cameras figure[data-outline=\"1\"]').scrollIntoView({block: 'center'})",
+    );
     let png = screenshot(page, file);
     let r = page.eval(
         "(() => { const f = document.querySelector('#cameras figure[data-outline=\"1\"] canvas'); \
@@ -521,6 +528,7 @@ fn outline_and_arrow(png: &[u8], [x0, y0, w, h]: [u32; 4]) -> (usize, usize, [f6
 /// gives a turn, the cyan arrow drawn from the outline's centre where the page says it
 /// points. Gives what the panel shows.
 fn check_next_pose(page: &mut Page, file: &Path) -> Value {
+    page.eval("window.scrollTo(0, 0)");
     let facts = page.eval(
         r#"JSON.stringify((() => {
             const q = (s) => document.querySelector(s);
@@ -596,6 +604,7 @@ fn screenshot(page: &mut Page, file: &Path) -> Vec<u8> {
 /// Screenshot the page into `file` and check what it shows: a green sign, circles over
 /// the first thumbnail and a grey picture under them.
 fn check_screenshot(page: &mut Page, file: &Path) {
+    page.eval("window.scrollTo(0, 0)");
     let png = screenshot(page, file);
     let rect = |page: &mut Page, sel: &str| -> [u32; 4] {
         let r = page.eval(&format!(
