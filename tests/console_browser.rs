@@ -211,10 +211,11 @@ impl Page {
         self.click("#capture");
     }
 
-    /// Click the element `selector` with the mouse, at its centre.
+    /// Click the element `selector` with the mouse, at its centre (scrolled into view).
     fn click(&mut self, selector: &str) {
         let r = self.eval(&format!(
-            "(() => {{ const r = document.querySelector('{selector}').getBoundingClientRect(); \
+            "(() => {{ const e = document.querySelector('{selector}'); \
+             e.scrollIntoView({{block: 'center'}}); const r = e.getBoundingClientRect(); \
              return [r.x + r.width / 2, r.y + r.height / 2]; }})()"
         ));
         let (x, y) = (r[0].as_f64().unwrap(), r[1].as_f64().unwrap());
