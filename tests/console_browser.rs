@@ -19,9 +19,11 @@ mod cli;
 use cli::scratch;
 use hexcal::app::console::Console;
 use hexcal::app::guide::picture::{Picture, Turn};
+use hexcal::app::guide::stats::DeviceStats;
 use hexcal::app::guide::verdict::Verdict;
 use hexcal::app::guide::{Guidance, Suggestion};
 use hexcal::app::progress::Event;
+use hexcal::observations::{DeviceInfo, DeviceKind};
 use hexcal::rig::fixture::{paper, SimRig};
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Read, Write};
@@ -888,8 +890,18 @@ fn suggested() -> Verdict {
         }),
         pose: nalgebra::Isometry3::identity(),
     };
+    // cam1's counts as the run made them: its coverage and steep views, which the page
+    // shows as given (its cells, left empty here, would give another coverage).
+    let mut cam1 = DeviceStats::new(&DeviceInfo {
+        name: "cam1".into(),
+        kind: DeviceKind::Camera,
+        width: 960,
+        height: 600,
+    });
+    (cam1.poses, cam1.coverage, cam1.steep) = (4, 0.45, 2);
     Verdict {
         threshold: 0.2,
+        devices: vec![cam1],
         guidance: Some(Guidance {
             devices: Vec::new(),
             threshold: 0.2,
@@ -956,6 +968,12 @@ fn the_next_pose_reads_at_3_m_on_a_screen_and_on_tablets() {
             "{facts}"
         );
     }
+    // Coverage and steep views: the run's figures.
+    let counts = page.eval(
+        "(() => { const r = document.querySelector('#devices tr[data-device=\"cam1\"]'); \
+         return [r.querySelector('.coverage').textContent, r.querySelector('.steep').textContent]; })()",
+    );
+    assert_eq!(counts, json!(["45 %", "2"]));
 }
 
 /// The countdown is the run's (issue 34): with `--countdown 2`, a press of Capture shows 2,
