@@ -274,6 +274,10 @@ enum Command {
         /// repeatable.
         #[arg(long, value_name = "FIRST,SECOND")]
         stereo: Vec<String>,
+        /// Seconds counted down (on the terminal and, big, on the console's page) after the
+        /// board is placed by hand (Enter or Capture) before its capture starts; 0: none.
+        #[arg(long, value_name = "SECONDS", default_value_t = hexcal::app::session::COUNTDOWN_S)]
+        countdown: f64,
     },
     /// List the cameras, monitors and serial ports this machine has (rig-file addresses).
     Devices,
@@ -421,6 +425,11 @@ fn printer(mode: Progress) -> impl FnMut(&Event) {
         Progress::Quiet => {}
         Progress::Human => match e {
             Event::Frames { .. } if !tty => {}
+            // Redrawn in place on a terminal, like the frame counter.
+            Event::Countdown { seconds, .. } if tty && *seconds > 0 => {
+                eprint!("\r{e}   ");
+                let _ = std::io::stderr().flush();
+            }
             Event::Frames { pose, done, of } => {
                 let filled = 30 * done / (*of).max(1);
                 eprint!(
@@ -529,6 +538,7 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
             guided,
             dry_run,
             stereo,
+            countdown,
         } => {
             if dry_run {
                 print!("{}", hexcal::app::script::timeline(&rig)?);
@@ -540,6 +550,7 @@ fn execute(command: Command) -> anyhow::Result<Finished> {
                 keep_stacks,
                 stop: Some(hexcal::app::session::stop_flag()?),
                 stereo,
+                countdown_s: countdown,
                 ..Default::default()
             };
             let progress = match (json, quiet) {

@@ -9,7 +9,9 @@
 //! on a screenshot) until the sign turns from NOT DONE to DONE under the rig file's
 //! uncertainty threshold, and that a screenshot shows the green sign and the overlays. It
 //! then closes the browser and finishes the run with Enter on the terminal: the run must end
-//! as it would without a console.
+//! as it would without a console. Readable at 3 m (issue 34): the next-pose panel at
+//! 1920×1080 and on two tablet sizes, and the run's countdown before a capture as the page
+//! shows it.
 //!
 //! Needs Chromium at /usr/bin/chromium (Debian package `chromium`, in scripts/test.sh).
 
@@ -17,6 +19,13 @@
 mod cli;
 
 use cli::scratch;
+use hexcal::app::console::Console;
+use hexcal::app::guide::picture::{Picture, Turn};
+use hexcal::app::guide::stats::DeviceStats;
+use hexcal::app::guide::verdict::Verdict;
+use hexcal::app::guide::{Guidance, Suggestion};
+use hexcal::app::progress::Event;
+use hexcal::observations::{DeviceInfo, DeviceKind};
 use hexcal::rig::fixture::{paper, SimRig};
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Read, Write};
@@ -206,10 +215,11 @@ impl Page {
         self.click("#capture");
     }
 
-    /// Click the element `selector` with the mouse, at its centre.
+    /// Click the element `selector` with the mouse, at its centre (scrolled into view).
     fn click(&mut self, selector: &str) {
         let r = self.eval(&format!(
-            "(() => {{ const r = document.querySelector('{selector}').getBoundingClientRect(); \
+            "(() => {{ const e = document.querySelector('{selector}'); \
+             e.scrollIntoView({{block: 'center'}}); const r = e.getBoundingClientRect(); \
              return [r.x + r.width / 2, r.y + r.height / 2]; }})()"
         ));
         let (x, y) = (r[0].as_f64().unwrap(), r[1].as_f64().unwrap());
@@ -222,20 +232,23 @@ impl Page {
     }
 }
 
-/// Start `hexcal run --console` with a free port; gives the process, its stdin, the
-/// console's address and the receiver of its remaining stderr lines.
+/// Start `hexcal run --console` with a free port and a countdown of 1 s before each
+/// capture; gives the process, its stdin, the console's address and the receiver of its
+/// remaining stderr lines.
 fn start_run(rig: &Path, out: &Path) -> (Killed, ChildStdin, String, mpsc::Receiver<String>) {
-    start_run_at(rig, out, "127.0.0.1:0")
+    start_run_at(rig, out, "127.0.0.1:0", "1")
 }
 
-/// [`start_run`] with the console on `addr`.
+/// [`start_run`] with the console on `addr` and a countdown of `countdown` seconds.
 fn start_run_at(
     rig: &Path,
     out: &Path,
     addr: &str,
+    countdown: &str,
 ) -> (Killed, ChildStdin, String, mpsc::Receiver<String>) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_hexcal"))
-        .args(["run", "--held-out", "1", "--console", addr, "--rig"])
+        .args(["run", "--held-out", "1", "--countdown", countdown])
+        .args(["--console", addr, "--rig"])
         .arg(rig)
         .arg("--out")
         .arg(out)
@@ -362,6 +375,9 @@ fn check_live_preview(page: &mut Page, file: &Path) {
         .unwrap()
         .iter()
         .all(|c| c["pose"] == ""));
+    page.eval(
+        "document.querySelector('#cameras figure[data-sees=\"1\"]').scrollIntoView({block: 'center'})",
+    );
     let png = screenshot(page, file);
     let r = page.eval(
         "(() => { const f = document.querySelector('#cameras figure[data-sees=\"1\"] canvas'); \
@@ -444,6 +460,11 @@ fn capture_until_done(page: &mut Page, shots: &Path) -> (usize, Option<Value>) {
             if guided.is_none() {
                 guided = Some(g);
                 check_outline(page, &shots.join("guidance.png"));
+                let panel = check_next_pose(page, &shots.join("next-pose.png"));
+                assert!(
+                    panel["tilt"].as_str().unwrap().starts_with("tilt "),
+                    "{panel}"
+                );
             }
         }
         assert!(pose < 5, "not done after {pose} poses: {seen}");
@@ -453,6 +474,10 @@ fn capture_until_done(page: &mut Page, shots: &Path) -> (usize, Option<Value>) {
 /// Screenshot the page into `file`; the first camera with a suggested outline must show its
 /// orange dashes.
 fn check_outline(page: &mut Page, file: &Path) {
+    // Below the next-pose panel: scrolled into view.
+    page.eval(
+        "document.querySelector('#cameras figure[data-outline=\"1\"]').scrollIntoView({block: 'center'})",
+    );
     let png = screenshot(page, file);
     let r = page.eval(
         "(() => { const f = document.querySelector('#cameras figure[data-outline=\"1\"] canvas'); \
@@ -476,6 +501,102 @@ fn check_outline(page: &mut Page, file: &Path) {
     assert!(orange > 100, "no outline drawn: {orange} px");
 }
 
+/// The least font size (a fraction of the screen's height) of the next-pose panel's line
+/// and tilt: about 4 cm on a 80 cm high screen, readable from 3 m.
+const READABLE: f64 = 0.05;
+
+/// In the rectangle (x, y, width, height) of the screenshot: pixels of the next pose's
+/// outline (orange) and of its turn's arrow (cyan), and the mean position of the arrow's.
+fn outline_and_arrow(png: &[u8], [x0, y0, w, h]: [u32; 4]) -> (usize, usize, [f64; 2]) {
+    let shot = image::load_from_memory(png).unwrap().to_rgb8();
+    let (mut orange, mut cyan, mut at) = (0, 0, [0.0, 0.0]);
+    for y in y0..(y0 + h).min(shot.height()) {
+        for x in x0..(x0 + w).min(shot.width()) {
+            let [r, g, b] = shot.get_pixel(x, y).0.map(i32::from);
+            if r > 220 && (110..180).contains(&g) && b < 70 {
+                orange += 1;
+            }
+            // The arrow's #00e5ff, brighter than the lattice's (0, 200, 255, 0.8).
+            if r < 60 && g > 215 && b > 240 {
+                cyan += 1;
+                at = [at[0] + f64::from(x), at[1] + f64::from(y)];
+            }
+        }
+    }
+    let n = cyan.max(1) as f64;
+    (orange, cyan, [at[0] / n, at[1] / n])
+}
+
+/// The next-pose panel as an operator 3 m away sees it (screenshot into `file`): inside the
+/// first screen, its line and tilt number at least [`READABLE`] of the screen's height, the
+/// suggested outline drawn in thick orange over its camera's picture and, when the run
+/// gives a turn, the cyan arrow drawn from the outline's centre where the page says it
+/// points. Gives what the panel shows.
+fn check_next_pose(page: &mut Page, file: &Path) -> Value {
+    page.eval("window.scrollTo(0, 0)");
+    let facts = page.eval(
+        r#"JSON.stringify((() => {
+            const q = (s) => document.querySelector(s);
+            const box = (s) => { const r = q(s).getBoundingClientRect(); return [r.x, r.y, r.width, r.height]; };
+            const font = (s) => parseFloat(getComputedStyle(q(s)).fontSize);
+            const arrow = q('#npcanvas').dataset.arrow;
+            return { hidden: q('#nextpose').hidden, screen: [innerWidth, innerHeight],
+              camera: q('#nextpose').dataset.camera, line: q('#npline').textContent,
+              tilt: q('#nptilt').textContent, turn: q('#npturn').textContent, pose: q('#nppose').textContent,
+              fonts: [font('#npline'), font('#nptilt')], boxes: [box('#npcanvas'), box('#npline'), box('#nptilt')],
+              arrow: arrow ? JSON.parse(arrow) : null };
+        })())"#,
+    );
+    let facts: Value = serde_json::from_str(facts.as_str().unwrap()).unwrap();
+    let png = screenshot(page, file);
+    let [w, h] = [0, 1].map(|i| facts["screen"][i].as_f64().unwrap());
+    assert_eq!(facts["hidden"], false, "{facts}");
+    for font in facts["fonts"].as_array().unwrap() {
+        assert!(font.as_f64().unwrap() >= READABLE * h, "{facts}");
+    }
+    let boxes: Vec<[f64; 4]> = facts["boxes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| std::array::from_fn(|i| b[i].as_f64().unwrap()))
+        .collect();
+    for [x, y, bw, bh] in &boxes {
+        let inside = *x >= 0.0 && *y >= 0.0 && x + bw <= w + 0.5 && y + bh <= h + 0.5;
+        assert!(
+            inside && *bw > 0.0 && *bh > 0.0,
+            "not in the first screen: {facts}"
+        );
+    }
+    // The camera's picture is big: a quarter of the screen or more.
+    let canvas = boxes[0];
+    assert!(canvas[2] * canvas[3] >= w * h / 4.0, "{facts}");
+    let rect: [u32; 4] = std::array::from_fn(|i| canvas[i].round() as u32);
+    let (orange, cyan, at) = outline_and_arrow(&png, rect);
+    eprintln!(
+        "screenshot {}: next pose {facts}; {orange} px of outline, {cyan} px of arrow",
+        file.display()
+    );
+    // Thick strokes: as many pixels as five times the picture's width.
+    assert!(
+        orange as f64 >= 5.0 * canvas[2],
+        "outline not drawn big: {orange} px"
+    );
+    if let Some(a) = facts["arrow"].as_array() {
+        let a: Vec<f64> = a.iter().map(|v| v.as_f64().unwrap()).collect();
+        let (dx, dy) = (a[2] - a[0], a[3] - a[1]);
+        assert!(dx.hypot(dy) >= 0.1 * canvas[2], "arrow too short: {facts}");
+        assert!(cyan as f64 >= canvas[2], "no arrow drawn: {cyan} px");
+        // Its pixels lie along it, from its start towards its end.
+        let (cx, cy) = (at[0] - canvas[0] - a[0], at[1] - canvas[1] - a[1]);
+        let along = (cx * dx + cy * dy) / (dx * dx + dy * dy);
+        assert!(
+            (0.25..1.0).contains(&along),
+            "arrow not where it points: {along}"
+        );
+    }
+    facts
+}
+
 fn screenshot(page: &mut Page, file: &Path) -> Vec<u8> {
     let shot = page.call("Page.captureScreenshot", json!({"format": "png"}));
     let png = data_encoding::BASE64
@@ -488,6 +609,7 @@ fn screenshot(page: &mut Page, file: &Path) -> Vec<u8> {
 /// Screenshot the page into `file` and check what it shows: a green sign, circles over
 /// the first thumbnail and a grey picture under them.
 fn check_screenshot(page: &mut Page, file: &Path) {
+    page.eval("window.scrollTo(0, 0)");
     let png = screenshot(page, file);
     let rect = |page: &mut Page, sel: &str| -> [u32; 4] {
         let r = page.eval(&format!(
@@ -713,7 +835,7 @@ fn a_console_on_all_addresses_works_only_with_its_token() {
     let dir = scratch("console-token");
     let rig = dir.join("rig.toml");
     std::fs::write(&rig, console_rig().toml()).unwrap();
-    let (_run, _stdin, url, _stderr) = start_run_at(&rig, &dir.join("data"), "0.0.0.0:0");
+    let (_run, _stdin, url, _stderr) = start_run_at(&rig, &dir.join("data"), "0.0.0.0:0", "1");
     let (base, token) = url
         .split_once("?token=")
         .expect("a token in the printed address");
@@ -740,4 +862,209 @@ fn a_console_on_all_addresses_works_only_with_its_token() {
     );
     let state = page.wait("the capture button", &|v| v["capture"] == true);
     assert_eq!(state["sign"], "NOT DONE", "{state}");
+}
+
+/// What the run's guidance gives the console after an interim calibration: cam1 must see
+/// the board in the outline below, turned 25° towards the image's upper right from the last
+/// pose, tilted 40° from facing cam1.
+fn suggested() -> Verdict {
+    let outline = vec![
+        [300.0, 150.0],
+        [700.0, 120.0],
+        [720.0, 460.0],
+        [280.0, 430.0],
+    ];
+    let suggestion = Suggestion {
+        target: "cam1".into(),
+        predicted: 0.31,
+        sentence: "for cam1: place the board in the centre of cam1's view, tilted about 40° \
+                   from facing cam1, its right edge nearer to cam1"
+            .into(),
+        outlines: vec![None, Some(outline)],
+        picture: Some(Picture {
+            camera: 1,
+            tilt_deg: 40.0,
+            turn: Some(Turn {
+                toward: [0.8, -0.6],
+                deg: 25.0,
+            }),
+            line: "cam1: fill the outline, right edge nearer".into(),
+        }),
+        pose: nalgebra::Isometry3::identity(),
+    };
+    // cam1's counts as the run made them: its coverage and steep views, which the page
+    // shows as given (its cells, left empty here, would give another coverage).
+    let mut cam1 = DeviceStats::new(&DeviceInfo {
+        name: "cam1".into(),
+        kind: DeviceKind::Camera,
+        width: 960,
+        height: 600,
+    });
+    (cam1.poses, cam1.coverage, cam1.steep) = (4, 0.45, 2);
+    Verdict {
+        threshold: 0.2,
+        devices: vec![cam1],
+        guidance: Some(Guidance {
+            devices: Vec::new(),
+            threshold: 0.2,
+            done: false,
+            suggestion: Some(suggestion),
+        }),
+        ..Verdict::default()
+    }
+}
+
+/// The next pose readable at 3 m (issue 34): on a 1920×1080 screen, a 1024×768 tablet and
+/// an 800×1280 one upright, the page shows what the run suggests (screenshots into the
+/// scratch folder) as the panel [`check_next_pose`] checks: its line and tilt as the run
+/// gave them, the arrow pointing where the run's turn points.
+#[test]
+fn the_next_pose_reads_at_3_m_on_a_screen_and_on_tablets() {
+    let dir = scratch("console-next-pose");
+    let cams = [
+        ("cam0".to_string(), [960, 600]),
+        ("cam1".to_string(), [960, 600]),
+    ];
+    let mut console = Console::start("127.0.0.1:0", &cams, false).unwrap();
+    console.event(&Event::PoseStarted { pose: 4, of: 6 });
+    (console.verdicts())(&suggested());
+    let _browser = start_chromium(&dir.join("profile"));
+    let mut page = Page::attach(&dir.join("profile"));
+    page.call("Page.navigate", json!({"url": console.url()}));
+    for [w, h] in [[1920, 1080], [1024, 768], [800, 1280]] {
+        page.call(
+            "Emulation.setDeviceMetricsOverride",
+            json!({"width": w, "height": h, "deviceScaleFactor": 1, "mobile": false}),
+        );
+        page.wait_for(
+            &format!("the panel drawn at {w}×{h}"),
+            "(() => { const c = document.querySelector('#npcanvas'); \
+             return c.dataset.screen + ' ' + (c.dataset.arrow || ''); })()",
+            &|t| t.starts_with(&format!("{w}x{h} [")),
+        );
+        let facts = check_next_pose(&mut page, &dir.join(format!("next-pose-{w}x{h}.png")));
+        assert_eq!(facts["camera"], "1", "{facts}");
+        assert_eq!(facts["line"], "cam1: fill the outline, right edge nearer");
+        assert_eq!(facts["tilt"], "tilt 40°");
+        assert!(
+            facts["turn"].as_str().unwrap().starts_with("turn 25°"),
+            "{facts}"
+        );
+        assert!(
+            facts["pose"]
+                .as_str()
+                .unwrap()
+                .starts_with("pose 4 (5 of 6)"),
+            "{facts}"
+        );
+        let a: Vec<f64> = facts["arrow"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        let (dx, dy) = (a[2] - a[0], a[3] - a[1]);
+        let n = dx.hypot(dy);
+        assert!(
+            (dx / n - 0.8).abs() < 0.01 && (dy / n + 0.6).abs() < 0.01,
+            "{facts}"
+        );
+    }
+    // Coverage and steep views: the run's figures.
+    let counts = page.eval(
+        "(() => { const r = document.querySelector('#devices tr[data-device=\"cam1\"]'); \
+         return [r.querySelector('.coverage').textContent, r.querySelector('.steep').textContent]; })()",
+    );
+    assert_eq!(counts, json!(["45 %", "2"]));
+}
+
+/// The countdown is the run's (issue 34): with `--countdown 2`, a press of Capture shows 2,
+/// then 1 a second later, then 0 as the run starts the capture (its status turns to
+/// capturing with the 0, never before), and the capture's first frames come after it; the
+/// terminal says the same seconds in the same order.
+#[test]
+fn the_countdown_reaches_0_as_the_capture_starts() {
+    let dir = scratch("console-countdown");
+    let rig = dir.join("rig.toml");
+    std::fs::write(&rig, console_rig().toml()).unwrap();
+    let (_run, _stdin, url, stderr) = start_run_at(&rig, &dir.join("data"), "127.0.0.1:0", "2");
+    let _browser = start_chromium(&dir.join("profile"));
+    let mut page = Page::attach(&dir.join("profile"));
+    page.call("Page.navigate", json!({"url": url}));
+    page.wait("the capture button", &|v| v["capture"] == true);
+    // What the page shows, each change with its time: the countdown's number (null while
+    // hidden) and the run's status.
+    page.eval(
+        "window.shown = []; (() => { let last = ''; const log = () => { \
+           const on = !document.querySelector('#countdown').hidden; \
+           const k = JSON.stringify([on ? document.querySelector('#cdnum').textContent : null, \
+             document.body.dataset.status]); \
+           if (k !== last) { last = k; window.shown.push([...JSON.parse(k), performance.now()]); } }; \
+         new MutationObserver(log).observe(document.body, \
+           { subtree: true, childList: true, characterData: true, attributes: true }); log(); })()",
+    );
+    page.click_capture();
+    let shown = page.wait_for(
+        "the capture's first frames",
+        "JSON.stringify(window.shown)",
+        &|t| t.contains(r#"["","capturing""#),
+    );
+    let shown: Vec<(Value, String, f64)> = serde_json::from_str::<Vec<Value>>(&shown)
+        .unwrap()
+        .into_iter()
+        .map(|e| {
+            (
+                e[0].clone(),
+                e[1].as_str().unwrap().to_string(),
+                e[2].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    eprintln!("countdown as shown: {shown:?}");
+    let numbers: Vec<(&str, &str, f64)> = shown
+        .iter()
+        .filter_map(|(n, status, t)| {
+            Some((n.as_str().filter(|n| !n.is_empty())?, status.as_str(), *t))
+        })
+        .collect();
+    let seq: Vec<(&str, &str)> = numbers.iter().map(|(n, s, _)| (*n, *s)).collect();
+    assert_eq!(
+        seq,
+        [("2", "countdown"), ("1", "countdown"), ("0", "capturing")],
+        "{shown:?}"
+    );
+    for pair in numbers.windows(2) {
+        let second = (pair[1].2 - pair[0].2) / 1e3;
+        assert!(
+            (0.7..1.5).contains(&second),
+            "a second lasted {second} s: {shown:?}"
+        );
+    }
+    let zero = numbers[2].2;
+    assert!(
+        shown.iter().all(|(_, s, t)| s != "capturing" || *t >= zero),
+        "capturing before 0: {shown:?}"
+    );
+    // The terminal: the same seconds, then the capture.
+    let mut said = Vec::new();
+    while !said.iter().any(|l: &String| l.ends_with("capture starts")) {
+        said.push(
+            stderr
+                .recv_timeout(STEP)
+                .expect("the countdown on the terminal"),
+        );
+    }
+    let said: Vec<&String> = said
+        .iter()
+        .filter(|l| l.starts_with("pose 0: capture"))
+        .collect();
+    assert_eq!(
+        said,
+        [
+            "pose 0: capture in 2 s: hold the board still",
+            "pose 0: capture in 1 s: hold the board still",
+            "pose 0: capture starts"
+        ],
+        "{said:?}"
+    );
 }

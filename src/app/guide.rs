@@ -10,6 +10,7 @@
 
 pub mod interim;
 pub mod operator;
+pub mod picture;
 pub mod stats;
 pub mod verdict;
 
@@ -62,6 +63,9 @@ pub struct Suggestion {
     /// Per rig device (cameras first), the board's outline (px) in its image at the pose,
     /// when it would see at least `MIN_SEEN` points.
     pub outlines: Vec<Option<Vec<[f32; 2]>>>,
+    /// The pose drawn big in one camera's view: its tilt, the turn from the last pose and
+    /// one short line ([`picture::picture`]); `None` when no camera would see it.
+    pub picture: Option<picture::Picture>,
     /// The pose T_ref_board, in the calibration's reference frame.
     #[serde(skip)]
     pub pose: Isometry3<f64>,
@@ -452,6 +456,15 @@ pub fn first_pose_advice(pose: usize, need: usize, seen: &[(&str, usize)]) -> Op
     Some(s + ".")
 }
 
+/// The first-pose advice ([`first_pose_advice`]) in at most [`picture::MAX_WORDS`] words,
+/// for the console's big panel; `None` from pose `need` on.
+pub fn first_pose_line(pose: usize, need: usize) -> Option<String> {
+    (pose < need).then(|| match pose {
+        0 => "Board where every camera sees it".to_string(),
+        _ => "Turn the board; every camera still sees it".to_string(),
+    })
+}
+
 /// Candidate board poses T_ref_board around the working volume of the poses so far: the
 /// mean board position and the first pose's orientation, turned about the board's y by
 /// up to ±50°, tilted about its x by up to ±40°, shifted in its plane by ±250 / ±200 mm.
@@ -633,6 +646,13 @@ fn suggest(
         .filter(|&d| count(d) >= MIN_SEEN);
     let told = worst_device.or_else(|| (0..cal.devices.len()).max_by_key(|&d| count(d)))?;
     let outlines = outlines(cal, devices, &pose);
+    let picture = picture::picture(
+        cal,
+        &pose,
+        &outlines,
+        (told, &count),
+        uncalibrated.map(|u| u.name.as_str()),
+    );
     let (target, sentence) = match uncalibrated {
         Some(u) => (
             u.name.clone(),
@@ -651,6 +671,7 @@ fn suggest(
         predicted,
         sentence,
         outlines,
+        picture,
         pose,
     })
 }
@@ -712,14 +733,8 @@ fn hull(points: &[Point2<f64>]) -> Vec<Point2<f64>> {
 fn sentence(cal: &Calibration, d: usize, pose: &Isometry3<f64>) -> String {
     let dev = &cal.devices[d];
     let name = &dev.name;
-    // The board centre and the normal of the side facing the device, in the device frame.
-    let t = dev.pose * pose;
-    let centre = t * Point3::origin();
-    let mut normal = t.rotation * Vector3::z();
-    if normal.dot(&centre.coords) > 0.0 {
-        normal = -normal;
-    }
-    let angle = normal.angle(&(-centre.coords)).to_degrees();
+    let centre = dev.pose * pose * Point3::origin();
+    let (normal, angle) = picture::facing(dev, pose);
     let place = match dev.model.project(&centre) {
         Some(p) => {
             let (w, h) = (f64::from(dev.model.width), f64::from(dev.model.height));
@@ -738,19 +753,7 @@ fn sentence(cal: &Calibration, d: usize, pose: &Isometry3<f64>) -> String {
     if rounded < 10.0 {
         return format!("for {name}: place the board {place}, facing {name}");
     }
-    // The edge nearer to the device lies against the normal's sideways component.
-    let (sx, sy) = (-normal.x, -normal.y);
-    let edge = if sx.abs() > 2.0 * sy.abs() {
-        if sx > 0.0 { "right" } else { "left" }.to_string()
-    } else if sy.abs() > 2.0 * sx.abs() {
-        if sy > 0.0 { "bottom" } else { "top" }.to_string()
-    } else {
-        format!(
-            "{}-{}",
-            if sy > 0.0 { "bottom" } else { "top" },
-            if sx > 0.0 { "right" } else { "left" }
-        )
-    };
+    let edge = picture::nearer_edge(&normal);
     format!(
         "for {name}: place the board {place}, tilted about {rounded:.0}° from facing {name}, \
          its {edge} edge nearer to {name}"

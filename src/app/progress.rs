@@ -19,6 +19,15 @@ pub enum Event {
         /// Poses in all.
         of: usize,
     },
+    /// The capture of a pose starts in this many whole seconds (the wait after the board is
+    /// placed: the rig file's `pose_pause_s` or the operator's countdown); told every
+    /// second, 0 as the capture starts.
+    Countdown {
+        /// Pose index.
+        pose: usize,
+        /// Whole seconds left.
+        seconds: u64,
+    },
     /// Frames of a pose captured so far.
     Frames {
         /// Pose index.
@@ -129,6 +138,13 @@ impl std::fmt::Display for Event {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Event::PoseStarted { pose, of } => write!(f, "pose {pose} of {of}: capturing"),
+            Event::Countdown { pose, seconds: 0 } => write!(f, "pose {pose}: capture starts"),
+            Event::Countdown { pose, seconds } => {
+                write!(
+                    f,
+                    "pose {pose}: capture in {seconds} s: hold the board still"
+                )
+            }
             Event::Frames { pose, done, of } => write!(f, "pose {pose}: frame {done}/{of}"),
             Event::PoseCaptured {
                 pose,

@@ -60,6 +60,10 @@ pub struct RunOptions {
     /// Sees every processed pose's views as the run makes them (the guidance loop and the
     /// console), before [`Event::PoseProcessed`] tells of it.
     pub views_tap: Option<ViewsTap>,
+    /// Seconds counted down after each placement before its capture starts (set for an
+    /// operator placing the board by hand; 0: none): the run waits the longer of this and
+    /// the rig file's `pose_pause_s`, telling every whole second left ([`Event::Countdown`]).
+    pub countdown_s: f64,
 }
 
 /// What a [`ViewsTap`] calls: a processed pose's views, and whether the pose is held out.
@@ -112,12 +116,22 @@ impl RunOptions {
         self.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst))
     }
 
-    /// The rig file's `pose_pause_s` after the board is placed (it settles before the
-    /// capture); `false` when stopped meanwhile.
-    fn pause(&self, seconds: f64) -> bool {
+    /// Wait `seconds` after pose `k` is placed (the board settles, the operator steps back)
+    /// before its capture, telling `events` every whole second left ([`Event::Countdown`];
+    /// the last, 0, as the wait ends and the capture starts); `false` when stopped meanwhile.
+    fn pause(&self, seconds: f64, k: usize, events: &mut dyn FnMut(&Event)) -> bool {
         let until = std::time::Instant::now() + std::time::Duration::from_secs_f64(seconds);
+        let mut told = None;
         while !self.stopped() {
             let left = until.saturating_duration_since(std::time::Instant::now());
+            let whole = left.as_secs_f64().ceil() as u64;
+            if seconds > 0.0 && told != Some(whole) {
+                events(&Event::Countdown {
+                    pose: k,
+                    seconds: whole,
+                });
+                told = Some(whole);
+            }
             if left.is_zero() {
                 return true;
             }
@@ -308,7 +322,8 @@ struct Captured {
 }
 
 /// Place and capture every pose of `poses` not yet in the dataset, each left to settle for
-/// `pause` seconds after it is placed; stops at Ctrl-C, a refused placement or an error.
+/// `pause` seconds (or the operator's longer countdown) after it is placed; stops at Ctrl-C,
+/// a refused placement or an error.
 fn capture_todo(
     stream: &mut Stream<'_>,
     session: &mut Session,
@@ -328,8 +343,9 @@ fn capture_todo(
             }
         }
         (stream.events)(&Event::PoseStarted { pose: k, of: poses });
+        let wait = pause.max(options.countdown_s);
         let placed = match previewing(session, options.preview.as_ref(), || place(k, world)) {
-            Ok(placed) => placed && options.pause(pause),
+            Ok(placed) => placed && options.pause(wait, k, &mut *stream.events),
             Err(e) => {
                 c.failed = Some(e);
                 break;
@@ -753,22 +769,43 @@ mod tests {
     use std::time::{Duration, Instant};
 
     #[test]
-    fn the_pose_pause_waits_and_ctrl_c_cuts_it_short() {
+    fn the_pose_pause_counts_down_and_ctrl_c_cuts_it_short() {
         let stop = Arc::new(AtomicBool::new(false));
         let options = RunOptions {
             stop: Some(Arc::clone(&stop)),
             ..RunOptions::default()
         };
         let t = Instant::now();
-        assert!(options.pause(0.15));
-        assert!(t.elapsed() >= Duration::from_millis(150));
+        let mut told = Vec::new();
+        let mut events = |e: &Event| {
+            if let Event::Countdown { pose: 4, seconds } = e {
+                told.push((*seconds, t.elapsed()));
+            }
+        };
+        assert!(options.pause(1.15, 4, &mut events));
+        let waited = t.elapsed();
+        assert!(waited >= Duration::from_millis(1150), "{waited:?}");
+        // Each whole second left, told as it is reached; 0 as the wait ends.
+        let seconds: Vec<u64> = told.iter().map(|(s, _)| *s).collect();
+        assert_eq!(seconds, [2, 1, 0], "{told:?}");
+        for ((s, at), want) in told.iter().zip([0.0, 0.15, 1.15]) {
+            let at = at.as_secs_f64();
+            assert!(
+                at >= want && at < want + 0.3,
+                "{s} s told at {at} s: {told:?}"
+            );
+        }
+        // No wait, no countdown.
+        let mut none = 0;
+        assert!(options.pause(0.0, 1, &mut |_| none += 1));
+        assert_eq!(none, 0);
         let flag = Arc::clone(&stop);
         std::thread::spawn(move || {
             std::thread::sleep(Duration::from_millis(50));
             flag.store(true, Ordering::SeqCst);
         });
         let t = Instant::now();
-        assert!(!options.pause(600.0));
+        assert!(!options.pause(600.0, 0, &mut |_| {}));
         assert!(t.elapsed() < Duration::from_secs(60));
     }
 }

@@ -363,6 +363,10 @@ pub fn run(
     let plan = plan_of(&rig.file)?;
     check_run(&rig, plan.as_ref(), options)?;
     let mut options = options.clone();
+    if how.auto || plan.is_some() {
+        // Nobody places the board by hand: no countdown (the rig's pose_pause_s still holds).
+        options.countdown_s = 0.0;
+    }
     let mut console = how
         .console
         .map(|addr| Console::start(addr, &camera_panels(&rig.file), how.auto))
@@ -456,11 +460,24 @@ fn watch_run(
     Ok(guide)
 }
 
+/// The longest countdown before a capture (s).
+pub const MAX_COUNTDOWN_S: f64 = 60.0;
+
+/// The countdown before each capture of a board placed by hand, unless told otherwise (s).
+pub const COUNTDOWN_S: f64 = 3.0;
+
 /// The command line's poses checked against the rig file: a script decides its own; the
-/// count within the limit, and enough left after `--held-out` to calibrate.
+/// count within the limit, and enough left after `--held-out` to calibrate; the countdown
+/// within 0 to [`MAX_COUNTDOWN_S`].
 fn check_run(rig: &LoadedRig, plan: Option<&Plan>, options: &RunOptions) -> Result<(), AppError> {
     if plan.is_some() && options.poses.is_some() {
         return Err(scripted_poses(rig));
+    }
+    if !(0.0..=MAX_COUNTDOWN_S).contains(&options.countdown_s) {
+        return Err(AppError::Input(format!(
+            "--countdown {}: give 0 to {MAX_COUNTDOWN_S} seconds",
+            options.countdown_s
+        )));
     }
     let poses =
         plan.map(|p| p.captures)

@@ -110,7 +110,7 @@ impl Shared {
         p.seeing = 0;
         for v in views.iter().flatten() {
             p.stages += v.stages;
-            p.seeing += usize::from(v.sees_board);
+            p.seeing += usize::from(v.count.seen);
         }
         s.stale = stale;
         let mut pngs = lock(&self.live);
@@ -127,7 +127,7 @@ impl Shared {
                 round: n,
                 circles: v.circles,
                 overlay: v.overlay,
-                sees_board: v.sees_board,
+                count: v.count,
             });
         }
         drop(pngs);
@@ -153,12 +153,13 @@ impl Shared {
         }
     }
 
-    /// The Finish button: taken while the run captures (waiting for the board or capturing);
+    /// The Finish button: taken while the run captures (waiting for the board, counting down
+    /// or capturing);
     /// the capture ends at the next placement and the run calibrates from the poses so far.
     /// The page then says what the run does and, before DONE, what is not yet met.
     fn press_finish(&self) -> Result<(), PressRefused> {
         let mut s = lock(&self.state);
-        if !matches!(s.status.as_str(), "waiting" | "capturing") {
+        if !matches!(s.status.as_str(), "waiting" | "countdown" | "capturing") {
             return Err(PressRefused::NotWaiting(s.status.clone()));
         }
         match self.finish.try_send(()) {
@@ -404,6 +405,7 @@ impl Console {
                 s.status = "waiting".into();
                 s.pose = Some([*pose, *of]);
                 s.frames = None;
+                s.countdown = None;
                 s.message = match s.auto {
                     true => format!("pose {pose} ({} of {of})", pose + 1),
                     false => format!(
@@ -412,8 +414,18 @@ impl Console {
                     ),
                 };
             }
+            Event::Countdown { seconds, .. } => {
+                s.status = match seconds {
+                    0 => "capturing",
+                    _ => "countdown",
+                }
+                .into();
+                s.countdown = Some(*seconds);
+                s.message = e.to_string();
+            }
             Event::Frames { pose, done, of } => {
                 s.status = "capturing".into();
+                s.countdown = None;
                 s.frames = Some([*done, *of]);
                 s.message = format!("capturing pose {pose}: keep the board still");
             }

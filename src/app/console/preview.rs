@@ -9,7 +9,7 @@
 use super::labels::Overlay;
 use super::thumbs::{grey_png, WIDTH};
 use crate::app::detect::Settings;
-use crate::app::guide::stats::MIN_POINTS;
+use crate::app::guide::stats::{count_view, ViewCount, MIN_POINTS};
 use crate::board::{Board, Hex};
 use crate::detect::detect;
 use crate::grid::build;
@@ -30,8 +30,10 @@ pub struct LiveView {
     pub circles: usize,
     /// Labelled points and lattice edges, in the frame's pixels.
     pub overlay: Overlay,
-    /// The camera sees the board: at least [`MIN_POINTS`] labelled points.
-    pub sees_board: bool,
+    /// What the view counts as, by the rule the captured poses are counted by ([`count_view`]):
+    /// seen (the camera sees the board: at least [`MIN_POINTS`] labelled points), its tilt,
+    /// steep or not.
+    pub count: ViewCount,
     /// What each stage took.
     pub stages: Stages,
 }
@@ -227,12 +229,15 @@ pub fn look(frame: &CameraFrame, board: &Board, pose: usize, hint: &mut Hint) ->
     let points: Vec<(Hex, Point2<f64>)> =
         grid.points.iter().map(|p| (p.hex, full(p.image))).collect();
     let overlay = Overlay::labelled(pose, circles.len(), grid.anchored, &points);
+    let on_board: Vec<Point2<f64>> = points.iter().map(|(h, _)| board.position(*h)).collect();
+    let pixels: Vec<Point2<f64>> = points.iter().map(|(_, p)| *p).collect();
+    let count = count_view(&on_board, &pixels);
     let png = picture(&image)?;
     stages.picture = lap(&mut t);
     Some(LiveView {
         png,
         circles: circles.len(),
-        sees_board: points.len() >= MIN_POINTS,
+        count,
         overlay,
         stages,
     })
@@ -342,7 +347,7 @@ mod tests {
         let a = look(&small, &board, 3, &mut Hint::default()).unwrap();
         let b = look(&big, &board, 3, &mut Hint::default()).unwrap();
         assert_eq!(a.overlay.points.len(), b.overlay.points.len());
-        assert!(a.sees_board && b.sees_board);
+        assert!(a.count.seen && b.count.seen);
         assert_eq!(a.overlay.pose, 3);
         // Most of the circles imaged whole are labelled (the grid leaves out a few at its
         // border).
@@ -389,7 +394,7 @@ mod tests {
             ..big.clone()
         };
         let none = look(&grey, &board, 3, &mut Hint::default()).unwrap();
-        assert!(!none.sees_board && none.overlay.points.is_empty());
+        assert!(!none.count.seen && none.overlay.points.is_empty());
         let cut = CameraFrame {
             pixels: Pixels::Gray16(vec![100; 10]),
             ..big
@@ -413,12 +418,12 @@ mod tests {
             pixels: Pixels::Gray16(vec![100; (big.width * big.height) as usize]),
             ..big.clone()
         };
-        assert!(!look(&grey, &board, 0, &mut hint).unwrap().sees_board);
+        assert!(!look(&grey, &board, 0, &mut hint).unwrap().count.seen);
         assert!(hint.area.is_none() && hint.due == FULL_EVERY - 1);
         // A camera without the board searches only every FULL_EVERY-th round: the board
         // back in view is found then.
         let rounds: Vec<bool> = (0..FULL_EVERY)
-            .map(|_| look(&big, &board, 0, &mut hint).unwrap().sees_board)
+            .map(|_| look(&big, &board, 0, &mut hint).unwrap().count.seen)
             .collect();
         let mut want = vec![false; FULL_EVERY as usize];
         want[FULL_EVERY as usize - 1] = true;

@@ -6,6 +6,7 @@
 //! [`State`].
 
 use super::labels::Overlay;
+use crate::app::guide::stats::ViewCount;
 use crate::app::guide::verdict::Verdict;
 use serde::Serialize;
 
@@ -39,8 +40,10 @@ pub struct Live {
     pub circles: usize,
     /// Labelled points and lattice edges (frame px).
     pub overlay: Overlay,
-    /// The camera sees the board now.
-    pub sees_board: bool,
+    /// What the view counts as, by the rule the captured poses are counted by: `seen` (the
+    /// camera sees the board now), its `tilt`, `steep` or not.
+    #[serde(flatten)]
+    pub count: ViewCount,
 }
 
 /// The live preview's progress.
@@ -65,8 +68,8 @@ pub struct Preview {
 pub struct State {
     /// Increases with every change.
     pub version: u64,
-    /// "starting", "waiting" (for the board), "capturing", "calibrating", "finished" or
-    /// "stopped".
+    /// "starting", "waiting" (for the board), "countdown" (the board placed, the capture
+    /// about to start), "capturing", "calibrating", "finished" or "stopped".
     pub status: String,
     /// One sentence for the operator.
     pub message: String,
@@ -78,6 +81,9 @@ pub struct State {
     pub pose: Option<[usize; 2]>,
     /// Frames captured of the current pose, and the frames of a pose.
     pub frames: Option<[usize; 2]>,
+    /// Whole seconds until the capture of the placed pose starts, as the run counts them
+    /// down (0: it starts now); `None` outside a countdown.
+    pub countdown: Option<u64>,
     /// Cameras, in rig order.
     pub cameras: Vec<CameraPanel>,
     /// Problems reading what the run wrote (shown, never fatal).

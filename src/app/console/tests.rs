@@ -141,6 +141,50 @@ fn serves_the_page_state_and_events_and_takes_presses_only_when_waiting() {
 }
 
 #[test]
+fn the_countdown_is_the_runs_and_capture_waits_it_out() {
+    let mut console = Console::start("127.0.0.1:0", &[], false).unwrap();
+    let url = console.url().to_string();
+    let state = |url: &str| -> serde_json::Value {
+        serde_json::from_str(&request(url, "GET", "/state").1).unwrap()
+    };
+    console.event(&Event::PoseStarted { pose: 2, of: 4 });
+    assert_eq!(state(&url)["countdown"], serde_json::Value::Null);
+    console.event(&Event::Countdown {
+        pose: 2,
+        seconds: 3,
+    });
+    let s = state(&url);
+    assert_eq!(
+        (s["status"].as_str(), s["countdown"].as_u64()),
+        (Some("countdown"), Some(3))
+    );
+    assert!(
+        s["message"].as_str().unwrap().contains("capture in 3 s"),
+        "{s}"
+    );
+    // Counting down, a second press is refused; Finish is taken.
+    assert_eq!(request(&url, "POST", "/capture").0, 409);
+    assert!(console.captures().try_recv().is_err());
+    assert_eq!(request(&url, "POST", "/finish").0, 200);
+    // 0: the capture starts; its first frames end the countdown.
+    console.event(&Event::Countdown {
+        pose: 2,
+        seconds: 0,
+    });
+    let s = state(&url);
+    assert_eq!(
+        (s["status"].as_str(), s["countdown"].as_u64()),
+        (Some("capturing"), Some(0))
+    );
+    console.event(&Event::Frames {
+        pose: 2,
+        done: 3,
+        of: 30,
+    });
+    assert_eq!(state(&url)["countdown"], serde_json::Value::Null);
+}
+
+#[test]
 fn auto_runs_have_no_capture_button() {
     let mut console = Console::start("127.0.0.1:0", &[], true).unwrap();
     console.event(&Event::PoseStarted { pose: 0, of: 4 });
@@ -176,7 +220,7 @@ fn finish_capture_freshness_and_failures_follow_the_run() {
             png: Vec::new(),
             circles: 0,
             overlay: Overlay::labelled(0, 0, false, &[]),
-            sees_board: false,
+            count: Default::default(),
             stages: Default::default(),
         };
         c.shared

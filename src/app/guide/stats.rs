@@ -1,5 +1,7 @@
-//! What each device has seen so far: poses seen, a coverage map of its image and the range
-//! of board tilts — half of the done rule ([`super::verdict`]), and what the console shows.
+//! What each device has seen so far: poses seen, a coverage map of its image, the range
+//! of board tilts and the steep views — half of the done rule ([`super::verdict`]), and
+//! what the console shows. One rule ([`count_view`]) says what a view counts as, for the
+//! captured poses here and for the console's live preview alike.
 //!
 //! Takes the processed poses' views and the devices; gives [`DeviceStats`] per device.
 
@@ -15,6 +17,29 @@ pub const GRID: (usize, usize) = (8, 5);
 /// Points a device needs in a pose for the pose to count as seen by it.
 pub const MIN_POINTS: usize = 12;
 
+/// What one view of the board counts as ([`count_view`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct ViewCount {
+    /// At least [`MIN_POINTS`] points: the device sees the board.
+    pub seen: bool,
+    /// The board's tilt against the device's image plane (deg, [`tilt_degrees`]).
+    pub tilt: Option<f64>,
+    /// Seen at a tilt beyond [`super::MAX_VIEW_ANGLE_DEG`], the steepest view the guidance
+    /// trusts a detector with.
+    pub steep: bool,
+}
+
+/// What a view with these board points (mm) and the device's pixels of them counts as.
+pub fn count_view(board: &[Point2<f64>], pixels: &[Point2<f64>]) -> ViewCount {
+    let seen = pixels.len() >= MIN_POINTS;
+    let tilt = tilt_degrees(board, pixels);
+    ViewCount {
+        seen,
+        tilt,
+        steep: seen && tilt.is_some_and(|t| t > super::MAX_VIEW_ANGLE_DEG),
+    }
+}
+
 /// One device's progress.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct DeviceStats {
@@ -28,8 +53,12 @@ pub struct DeviceStats {
     pub poses: usize,
     /// Points per coverage cell, row by row ([`GRID`] columns and rows).
     pub cells: Vec<u32>,
+    /// Fraction of the coverage cells holding a point (the done rule's figure).
+    pub coverage: f64,
     /// Smallest and largest board tilt seen (degrees), once a pose was seen.
     pub tilt: Option<[f64; 2]>,
+    /// Of the poses seen, those seen steeply ([`ViewCount::steep`]).
+    pub steep: usize,
     /// Points in the latest processed pose.
     pub latest: usize,
 }
@@ -46,24 +75,24 @@ impl DeviceStats {
             size: [d.width, d.height],
             poses: 0,
             cells: vec![0; GRID.0 * GRID.1],
+            coverage: 0.0,
             tilt: None,
+            steep: 0,
             latest: 0,
         }
     }
 
-    /// Fraction of coverage cells holding a point.
-    pub fn coverage(&self) -> f64 {
-        self.cells.iter().filter(|&&n| n > 0).count() as f64 / self.cells.len() as f64
-    }
-
     /// Take in one pose's observations by this device: board points (mm, in their side's
-    /// frame) and the device's pixels of them. Held-out poses only count as the latest.
+    /// frame) and the device's pixels of them, counted by [`count_view`]. Held-out poses
+    /// only count as the latest.
     pub fn add(&mut self, board: &[Point2<f64>], pixels: &[Point2<f64>], held_out: bool) {
         self.latest = pixels.len();
-        if held_out || pixels.len() < MIN_POINTS {
+        let view = count_view(board, pixels);
+        if held_out || !view.seen {
             return;
         }
         self.poses += 1;
+        self.steep += usize::from(view.steep);
         let [w, h] = self.size;
         for p in pixels {
             let cx = (p.x + 0.5) / f64::from(w) * GRID.0 as f64;
@@ -72,7 +101,9 @@ impl DeviceStats {
                 self.cells[cy as usize * GRID.0 + cx as usize] += 1;
             }
         }
-        if let Some(t) = tilt_degrees(board, pixels) {
+        let covered = self.cells.iter().filter(|&&n| n > 0).count();
+        self.coverage = covered as f64 / self.cells.len() as f64;
+        if let Some(t) = view.tilt {
             self.tilt = Some(match self.tilt {
                 None => [t, t],
                 Some([lo, hi]) => [lo.min(t), hi.max(t)],
@@ -185,15 +216,21 @@ mod tests {
         let mut s = DeviceStats::new(&d);
         let (b, p) = view(40.0, 1500.0);
         s.add(&b, &p, true);
-        assert_eq!((s.poses, s.coverage(), s.tilt), (0, 0.0, None));
+        assert_eq!((s.poses, s.coverage, s.tilt), (0, 0.0, None));
         s.add(&b, &p, false);
         assert_eq!(s.poses, 1);
         assert_eq!(s.cells.iter().sum::<u32>() as usize, p.len());
         // The patch spans about ±250 px around the centre: the middle cells only.
-        assert!(s.coverage() > 0.0 && s.coverage() < 0.5, "{}", s.coverage());
+        assert!(s.coverage > 0.0 && s.coverage < 0.5, "{}", s.coverage);
         let [lo, hi] = s.tilt.unwrap();
         assert!((lo - 40.0).abs() < 3.0 && lo == hi);
         s.add(&b[..MIN_POINTS - 1], &p[..MIN_POINTS - 1], false);
         assert_eq!((s.poses, s.latest), (1, MIN_POINTS - 1));
+        // A steep view counts as seen, and as steep.
+        assert_eq!(s.steep, 0);
+        let (b, p) = view(70.0, 1500.0);
+        s.add(&b, &p, false);
+        assert_eq!((s.poses, s.steep), (2, 1));
+        assert!(count_view(&b, &p).steep && !count_view(&b[..5], &p[..5]).steep);
     }
 }

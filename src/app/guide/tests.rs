@@ -109,6 +109,33 @@ fn the_suggestion_lowers_the_worst_uncertainty_more_than_the_next_fixed_pose() {
         s.sentence
     );
     assert!(s.outlines.iter().any(|o| o.is_some()));
+    // The picture: a camera that sees the pose, the tilt from facing it, one short line.
+    let p = s.picture.as_ref().expect("a picture of the pose");
+    assert!(s.outlines[p.camera].is_some(), "{p:?}");
+    let d = cal
+        .device_index
+        .iter()
+        .position(|&i| i == p.camera)
+        .unwrap();
+    let cam = &cal.devices[d];
+    assert_eq!(cam.kind, DeviceKind::Camera);
+    let (_, tilt) = picture::facing(cam, &s.pose);
+    assert!(
+        (p.tilt_deg - tilt).abs() <= picture::STEP_DEG / 2.0,
+        "{p:?}, {tilt}"
+    );
+    let words = p.line.split_whitespace().count();
+    assert!(
+        words <= picture::MAX_WORDS && p.line.contains(&cam.name),
+        "{p:?}"
+    );
+    if let Some(t) = &p.turn {
+        let norm = t.toward[0].hypot(t.toward[1]);
+        assert!(
+            (norm - 1.0).abs() < 1e-9 && t.deg >= picture::STEP_DEG,
+            "{p:?}"
+        );
+    }
     // The fixed schedule's next pose, predicted the same way, does no better.
     let block = Block::of(&cal);
     let cov = cal.solution.covariance.block(&block.state);

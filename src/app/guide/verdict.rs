@@ -33,6 +33,8 @@ pub struct Verdict {
     /// Before the first interim calibration, where to put the next pose
     /// ([`super::first_pose_advice`]).
     pub advice: Option<String>,
+    /// The advice in one short line ([`super::first_pose_line`]).
+    pub advice_line: Option<String>,
 }
 
 impl Verdict {
@@ -47,8 +49,8 @@ impl Verdict {
             .iter()
             .filter_map(|d| {
                 let mut need = Vec::new();
-                if d.coverage() < MIN_COVERAGE {
-                    need.push(format!("coverage {:.0} %", 100.0 * d.coverage()));
+                if d.coverage < MIN_COVERAGE {
+                    need.push(format!("coverage {:.0} %", 100.0 * d.coverage));
                 }
                 let u = guidance.and_then(|g| g.devices.iter().find(|u| u.name == d.name));
                 match (guidance, u.and_then(|u| u.worst)) {
@@ -69,11 +71,13 @@ impl Verdict {
             .iter()
             .map(|d| (d.name.as_str(), d.poses))
             .collect();
-        self.advice = match (guidance, pose, auto) {
-            (None, Some(k), false) => {
-                super::first_pose_advice(k, crate::app::calibrate::MIN_CALIBRATION_POSES, &seen)
-            }
-            _ => None,
+        let need = crate::app::calibrate::MIN_CALIBRATION_POSES;
+        (self.advice, self.advice_line) = match (guidance, pose, auto) {
+            (None, Some(k), false) => (
+                super::first_pose_advice(k, need, &seen),
+                super::first_pose_line(k, need),
+            ),
+            _ => (None, None),
         };
     }
 }
@@ -111,9 +115,11 @@ mod tests {
             advice.contains("2 of 3") && advice.contains("cam1 (0 of 1)"),
             "{advice}"
         );
+        let line = s.advice_line.clone().expect("its short line");
+        assert!(line.split_whitespace().count() <= crate::app::guide::picture::MAX_WORDS);
         // Poses placed automatically need no advice; nor does a rig with guidance.
         s.judge(Some(1), true);
-        assert_eq!(s.advice, None);
+        assert_eq!((&s.advice, &s.advice_line), (&None, &None));
         s.guidance = Some(Guidance {
             devices: Vec::new(),
             threshold: 0.25,
@@ -133,7 +139,7 @@ mod tests {
             s.missing,
             ["proj0: coverage 0 %, no interim calibration yet"]
         );
-        s.devices[0].cells.iter_mut().take(12).for_each(|c| *c = 5);
+        s.devices[0].coverage = MIN_COVERAGE;
         let mut g = Guidance {
             devices: vec![DeviceUncertainty {
                 name: "proj0".into(),
