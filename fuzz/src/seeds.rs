@@ -62,10 +62,47 @@ pub fn write(corpus: &Path) -> io::Result<()> {
         std::fs::create_dir_all(corpus.join("script"))?;
         std::fs::write(corpus.join(to), script_section(&text))?;
     }
+    console(corpus)?;
     correspondences(corpus)?;
     dataset_files(corpus)?;
     firmware(corpus)?;
     images(corpus)
+}
+
+/// Requests a page and a script send to the console (`TOKEN` stands for its token).
+fn console(corpus: &Path) -> io::Result<()> {
+    let dir = corpus.join("console");
+    std::fs::create_dir_all(&dir)?;
+    let get = |path: &str| format!("GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
+    let post = |path: &str| {
+        format!("POST {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 0\r\n\r\n")
+    };
+    for (name, request) in [
+        ("page", get("/?token=TOKEN")),
+        ("state", get("/state?token=TOKEN")),
+        ("events", get("/events?token=TOKEN")),
+        ("thumb", get("/thumb/0.png?token=TOKEN")),
+        ("live", get("/live/0.png?token=TOKEN")),
+        ("capture", post("/capture?token=TOKEN")),
+        ("finish", post("/finish?token=TOKEN")),
+        ("no-token", get("/state")),
+        // What the campaign found: tiny_http drains a body it was not asked to read by
+        // allocating its declared length (src/app/console/server.rs).
+        (
+            "huge-body",
+            "GET /state?token=TOKEN HTTP/1.1\r\nHost: a\r\nContent-Length: 4294967296\r\n\r\n"
+                .to_string(),
+        ),
+        (
+            "chunked",
+            "POST /capture?x=1&token=TOKEN HTTP/1.1\r\nHost: a\r\nTransfer-Encoding: \
+             chunked\r\n\r\n5\r\nhello\r\n0\r\n\r\n"
+                .to_string(),
+        ),
+    ] {
+        std::fs::write(dir.join(format!("{name}.http")), request)?;
+    }
+    Ok(())
 }
 
 /// The positioners and script of a rig file: from its first `[[positioner]]` (or

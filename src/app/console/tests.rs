@@ -307,3 +307,28 @@ fn finish_capture_freshness_and_failures_follow_the_run() {
         "{s}"
     );
 }
+
+/// A request declaring a body larger than the console ever takes (with or without the
+/// token: anyone who can reach the port can send it) leaves the server answering; tiny_http
+/// would allocate the declared length to drain it (2⁶⁴ − 1 bytes: the server thread died).
+#[test]
+fn a_huge_declared_body_leaves_the_console_answering() {
+    let console = Console::start("127.0.0.1:0", &[], false).unwrap();
+    let url = console.url().to_string();
+    let (addr, token) = parts(&url);
+    for path in ["/state", &format!("/state?token={token}")] {
+        let mut s = TcpStream::connect(addr).unwrap();
+        write!(
+            s,
+            "GET {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Length: {}\r\n\r\n",
+            u64::MAX
+        )
+        .unwrap();
+        s.set_read_timeout(Some(Duration::from_millis(300)))
+            .unwrap();
+        let mut answer = String::new();
+        let _ = s.read_to_string(&mut answer);
+        assert!(answer.is_empty(), "{answer}");
+    }
+    assert_eq!(request(&url, "GET", "/state").0, 200);
+}
