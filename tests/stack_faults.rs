@@ -1,7 +1,7 @@
 //! Trusted capture end to end (issue 31): the simulated rig shows a projector one frame late
 //! in one pose and clipping white in another; `hexcal run` names each fault with its camera
-//! and pose, sets the spoiled capture aside, captures the pose again, and calibrates as a
-//! clean run does.
+//! and pose, sets the spoiled capture aside, has the board placed again, captures the pose
+//! again, and calibrates as a clean run does.
 
 #[path = "support/cli.rs"]
 mod cli;
@@ -20,6 +20,7 @@ fn a_run_names_spoiled_stacks_captures_them_again_and_calibrates() {
         .write(&dir);
     let out = dir.join("data");
     let mut log: Vec<Event> = Vec::new();
+    let mut placed: Vec<usize> = Vec::new();
     let outcome = run(
         &LoadedRig::load(&rig).unwrap(),
         &out,
@@ -29,6 +30,7 @@ fn a_run_names_spoiled_stacks_captures_them_again_and_calibrates() {
             ..RunOptions::default()
         },
         &mut |k, world| {
+            placed.push(k);
             world.expect("a simulated rig").place(k);
             Ok(true)
         },
@@ -69,6 +71,13 @@ fn a_run_names_spoiled_stacks_captures_them_again_and_calibrates() {
         !log.iter().any(|e| matches!(e, Event::StackFailed { .. })),
         "{log:?}"
     );
+    // Each refused pose was placed again (the operator's press, here the simulated
+    // world) before it was captured again; every other pose once.
+    for k in 0..placed.iter().max().map_or(0, |m| m + 1) {
+        let times = placed.iter().filter(|&&p| p == k).count();
+        let again = if k == 1 || k == 3 { 2 } else { 1 };
+        assert_eq!(times, again, "pose {k} placed {times} times: {placed:?}");
+    }
     // The spoiled captures are kept aside with their verdicts.
     for k in [1, 3] {
         let aside = out.join(format!("pose-{k:03}.refused-1/refused.json"));

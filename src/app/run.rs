@@ -183,6 +183,10 @@ struct RefusedStack {
     verdict: crate::phase::check::StackVerdict,
 }
 
+/// Places the board again for a pose whose capture was refused (`Ok(false)`: the capture
+/// ends instead).
+type Replace<'a> = dyn FnMut(&mut Session) -> Result<bool, AppError> + 'a;
+
 /// One capture of a pose: its timeline, its stack threads, its record and the stacks whose
 /// check failed.
 struct Attempt {
@@ -359,11 +363,21 @@ fn capture_todo(
             c.failed = Some(e);
             break;
         }
+        // A refused capture is taken again once the board is placed again (the operator's
+        // Enter or the console's Capture again; at once when the run places it itself).
+        let mut again = |s: &mut Session| -> Result<bool, AppError> {
+            let placed = previewing(s, options.preview.as_ref(), || place(k, world))?;
+            Ok(placed && !options.stopped())
+        };
         let captured = super::capture::exposed(session, options.exposures.get(&k), |s| {
-            stream.capture_pose(s, k, options)
+            stream.capture_pose(s, k, options, (&mut again, wait))
         });
         match captured {
-            Ok(timeline) => c.timelines.push((k, timeline)),
+            Ok(Some(timeline)) => c.timelines.push((k, timeline)),
+            Ok(None) => {
+                c.interrupted = options.stopped().then_some(k);
+                break;
+            }
             Err(_) if options.stopped() => {
                 c.interrupted = Some(k);
                 break;
@@ -559,14 +573,17 @@ impl<'e> Stream<'e> {
     }
 
     /// Capture pose `k` and hand it over to processing while the next is captured; a pose
-    /// with a stack that fails the stack check is set aside (`pose-KKK.refused-N`) and
+    /// with a stack that fails the stack check is set aside (`pose-KKK.refused-N`) and,
+    /// once `again` has placed the board again and `wait` seconds are counted down,
     /// captured again, up to `[timing] stack_retries` times, then kept without that stack.
+    /// `None`: the capture ended while the board was to be placed again.
     fn capture_pose(
         &mut self,
         session: &mut Session,
         k: usize,
         options: &RunOptions,
-    ) -> Result<Timeline, AppError> {
+        (again, wait): (&mut Replace<'_>, f64),
+    ) -> Result<Option<Timeline>, AppError> {
         let mut attempt = 1;
         loop {
             let Attempt {
@@ -577,7 +594,7 @@ impl<'e> Stream<'e> {
             } = self.capture_once(session, k, options)?;
             if refused.is_empty() || attempt > self.retries {
                 self.hand_over(k, workers, info)?;
-                return Ok(timeline);
+                return Ok(Some(timeline));
             }
             attempt += 1;
             for w in workers {
@@ -593,6 +610,9 @@ impl<'e> Stream<'e> {
                 });
             }
             self.data.refuse(k, &refused)?;
+            if !again(session)? || !options.pause(wait, k, &mut *self.events) {
+                return Ok(None);
+            }
         }
     }
 
