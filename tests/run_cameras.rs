@@ -181,6 +181,9 @@ fn a_camera_only_rig_calibrates_to_its_ground_truth() {
 
     let length = hexcal::report::verification_rms(&outcome.verification).unwrap();
     eprintln!("held-out length error RMS {length:.4} mm");
+    // A healthy rig (issue 34): no warning at the default target.
+    let warnings = &outcome.diagnosis.warnings;
+    assert!(warnings.is_empty(), "{warnings:#?}");
 
     // The dataset kept every plain frame: reprocessed from disk they give the same views.
     check_stored_frames(&out, &world.board);

@@ -696,7 +696,13 @@ pub fn warnings(
     target: &Target,
     notes: &mut Vec<String>,
 ) -> Vec<String> {
-    let mut w: Vec<String> = cal.solution.held.iter().map(ToString::to_string).collect();
+    // A transform no observation depends on (one side seen) changes nothing computed: a
+    // note; the others are held where the data would have said otherwise: warnings.
+    use super::observability::Unobserved;
+    let (quiet, held): (Vec<&Unobserved>, Vec<&Unobserved>) =
+        (cal.solution.held.iter()).partition(|u| matches!(u, Unobserved::SideTransformOneSideSeen));
+    notes.extend(quiet.iter().map(ToString::to_string));
+    let mut w: Vec<String> = held.iter().map(ToString::to_string).collect();
     lens_warnings(cal, target, &mut w);
     outlier_warnings(cal, rows, &mut w, notes);
     let expected = expected_rms(cal);
