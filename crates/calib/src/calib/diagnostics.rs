@@ -931,6 +931,57 @@ mod tests {
         assert!(w.is_empty(), "{w:#?}");
     }
 
+    /// Each warning kind fires on a rig built to show it, about the device concerned only:
+    /// on the well-covered rig, cam1 defocused (its centres 4× noisier) is named by its
+    /// RMS, and cam2 seen in two poses only is named as not calibrated.
+    #[test]
+    fn a_defocused_camera_and_one_seen_in_two_poses_are_named() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let rig = SyntheticRig::covered(0.1, 11, 0.0);
+        let mut views = rig.views();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        // 0.1 px at first: √(0.4² − 0.1²) more makes 0.4 px.
+        let blur = Normal::new(0.0, (0.4f64.powi(2) - 0.01).sqrt()).unwrap();
+        for v in views.iter_mut().filter(|v| v.camera == 1) {
+            for p in &mut v.points {
+                p.image.x += blur.sample(&mut rng);
+                p.image.y += blur.sample(&mut rng);
+                // A projector pixel is read at the observed centre, so it would move with
+                // it; the synthetic one is at the true centre: left out here.
+                p.projectors.clear();
+            }
+        }
+        let mut seen: Vec<usize> = (views.iter().filter(|v| v.camera == 2))
+            .map(|v| v.pose)
+            .collect();
+        seen.sort_unstable();
+        seen.dedup();
+        views.retain(|v| v.camera != 2 || seen[..2].contains(&v.pose));
+        let cal = calibrate(
+            &rig.board,
+            &rig.device_infos(),
+            rig.boards.len(),
+            &views,
+            &Default::default(),
+        )
+        .expect("the rig calibrates without cam2");
+        let w = warnings(
+            &cal,
+            &residual_table(&cal),
+            &Target::default(),
+            &mut Vec::new(),
+        );
+        let about = |name: &str| w.iter().filter(|s| s.contains(name)).count();
+        assert!(
+            w.iter()
+                .any(|s| s.starts_with("cam1: RMS") || s.starts_with("cam1 ")),
+            "{w:#?}"
+        );
+        assert!(about("cam2") >= 1, "{w:#?}");
+        assert_eq!(about("cam0") + about("proj0"), 0, "{w:#?}");
+    }
+
     /// Two cameras on one side, the board turned over between poses: the front→back
     /// transform is held, and said so in one line.
     #[test]
