@@ -42,12 +42,9 @@ pub struct Circle {
 pub struct DetectParams {
     /// Smallest radius √(ab) to look for (px). Default 4.
     pub min_radius: f64,
-    /// Largest axis ratio a/b of the ellipses to look for: 5 (the default), the thinnest
-    /// fit accepted (b/a ≥ 0.2). 1/cos of a 75° tilt is 3.9, but perspective makes the far
-    /// side of a board seen at 73° read a/b up to 4.5 (circles of √(ab) = 3 px there have
-    /// b = 1.45 px). The first scale is σ = max(min(r/√2, r/√ratio), 1): a disk of radius r
-    /// responds most at σ = r/√2, a long ellipse (a bar) of minor semi-axis b = r/√ratio at
-    /// σ ≈ b (1.79 px at r = 4).
+    /// Largest axis ratio a/b of the ellipses to look for: 4 (the default) reaches ~75° of
+    /// tilt. The first scale is σ = max(min(r/√2, r/√ratio), 1): a disk of radius r responds
+    /// most at σ = r/√2, a long ellipse (a bar) of minor semi-axis b = r/√ratio at σ ≈ b.
     pub max_aspect: f64,
     /// Largest radius to look for (px): the last scale reaches r/√2. Default 40.
     pub max_radius: f64,
@@ -80,7 +77,7 @@ impl Default for DetectParams {
     fn default() -> Self {
         DetectParams {
             min_radius: 4.0,
-            max_aspect: 5.0,
+            max_aspect: 4.0,
             max_radius: 40.0,
             min_circleness: 0.008,
             contrast_ref: None,
@@ -111,20 +108,13 @@ pub fn detect(image: &FloatImage, params: &DetectParams) -> Vec<Circle> {
     }
     // Peaks at the scales below r_min/√2, there for thin foreshortened circles, are refined
     // after the others: on a rounder circle they mark parts of it (a marker's annulus) and
-    // would refine to a worse fit of a circle the others find whole. The thinnest scales,
-    // below r_min/2 (axis ratios 4–5), are suppressed among themselves only and refined
-    // last: there a marker's inner disk outscores its whole circle's peak (docs/design.md §4).
+    // would refine to a worse fit of a circle the others find whole.
     let sigma_disk = (params.min_radius / SQRT_2).max(1.0) - 1e-9;
-    let sigma_thinnest = 0.5 * params.min_radius - 1e-9;
-    let (peaks, thinnest): (Vec<Peak>, Vec<Peak>) =
-        circleness_peaks(full, params, Constants::new(h_ref))
+    let (mut peaks, thin): (Vec<Peak>, Vec<Peak>) =
+        suppress(circleness_peaks(full, params, Constants::new(h_ref)))
             .into_iter()
-            .partition(|p| p.sigma >= sigma_thinnest);
-    let (mut peaks, thin): (Vec<Peak>, Vec<Peak>) = suppress(peaks)
-        .into_iter()
-        .partition(|p| p.sigma >= sigma_disk);
+            .partition(|p| p.sigma >= sigma_disk);
     peaks.extend(thin);
-    peaks.extend(suppress(thinnest));
     let settings = refine::Settings {
         rays: params.rays.max(12),
         min_contrast: (params.min_contrast as f64 * h_ref) as f32,
