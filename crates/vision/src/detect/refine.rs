@@ -373,7 +373,7 @@ fn closed(img: View<'_>, e: &Ellipse, mid: f32, s: &Scratch) -> bool {
     for &d in &s.dirs {
         let o = ellipse_offset(e, d);
         let rho = o.norm();
-        let k = 1.0 + (1.5 / rho).max(0.2).min(MAX_CLOSE_OUT);
+        let k = 1.0 + (1.5 / rho).clamp(0.2, MAX_CLOSE_OUT);
         if let Some(v) = img.bilinear(e.center.x + k * o.x, e.center.y + k * o.y) {
             seen += 1;
             spilled += usize::from(v >= mid);
