@@ -544,7 +544,7 @@ fn flat_frames_light_the_board_evenly_and_leave_the_stack_as_it_was() {
 /// Issue 32 item 4 (c): a 45° view whose ringed circles have radii of 3.5–9 px, 4.8–5.4 px
 /// among them. The white beside such a ring is too few pixels and too dimmed by the blur for
 /// 80 % of them to decode valid (9–22 pixels, 60–75 % valid), so these circles had no
-/// projector pixel (25 of 159 and 28 of 177 lit ringed pairs in these two views). Every
+/// projector pixel (48 of the 336 lit ringed pairs of these two views, radii 3.6–5.0 px). Every
 /// pair where the projector lights the whole circle must have one, and from r = 4.5 px on
 /// the ringed observations must be as sound as the plain ones against the noise their own
 /// fits predict (as in the test above: the plain circles' normalised RMS plus 4 standard
