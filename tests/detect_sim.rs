@@ -31,12 +31,15 @@ use nalgebra::{Point2, Point3};
 use std::collections::HashMap;
 
 /// Tilt bands of the recall target.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum Band {
     /// Tilt ≤ 60°: recall ≥ 99.5 %.
     UpTo60,
     /// Tilt 60–75°: recall ≥ 97 %.
     To75,
+    /// Tilt 60–73° with circles of 3–4.5 px (issue 32 item 4 (b)): recall and interior
+    /// labels ≥ 99 % per view, labels of all counted circles ≥ 99 % pooled.
+    Steep,
 }
 
 impl Band {
@@ -44,6 +47,20 @@ impl Band {
         match self {
             Band::UpTo60 => 0.995,
             Band::To75 => 0.97,
+            Band::Steep => 0.99,
+        }
+    }
+
+    /// The bound on the labelled share of every counted circle, pooled over the band's views.
+    fn min_pooled_labelled(self) -> Option<f64> {
+        (self == Band::Steep).then_some(0.99)
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Band::UpTo60 => "tilt ≤ 60°",
+            Band::To75 => "tilt 60–75°",
+            Band::Steep => "tilt 60–73°, r ≥ 3 px",
         }
     }
 }
@@ -141,6 +158,8 @@ struct Case {
     extras: Extras,
     /// Whether the imaging is that of the accuracy target (2 DN, PSF σ ≤ 1 px).
     accuracy: bool,
+    /// Smallest radius √(ab) (px) of the circles the recall counts.
+    min_radius: f64,
 }
 
 /// Figures of one view.
@@ -263,7 +282,7 @@ fn measure(case: &Case) -> (Figures, Analysis) {
     let expected: Vec<usize> = (0..truth.len())
         .filter(|&j| {
             let t = &truth[j];
-            t.whole && t.radius.is_some_and(|r| r >= 4.0) && !occluded(t, &case.extras)
+            t.whole && t.radius.is_some_and(|r| r >= case.min_radius) && !occluded(t, &case.extras)
         })
         .collect();
     let labelled_circles: HashMap<usize, &hexcal::grid::LabelledPoint> =
@@ -335,7 +354,7 @@ fn measure(case: &Case) -> (Figures, Analysis) {
 /// Run the cases, print their figures, and check every target.
 fn check(cases: &[Case]) {
     let mut failures = Vec::new();
-    let mut pooled: HashMap<&str, (usize, usize)> = HashMap::new();
+    let mut pooled: HashMap<Band, (usize, usize, usize)> = HashMap::new();
     for case in cases {
         let name = &case.scene.name;
         let (f, a) = measure(case);
@@ -367,13 +386,10 @@ fn check(cases: &[Case]) {
             f.inconsistent,
             f.wrong_side,
         );
-        let band = match case.band {
-            Band::UpTo60 => "tilt ≤ 60°",
-            Band::To75 => "tilt 60–75°",
-        };
-        let e = pooled.entry(band).or_default();
+        let e = pooled.entry(case.band).or_default();
         e.0 += f.expected;
         e.1 += f.detected;
+        e.2 += f.labelled;
         if recall < case.band.min_recall() {
             failures.push(format!("{name}: recall {recall:.4}"));
         }
@@ -404,11 +420,16 @@ fn check(cases: &[Case]) {
             ));
         }
     }
-    for (band, (expected, detected)) in &pooled {
+    for (band, (expected, detected, labelled)) in &pooled {
+        let share = *labelled as f64 / *expected as f64;
         println!(
-            "{band}: pooled recall {detected}/{expected} = {:.4}",
+            "{}: pooled recall {detected}/{expected} = {:.4}, labelled {labelled} = {share:.4}",
+            band.name(),
             *detected as f64 / *expected as f64
         );
+        if band.min_pooled_labelled().is_some_and(|m| share < m) {
+            failures.push(format!("{}: pooled labelled {share:.4}", band.name()));
+        }
     }
     assert!(failures.is_empty(), "{failures:#?}");
 }
@@ -449,6 +470,7 @@ fn front(
         },
         extras: Extras::default(),
         accuracy: true,
+        min_radius: 4.0,
     }
 }
 
@@ -646,6 +668,7 @@ fn back_side() {
         band: Band::UpTo60,
         extras: Extras::default(),
         accuracy: true,
+        min_radius: 4.0,
     };
     check(&[
         mk("back tilt 35", 21, [10.0, -5.0], 750.0, 35.0, 150.0, 25.0),
@@ -852,4 +875,49 @@ fn distractor_blobs_off_the_board() {
     }
     case.extras.distractors = blobs;
     check(&[case]);
+}
+
+/// Issue 32 item 4 (b): steep views (60–73°) of a board far enough that its circles have
+/// √(ab) = 3–4.5 px, the far side's foreshortened by perspective to a/b ≈ 4.5, minor
+/// semi-axes ≈ 1.5 px; every whole, unoccluded circle of √(ab) ≥ 3 px counts, against the
+/// issue's targets. Open: with the closure test stopped short of the neighbours these views
+/// reach 0.9912 detected and 0.9866 labelled pooled (0.9832 before; 0.9715 / 0.9565 at 72°).
+/// Scales reaching a/b = 5 (σ = 1.68 px) bring them to 0.9979 / 0.9946, but then also fit
+/// what a bar leaves of a 3 px circle, 1.06 px off its centre, and the grid labels it
+/// (`bars_split_the_board`, tilt 70°): a wrong label. What is left is detection: of the 24
+/// circles detected but not labelled, most sit beside undetected ones (no opposing pairs),
+/// many at the frame's edge. Runs with `--ignored`.
+#[test]
+#[ignore = "issue 32 item 4 (b) open: recall of 3 px circles at 72° below 0.99"]
+fn steep_views_of_small_circles() {
+    let views = [
+        (60.0, 20.0, 10.0, 1000.0),
+        (63.0, 100.0, -30.0, 950.0),
+        (66.0, 200.0, 45.0, 900.0),
+        (68.0, 300.0, 0.0, 850.0),
+        (70.0, 45.0, 80.0, 800.0),
+        (71.0, 150.0, -60.0, 780.0),
+        (72.0, 250.0, 20.0, 760.0),
+        (73.0, 340.0, -10.0, 740.0),
+    ];
+    let cases: Vec<Case> = views
+        .iter()
+        .zip(300..)
+        .map(|(&(tilt, azimuth, spin, d), seed)| {
+            let name = format!("steep {tilt}°, r 3–4.5");
+            let mut c = front(
+                &name,
+                seed,
+                plain(VGA, 900.0),
+                [0.0, 0.0],
+                d,
+                tilt,
+                azimuth,
+                spin,
+            );
+            (c.band, c.min_radius) = (Band::Steep, 3.0);
+            c
+        })
+        .collect();
+    check(&cases);
 }

@@ -10,7 +10,7 @@
 //! Each pixel is weighted by its modulation² (inverse variance). A ringed (marker) circle
 //! leaves its ring's band out; its white inside and outside the ring serves as any other.
 
-use crate::grid::Grid;
+use crate::grid::{Grid, LabelledPoint};
 use hexcal_core::board::{Hex, Side};
 use hexcal_core::observations::{CameraView, Frame, ProjectorPixel, ViewPoint};
 use nalgebra::{Point2, SMatrix, SVector};
@@ -104,7 +104,8 @@ pub struct FitParams {
     /// Valid pixels a fit needs.
     pub min_pixels: usize,
     /// Fraction of the centre circle's own pixels that must be valid (a projector that
-    /// lights only part of a circle gives no observation of it).
+    /// lights only part of a circle gives no observation of it); of a ringed circle, the
+    /// fraction of its patch's pixels (its own are too few and dimmed by the ring).
     pub min_own_valid: f64,
     /// A marker ring's band (inner, outer) as fractions of the circle's radius (the board's
     /// `ring`). On a ringed circle the band is left out of the circle's own pixels and of
@@ -212,6 +213,56 @@ fn fit_at(
     Some(Point2::new(chol.solve(&atu)[0], chol.solve(&atv)[0]))
 }
 
+/// Valid pixels of `pixels` under the map.
+fn count_valid(map: &ProjectorMap, pixels: &[(u32, u32)]) -> usize {
+    pixels
+        .iter()
+        .filter(|&&(x, y)| map.valid_at((y * map.width + x) as usize))
+        .count()
+}
+
+/// The projector pixel of the labelled circle `p` under one projector's map, fitted over
+/// `patch` (the circle and its labelled neighbours, each with whether it is ringed); `None`
+/// when the projector does not light the circle whole or the patch has too few valid pixels.
+///
+/// Whether it lights the circle whole is judged from the circle's own white pixels: at least
+/// `min_own_valid` of them valid. A ringed circle is judged over its whole patch instead:
+/// beside its ring the blur dims the white below the decoder's modulation floor, and at
+/// radii of 5 px (9–22 white pixels left beside the ring band) a third of them are invalid
+/// however wholly lit (docs/design.md §7). A projector edge across the circle still leaves
+/// about half the patch unlit.
+fn observe(
+    m: &ProjectorMap,
+    p: &LabelledPoint,
+    patch: &[(&Ellipse, bool)],
+    params: &FitParams,
+) -> Option<ProjectorPixel> {
+    let own = patch[0].0;
+    let own_px = params.white_pixels(own, p.ringed, m.width, m.height);
+    let own_valid = count_valid(m, &own_px);
+    let pixels: Vec<(u32, u32)> = patch
+        .iter()
+        .flat_map(|&(e, ringed)| params.white_pixels(e, ringed, m.width, m.height))
+        .collect();
+    let (valid, judged) = if p.ringed {
+        (count_valid(m, &pixels), pixels.len())
+    } else {
+        (own_valid, own_px.len())
+    };
+    if own_valid == 0
+        || (valid as f64) < params.min_own_valid * judged as f64
+        || pixels.len() < params.min_pixels
+    {
+        return None;
+    }
+    // Coordinates scaled to the patch size keep the normal equations tame.
+    let scale = 3.0 * own.a.max(1.0);
+    fit_at(m, &pixels, p.image, scale).map(|pixel| ProjectorPixel {
+        projector: m.projector,
+        pixel,
+    })
+}
+
 /// The camera view of one grid: labelled circles with their ellipse centres and the
 /// projector pixels at them. `circles` are the detections the grid was built from; `None`
 /// when the grid has no labelled point. An unanchored grid gives an unanchored view (to be
@@ -249,31 +300,7 @@ pub fn camera_view(
                 .collect();
             let projectors = maps
                 .iter()
-                .filter_map(|m| {
-                    let own_px = params.white_pixels(own, p.ringed, m.width, m.height);
-                    let own_valid = own_px
-                        .iter()
-                        .filter(|&&(x, y)| m.valid_at((y * m.width + x) as usize))
-                        .count();
-                    if own_valid == 0
-                        || (own_valid as f64) < params.min_own_valid * own_px.len() as f64
-                    {
-                        return None;
-                    }
-                    let pixels: Vec<(u32, u32)> = patch
-                        .iter()
-                        .flat_map(|&(e, ringed)| params.white_pixels(e, ringed, m.width, m.height))
-                        .collect();
-                    if pixels.len() < params.min_pixels {
-                        return None;
-                    }
-                    // Coordinates scaled to the patch size keep the normal equations tame.
-                    let scale = 3.0 * own.a.max(1.0);
-                    fit_at(m, &pixels, p.image, scale).map(|pixel| ProjectorPixel {
-                        projector: m.projector,
-                        pixel,
-                    })
-                })
+                .filter_map(|m| observe(m, p, &patch, params))
                 .collect();
             ViewPoint {
                 hex: p.hex,

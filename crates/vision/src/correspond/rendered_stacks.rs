@@ -9,9 +9,11 @@
 use crate::correspond::{camera_view, FitParams, ProjectorMap};
 use crate::detect::{detect, DetectParams};
 use crate::grid::{build, GridParams};
+use crate::phase::DecodedStack;
 use hexcal_core::board::Board;
 use hexcal_core::camera::CameraModel;
 use hexcal_core::camera::{Distortion, Intrinsics};
+use hexcal_core::observations::CameraView;
 use hexcal_core::pattern::Sequence;
 use hexcal_sim::stack::*;
 use hexcal_sim::Scene;
@@ -109,14 +111,17 @@ struct Pairs {
     ringed: [usize; 2],
 }
 
-/// Render, decode, detect, label and fit one board pose seen from `eye`; checks the per-pixel
-/// decoding on the way.
-fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> (Vec<CircleError>, Pairs) {
-    let camera = camera();
+/// The default stack scene seen from `eye` towards `target`, rendered and decoded: the
+/// scene, the projectors, the renderer (the truth) and the decoded stack.
+fn decode_pose(
+    eye: [f64; 3],
+    target: [f64; 3],
+    seed: u64,
+) -> (Scene, Vec<StackProjector>, StackRenderer, DecodedStack) {
     let scene = Scene {
         name: "stack".into(),
         seed,
-        camera,
+        camera: camera(),
         pose: PoseSpec {
             eye: Some(eye),
             target: Some(target),
@@ -149,10 +154,15 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> (Vec<CircleError
             .unwrap();
     }
     let decoded = decoder.finish().unwrap();
+    (scene, projectors, renderer, decoded)
+}
 
-    // Per pixel: decoded against true (u, v) on valid pixels inside uniform regions (no
-    // albedo change within ±3 px ≈ 4 PSF σ: near an edge the PSF mixes the phases of
-    // differently bright neighbours, which is optics, not decoding), against the predicted σ_u.
+/// Per pixel: decoded against true (u, v) on valid pixels inside uniform regions (no
+/// albedo change within ±3 px ≈ 4 PSF σ: near an edge the PSF mixes the phases of
+/// differently bright neighbours, which is optics, not decoding), against the predicted σ_u,
+/// over more than `min_pixels` pixels of each projector.
+fn check_pixels(renderer: &StackRenderer, decoded: &DecodedStack, min_pixels: usize) {
+    let size = renderer.size();
     let (w, h) = (size.width as usize, size.height as usize);
     for (p, maps) in decoded.projectors.iter().enumerate() {
         let truth = renderer.truth(p);
@@ -180,7 +190,7 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> (Vec<CircleError
         );
         // docs/design.md §6 acceptance: RMS ≤ 1.2 × prediction, no unwrapping error.
         assert!(
-            n > 10_000 && rms <= 1.2 * predicted,
+            n > min_pixels && rms <= 1.2 * predicted,
             "projector {p}: {rms} vs {predicted}"
         );
         assert!(
@@ -188,8 +198,14 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> (Vec<CircleError
             "projector {p}: worst {worst}"
         );
     }
+}
 
-    // Circles on the decoded ambient image: evenly lit, and averaged over the whole stack.
+/// Detection and the grid on the decoded ambient image (evenly lit, and averaged over the
+/// whole stack), and the camera view of the grid under the decoded maps.
+fn view_of(
+    scene: &Scene,
+    decoded: &DecodedStack,
+) -> (Vec<crate::detect::Circle>, crate::grid::Grid, CameraView) {
     let image = decoded.ambient.clone();
     let circles = detect(&image, &DetectParams::default());
     let grid = build(&image, &circles, &scene.board, &GridParams::default());
@@ -202,6 +218,22 @@ fn circle_errors(eye: [f64; 3], target: [f64; 3], seed: u64) -> (Vec<CircleError
         .collect();
     let params = FitParams::for_board(&scene.board);
     let view = camera_view(0, 0, &grid, &circles, &maps, &params).unwrap();
+    (circles, grid, view)
+}
+
+/// Render, decode, detect, label and fit one board pose seen from `eye`; checks the per-pixel
+/// decoding on the way (over more than `min_pixels` pixels of each projector).
+fn circle_errors(
+    eye: [f64; 3],
+    target: [f64; 3],
+    seed: u64,
+    min_pixels: usize,
+) -> (Vec<CircleError>, Pairs) {
+    let camera = camera();
+    let (scene, projectors, renderer, decoded) = decode_pose(eye, target, seed);
+    check_pixels(&renderer, &decoded, min_pixels);
+    let (circles, grid, view) = view_of(&scene, &decoded);
+    let params = FitParams::for_board(&scene.board);
     let pairs = lit_pairs(&renderer, &grid, &circles, &view);
 
     // Projector pixels at the detected ellipse centres against the exact geometry there.
@@ -332,7 +364,7 @@ fn decoded_stack_gives_projector_pixels_at_circle_centres() {
     let mut pairs = Pairs::default();
     let mut all: Vec<(usize, CircleError)> = Vec::new();
     for (k, &(eye, target)) in views.iter().enumerate() {
-        let (errors, p) = circle_errors(eye, target, 11 + k as u64);
+        let (errors, p) = circle_errors(eye, target, 11 + k as u64, 10_000);
         all.extend(errors.into_iter().map(|c| (k, c)));
         for i in 0..2 {
             pairs.plain[i] += p.plain[i];
@@ -507,4 +539,59 @@ fn flat_frames_light_the_board_evenly_and_leave_the_stack_as_it_was() {
         });
     let circles = detect(&image, &DetectParams::default());
     assert!(circles.len() > 100, "{} circles", circles.len());
+}
+
+/// Issue 32 item 4 (c): a 45° view whose ringed circles have radii of 3.5–9 px, 4.8–5.4 px
+/// among them. The white beside such a ring is too few pixels and too dimmed by the blur for
+/// 80 % of them to decode valid (9–22 pixels, 60–75 % valid), so these circles had no
+/// projector pixel (48 of the 336 lit ringed pairs of these two views, radii 3.6–5.0 px). Every
+/// pair where the projector lights the whole circle must have one, and from r = 4.5 px on
+/// the ringed observations must be as sound as the plain ones against the noise their own
+/// fits predict (as in the test above: the plain circles' normalised RMS plus 4 standard
+/// errors).
+#[test]
+fn small_ringed_circles_in_a_45_degree_view() {
+    let t = 45f64.to_radians();
+    let (mut all, mut pairs) = (Vec::new(), Pairs::default());
+    for (k, d) in [420.0, 460.0].into_iter().enumerate() {
+        let eye = [30.0, -d * t.sin(), d * t.cos()];
+        let (errors, p) = circle_errors(eye, [30.0, 0.0, 0.0], 40 + k as u64, 1000);
+        for i in 0..2 {
+            pairs.plain[i] += p.plain[i];
+            pairs.ringed[i] += p.ringed[i];
+        }
+        all.extend(errors);
+    }
+    eprintln!(
+        "pairs lit whole with a projector pixel: plain {} of {}, ringed {} of {}",
+        pairs.plain[1], pairs.plain[0], pairs.ringed[1], pairs.ringed[0]
+    );
+    assert_eq!(pairs.ringed[0], pairs.ringed[1], "{pairs:?}");
+    assert_eq!(pairs.plain[0], pairs.plain[1], "{pairs:?}");
+    let small = all
+        .iter()
+        .filter(|c| c.ringed && (4.8..5.4).contains(&c.radius))
+        .count();
+    assert!(small >= 30, "{small} ringed observations of 4.8–5.4 px");
+    let normalised = |ringed: bool, axis: usize| {
+        let z: Vec<f64> = all
+            .iter()
+            .filter(|c| c.ringed == ringed && c.radius >= 4.5)
+            .map(|c| c.error[axis] / c.sigma[axis])
+            .collect();
+        let rms = (z.iter().map(|e| e * e).sum::<f64>() / z.len().max(1) as f64).sqrt();
+        (rms, z.len())
+    };
+    for axis in 0..2 {
+        let ((plain, np), (ringed, nr)) = (normalised(false, axis), normalised(true, axis));
+        let bound = plain * (1.0 + 4.0 / (2.0 * nr as f64).sqrt());
+        eprintln!(
+            "axis {axis}, r ≥ 4.5: normalised RMS plain {plain:.3} ({np}), ringed {ringed:.3} \
+             ({nr}, bound {bound:.3})"
+        );
+        assert!(
+            nr >= 100 && ringed <= bound,
+            "axis {axis}: ringed {ringed} > {bound}"
+        );
+    }
 }

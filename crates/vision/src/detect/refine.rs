@@ -47,6 +47,10 @@ const CONVERGED_PX: f64 = 0.05;
 /// Largest fraction of rays on which the image just outside a fitted outline is still white
 /// (see [`closed`]).
 const MAX_SPILL: f64 = 0.05;
+/// Farthest the closure test looks past the outline, as a fraction of the ray's radius ρ:
+/// halfway across the narrowest dark gap to a neighbour (1–1.67 ρ, docs/design.md §4), where
+/// the blurred edges of both are darkest.
+const MAX_CLOSE_OUT: f64 = 1.0 / 3.0;
 /// Rays of the outward pass that also measure the background along their whole length.
 const BACKGROUND_RAYS: usize = 6;
 
@@ -357,8 +361,10 @@ fn accepted(
 }
 
 /// Whether the fitted outline closes the circle: just outside it, max(1.5 px, 0.2 ρ) past
-/// the boundary on each ray (≥ 1 σ of any PSF up to 1.5 px, and short of the neighbours at
-/// ≥ 1.67 ρ), the image is below the mean level on all but [`MAX_SPILL`] of the rays. A fit
+/// the boundary on each ray (≥ 1 σ of any PSF up to 1.5 px), but at most [`MAX_CLOSE_OUT`]·ρ
+/// (the middle of the dark gap before the neighbours, whose edges lie ≥ 1.67 ρ out: on the
+/// minor axis of a steeply tilted small circle, ρ ≈ 1.5–2 px, 1.5 px reached the neighbour's
+/// blurred edge), the image is below the mean level on all but [`MAX_SPILL`] of the rays. A fit
 /// to part of a circle — what an occluder leaves of it, or one end of a steeply tilted
 /// marker's annulus with its inner disk — leaves white outside it. Also false when the
 /// outline itself runs off the image on more than [`MAX_CUT_RAYS`] of the rays.
@@ -367,7 +373,7 @@ fn closed(img: View<'_>, e: &Ellipse, mid: f32, s: &Scratch) -> bool {
     for &d in &s.dirs {
         let o = ellipse_offset(e, d);
         let rho = o.norm();
-        let k = 1.0 + (1.5 / rho).max(0.2);
+        let k = 1.0 + (1.5 / rho).clamp(0.2, MAX_CLOSE_OUT);
         if let Some(v) = img.bilinear(e.center.x + k * o.x, e.center.y + k * o.y) {
             seen += 1;
             spilled += usize::from(v >= mid);

@@ -80,12 +80,44 @@ fn apply(h: &Matrix3<f64>, p: Vector2<f64>) -> Option<Vector2<f64>> {
     (v.z.abs() > 1e-12).then(|| Vector2::new(v.x / v.z, v.y / v.z))
 }
 
-/// The largest plane distance (pitch units) between H(image) and the lattice position.
-fn worst_residual(h: &Matrix3<f64>, pairs: &[(Vector2<f64>, Vector2<f64>)]) -> f64 {
+/// The plane distances (pitch units) between H(image) and the lattice positions.
+fn residuals(h: &Matrix3<f64>, pairs: &[(Vector2<f64>, Vector2<f64>)]) -> Vec<f64> {
     pairs
         .iter()
         .map(|(a, b)| apply(h, *a).map_or(f64::INFINITY, |p| (p - b).norm()))
-        .fold(0.0, f64::max)
+        .collect()
+}
+
+/// How far above the median residual of its support a circle's residual may lie before the
+/// local fit leaves it out. For n = 16 residual norms of Gaussian centre noise σ (Rayleigh,
+/// median 1.18σ) the largest exceeds 4.7σ = 4 medians with probability 16·e^(−11) ≈ 3·10⁻⁴;
+/// leaving out a sound circle then costs only a little support.
+const OUTLIER_MEDIANS: f64 = 4.0;
+
+/// A homography that fits `pairs` within `tolerance` (pitch units) (docs/design.md §5,
+/// "Joining across gaps"). Up to `outliers` circles are left out, worst first, each when its
+/// residual exceeds [`OUTLIER_MEDIANS`] times the median: a circle cut by the occluder can
+/// keep a centre off by a pixel under blur, and as the support's circle nearest the gap it
+/// would bend every prediction across it.
+fn sound_fit(
+    mut pairs: Vec<(Vector2<f64>, Vector2<f64>)>,
+    tolerance: f64,
+    outliers: usize,
+) -> Option<Matrix3<f64>> {
+    let mut left_out = 0;
+    loop {
+        let h = fit_homography(&pairs)?;
+        let res = residuals(&h, &pairs);
+        let (worst, &w) = res.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
+        let mut sorted = res.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted[sorted.len() / 2];
+        if left_out == outliers || w <= OUTLIER_MEDIANS * median {
+            return (w <= tolerance).then_some(h);
+        }
+        pairs.swap_remove(worst);
+        left_out += 1;
+    }
 }
 
 /// The component that others join: its circles' image centres and lattice positions.
@@ -135,11 +167,7 @@ impl Reference {
 /// tolerance of a lattice position.
 fn predict(r: &Reference, image: Vector2<f64>, p: &GridParams) -> Option<Hex> {
     let support = r.nearest(image, p.join_support);
-    let pairs = r.pairs(&support);
-    let h = fit_homography(&pairs)?;
-    if worst_residual(&h, &pairs) > p.join_fit_tolerance {
-        return None;
-    }
+    let h = sound_fit(r.pairs(&support), p.join_fit_tolerance, p.join_fit_outliers)?;
     let (hex, off) = nearest_hex(apply(&h, image)?);
     (off <= p.join_tolerance).then_some(hex)
 }

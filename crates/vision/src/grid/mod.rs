@@ -116,6 +116,10 @@ pub struct GridParams {
     pub join_tolerance: f64,
     /// Largest residual (pitch units) of a local homography on its own circles.
     pub join_fit_tolerance: f64,
+    /// Circles a local homography may leave out of its support, worst first, to fit the
+    /// rest within `join_fit_tolerance` (a circle cut by the occluder can keep a centre off
+    /// by a pixel under blur).
+    pub join_fit_outliers: usize,
     /// Predictions that must agree on the joining transform.
     pub min_join_points: usize,
     /// Fraction of the candidates whose predictions must agree.
@@ -144,6 +148,7 @@ impl Default for GridParams {
             join_candidates: 24,
             join_tolerance: 0.25,
             join_fit_tolerance: 0.05,
+            join_fit_outliers: 2,
             min_join_points: 6,
             join_agreement: 0.8,
         }
