@@ -221,12 +221,34 @@ fn count_valid(map: &ProjectorMap, pixels: &[(u32, u32)]) -> usize {
         .count()
 }
 
+/// How far off the circle the mean of its neighbours may lie, in neighbour spacings, for
+/// them to surround it: 0 with all six, 0.2 with one missing, 0.43 on a row's edge (two
+/// along the row, two inward).
+const MAX_PATCH_OFFSET: f64 = 0.3;
+
+/// Whether the neighbours of `patch` (its first entry the circle) lie around the circle
+/// rather than to one side ([`MAX_PATCH_OFFSET`]).
+fn surrounded(patch: &[(&Ellipse, bool)]) -> bool {
+    let c = patch[0].0.center;
+    let n = patch.len() - 1;
+    if n == 0 {
+        return false;
+    }
+    let offsets = patch[1..].iter().map(|(e, _)| e.center - c);
+    let sum = offsets
+        .clone()
+        .fold(nalgebra::Vector2::zeros(), |s, d| s + d);
+    let spacing = offsets.map(|d| d.norm()).sum::<f64>() / n as f64;
+    sum.norm() / (n as f64 * spacing) <= MAX_PATCH_OFFSET
+}
+
 /// The projector pixel of the labelled circle `p` under one projector's map, fitted over
 /// `patch` (the circle and its labelled neighbours, each with whether it is ringed); `None`
 /// when the projector does not light the circle whole or the patch has too few valid pixels.
 ///
 /// Whether it lights the circle whole is judged from the circle's own white pixels: at least
-/// `min_own_valid` of them valid. A ringed circle is judged over its whole patch instead:
+/// `min_own_valid` of them valid. A ringed circle its neighbours surround is judged over its
+/// whole patch instead:
 /// beside its ring the blur dims the white below the decoder's modulation floor, and at
 /// radii of 5 px (9–22 white pixels left beside the ring band) a third of them are invalid
 /// however wholly lit (docs/design.md §7). A projector edge across the circle still leaves
@@ -244,7 +266,9 @@ fn observe(
         .iter()
         .flat_map(|&(e, ringed)| params.white_pixels(e, ringed, m.width, m.height))
         .collect();
-    let (valid, judged) = if p.ringed {
+    // Over the patch only where the neighbours surround the circle: a fit from one side
+    // extrapolates into the ring's gap (up to 0.8 projector px in v at the edge of a view).
+    let (valid, judged) = if p.ringed && surrounded(patch) {
         (count_valid(m, &pixels), pixels.len())
     } else {
         (own_valid, own_px.len())
