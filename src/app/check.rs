@@ -79,23 +79,19 @@ fn sync_plan(rig: &RigFile, session: &Session, short: bool) -> SyncPlan {
 
 /// The exposure plan of `rig`: the white level and most gain of its `[checks]` (no gain
 /// on a rig with a V4L2 camera: its gain control has no relation to dB), at most a
-/// pattern's display time after settling; `set` says whether exposures are set.
-fn exposure_plan(rig: &RigFile, set: bool) -> ExposurePlan {
+/// pattern's display time after settling, each frame taken at the run's wait (the session's
+/// slowest latency plus settle); `set` says whether exposures are set.
+fn exposure_plan(rig: &RigFile, session: &Session, set: bool) -> ExposurePlan {
     let t = &rig.timing;
     let v4l2 = (rig.cameras.iter()).any(|c| c.driver == crate::rig::file::CameraDriver::V4l2);
+    let timing = session.timing();
     ExposurePlan {
         white_level: rig.checks.white_level,
         max_exposure_us: 1e3 * (t.frame_period_ms - t.settle_ms),
         max_gain_db: if v4l2 { 0.0 } else { rig.checks.max_gain_db },
-        wait: Duration::from_secs_f64(1e-3 * (t.settle_ms + max_latency_ms(rig))),
+        wait: timing.latency.iter().max().copied().unwrap_or_default() + timing.settle,
         set_exposure: set,
     }
-}
-
-fn max_latency_ms(rig: &RigFile) -> f64 {
-    (rig.projectors.iter())
-        .map(|p| p.latency_ms)
-        .fold(0.0, f64::max)
 }
 
 /// `hexcal check sync|exposure --rig R`: open the rig, put a simulated rig's board at its
@@ -116,14 +112,14 @@ pub fn check(rig: &LoadedRig, which: Which, measure_only: bool) -> Result<SelfTe
                 exposure: None,
             }
         }
-        Which::Exposure => SelfTests {
-            before_pose: None,
-            sync: None,
-            exposure: Some(check_exposure(
-                &mut session,
-                &exposure_plan(&rig.file, !measure_only),
-            )?),
-        },
+        Which::Exposure => {
+            let plan = exposure_plan(&rig.file, &session, !measure_only);
+            SelfTests {
+                before_pose: None,
+                sync: None,
+                exposure: Some(check_exposure(&mut session, &plan)?),
+            }
+        }
     };
     session.finish()?;
     Ok(tested)
@@ -163,7 +159,8 @@ pub fn at_start(
     }
     let synced = tested.sync.as_ref().is_none_or(SyncReport::passed);
     if exposure && synced {
-        tested.exposure = Some(check_exposure(session, &exposure_plan(rig, true))?);
+        let plan = exposure_plan(rig, session, true);
+        tested.exposure = Some(check_exposure(session, &plan)?);
     }
     record(dataset, &tested)?;
     match tested.sync.as_ref().filter(|s| !s.passed()) {

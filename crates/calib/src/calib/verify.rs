@@ -14,7 +14,8 @@ use super::circle::ellipse_center;
 use hexcal_core::board::{Board, Hex, Side};
 use hexcal_core::observations::{CameraView, Frame};
 use nalgebra::{
-    Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3,
+    Isometry3, Matrix3, Point2, Point3, Rotation3, SymmetricEigen, Translation3, UnitQuaternion,
+    Vector2, Vector3, U3,
 };
 use std::collections::BTreeMap;
 
@@ -130,15 +131,24 @@ fn fit_rigid(from: &[Point3<f64>], to: &[Point3<f64>]) -> Option<Isometry3<f64>>
     ))
 }
 
-/// RMS distance from the least-squares plane (NaN when the decomposition does not converge).
-fn flatness(points: &[Point3<f64>]) -> f64 {
+/// The least-squares plane of `points`: their centroid and the eigen-decomposition of their
+/// scatter matrix (the normal is the eigenvector of the smallest eigenvalue); `None` when
+/// the decomposition does not converge.
+fn plane_fit(points: &[Point3<f64>]) -> Option<(Vector3<f64>, SymmetricEigen<f64, U3>)> {
     let n = points.len() as f64;
     let c = points.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
     let cov = points.iter().fold(Matrix3::zeros(), |m, p| {
         m + (p.coords - c) * (p.coords - c).transpose()
     });
-    match cov.try_symmetric_eigen(f64::EPSILON, MAX_ITERATIONS) {
-        Some(eig) => (eig.eigenvalues.min() / n).max(0.0).sqrt(),
+    Some((c, cov.try_symmetric_eigen(f64::EPSILON, MAX_ITERATIONS)?))
+}
+
+/// RMS distance from the least-squares plane (NaN when the decomposition does not converge).
+fn flatness(points: &[Point3<f64>]) -> f64 {
+    match plane_fit(points) {
+        Some((_, eig)) => (eig.eigenvalues.min() / points.len() as f64)
+            .max(0.0)
+            .sqrt(),
         None => f64::NAN,
     }
 }
@@ -232,11 +242,7 @@ fn noise_scale(points: &[Point3<f64>], covariances: &[Matrix3<f64>]) -> Option<f
     if n <= 12 {
         return None;
     }
-    let c = points.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n as f64;
-    let cov = points.iter().fold(Matrix3::zeros(), |m, p| {
-        m + (p.coords - c) * (p.coords - c).transpose()
-    });
-    let eig = cov.try_symmetric_eigen(f64::EPSILON, MAX_ITERATIONS)?;
+    let (c, eig) = plane_fit(points)?;
     let k = eig.eigenvalues.imin();
     let normal = eig.eigenvectors.column(k).into_owned();
     let (e1, e2) = (

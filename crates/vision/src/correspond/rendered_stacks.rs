@@ -113,6 +113,32 @@ struct Pairs {
     ringed_edge: [usize; 2],
 }
 
+impl std::ops::AddAssign for Pairs {
+    fn add_assign(&mut self, o: Pairs) {
+        for i in 0..2 {
+            self.plain[i] += o.plain[i];
+            self.ringed[i] += o.ringed[i];
+            self.ringed_edge[i] += o.ringed_edge[i];
+        }
+    }
+}
+
+impl std::fmt::Display for Pairs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "pairs lit whole with a projector pixel: plain {} of {}, ringed {} of {}, ringed on \
+             a view's edge {} of {}",
+            self.plain[1],
+            self.plain[0],
+            self.ringed[1],
+            self.ringed[0],
+            self.ringed_edge[1],
+            self.ringed_edge[0]
+        )
+    }
+}
+
 /// The default stack scene seen from `eye` towards `target`, rendered and decoded: the
 /// scene, the projectors, the renderer (the truth) and the decoded stack.
 fn decode_pose(
@@ -377,24 +403,11 @@ fn decoded_stack_gives_projector_pixels_at_circle_centres() {
     for (k, &(eye, target)) in views.iter().enumerate() {
         let (errors, p) = circle_errors(eye, target, 11 + k as u64, 10_000);
         all.extend(errors.into_iter().map(|c| (k, c)));
-        for i in 0..2 {
-            pairs.plain[i] += p.plain[i];
-            pairs.ringed[i] += p.ringed[i];
-            pairs.ringed_edge[i] += p.ringed_edge[i];
-        }
+        pairs += p;
     }
     // Issue 21: every pair where the projector lights the whole circle gives a projector
     // pixel, marker (ringed) circles included.
-    eprintln!(
-        "pairs lit whole with a projector pixel: plain {} of {}, ringed {} of {}, ringed on \
-         a view's edge {} of {}",
-        pairs.plain[1],
-        pairs.plain[0],
-        pairs.ringed[1],
-        pairs.ringed[0],
-        pairs.ringed_edge[1],
-        pairs.ringed_edge[0]
-    );
+    eprintln!("{pairs}");
     assert!(pairs.ringed[0] >= 100, "{pairs:?}");
     assert_eq!(pairs.ringed[0], pairs.ringed[1], "{pairs:?}");
     assert_eq!(pairs.plain[0], pairs.plain[1], "{pairs:?}");
@@ -577,23 +590,10 @@ fn small_ringed_circles_in_a_45_degree_view() {
     for (k, d) in [420.0, 460.0].into_iter().enumerate() {
         let eye = [30.0, -d * t.sin(), d * t.cos()];
         let (errors, p) = circle_errors(eye, [30.0, 0.0, 0.0], 40 + k as u64, 1000);
-        for i in 0..2 {
-            pairs.plain[i] += p.plain[i];
-            pairs.ringed[i] += p.ringed[i];
-            pairs.ringed_edge[i] += p.ringed_edge[i];
-        }
+        pairs += p;
         all.extend(errors);
     }
-    eprintln!(
-        "pairs lit whole with a projector pixel: plain {} of {}, ringed {} of {}, ringed on \
-         a view's edge {} of {}",
-        pairs.plain[1],
-        pairs.plain[0],
-        pairs.ringed[1],
-        pairs.ringed[0],
-        pairs.ringed_edge[1],
-        pairs.ringed_edge[0]
-    );
+    eprintln!("{pairs}");
     assert_eq!(pairs.ringed[0], pairs.ringed[1], "{pairs:?}");
     assert_eq!(pairs.plain[0], pairs.plain[1], "{pairs:?}");
     let small = all
