@@ -411,9 +411,11 @@ fn pair_figures(
         length_rms: (sq / n as f64).sqrt(),
         length_max: max,
         flatness_rms: flatness(&points),
+        // No prediction rather than a non-finite one (it would silence the pair's warning).
         predicted_rms: ctx.noise_of(i, j).and_then(|noise| {
             let covariances = error_covariances(devices, (i, j), noise, plane, pairs)?;
-            Some(predicted_rms(&points, &covariances) * noise_scale(&points, &covariances)?)
+            let p = predicted_rms(&points, &covariances) * noise_scale(&points, &covariances)?;
+            p.is_finite().then_some(p)
         }),
     };
     let figures = [check.length_rms, check.length_max, check.flatness_rms];
