@@ -22,6 +22,7 @@
 
 mod fit;
 mod frames;
+pub mod repair;
 mod verdict;
 
 pub use verdict::*;

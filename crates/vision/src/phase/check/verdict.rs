@@ -199,6 +199,12 @@ pub enum StackNote {
     /// The sequence has a single fringe group: nothing to test a group against, so the
     /// stack was not checked.
     Unchecked,
+    /// A fault the decoder repaired exactly (a wrong pattern: its fringe group left out of
+    /// the fusion, §6b "Repair"); the stack is used.
+    Repaired {
+        /// The fault.
+        fault: StackFault,
+    },
 }
 
 impl StackNote {
@@ -220,6 +226,14 @@ impl StackNote {
             StackNote::Unchecked => {
                 "the sequence has one fringe group: nothing to check the stack against".into()
             }
+            StackNote::Repaired { ref fault } => match *fault {
+                StackFault::WrongPattern { group, .. } => format!(
+                    "repaired: {}; fringe group {} was left out of every projector's positions",
+                    fault.describe(),
+                    group + 1
+                ),
+                _ => format!("repaired: {}", fault.describe()),
+            },
         }
     }
 }
