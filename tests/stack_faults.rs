@@ -193,10 +193,12 @@ fn tiny_run(name: &str, faults: &str) -> (Vec<Event>, hexcal::app::progress::Out
 /// the sequence, a 0.2 px jolt, ambient flicker of ±10 % are each named in their pose and
 /// the pose captured again; an ambient step of +30 % exactly between two fringe groups
 /// changes no group's phases (each group's mean takes it) and may pass, as may a +5 % step
-/// of the (dim) ambient light inside a group. The calibration equals the clean run's within
-/// its uncertainty: every device's fx, fy, cx, cy within 3 standard errors.
+/// of the (dim) ambient light inside a group; a projector one frame late is repaired. The
+/// calibration equals the clean run's within its uncertainty: every device's fx, fy, cx, cy
+/// within 3 standard errors.
 #[test]
-fn motion_and_light_faults_are_named_recaptured_and_the_calibration_is_the_clean_one() {
+fn motion_light_and_lag_faults_are_named_recaptured_or_repaired_and_the_calibration_is_the_clean_one(
+) {
     let (_, clean) = tiny_run("faults-clean", "");
     let faults = "faults = [{ pose = 0, drift_px = [0.3, 0.0] }, \
                   { pose = 1, jolt = { px = [0.2, 0.0], frame = 20 } }, \
@@ -219,6 +221,38 @@ fn motion_and_light_faults_are_named_recaptured_and_the_calibration_is_the_clean
         !log.iter().any(|e| matches!(e, Event::StackFailed { .. })),
         "{log:?}"
     );
+    within_clean_uncertainty(&clean, &faulty);
+    // A projector one frame late in a frame of the first fringe group (count 20) is named
+    // and repaired in both cameras: that group is left out of the positions, the stacks are
+    // used, nothing is captured again, and the calibration is the clean one.
+    let (log, lagged) = tiny_run(
+        "faults-lag",
+        "faults = [{ pose = 2, lag = { projector = 0, frames = [2, 2] } }]",
+    );
+    let repaired: Vec<String> = (log.iter())
+        .filter(|e| matches!(e, Event::StackRepaired { pose: 2, .. }))
+        .map(|e| e.to_string())
+        .collect();
+    assert_eq!(repaired.len(), 2, "{log:?}");
+    for line in &repaired {
+        assert!(
+            line.contains("repaired: projector 0 showed the previous frame's pattern")
+                && line.contains("fringe group 1 (frames 0–4)"),
+            "{line}"
+        );
+    }
+    assert!(
+        !log.iter().any(|e| matches!(e, Event::StackRefused { .. })),
+        "{log:?}"
+    );
+    within_clean_uncertainty(&clean, &lagged);
+}
+
+/// Every device's fx, fy, cx, cy of `faulty` within 3 standard errors of `clean`'s.
+fn within_clean_uncertainty(
+    clean: &hexcal::app::progress::Outcome,
+    faulty: &hexcal::app::progress::Outcome,
+) {
     let (c, f) = (&clean.calibration, &faulty.calibration);
     assert_eq!(c.devices.len(), f.devices.len());
     for (d, dev) in c.devices.iter().enumerate() {

@@ -73,6 +73,15 @@ pub enum Event {
         /// Why.
         reason: String,
     },
+    /// A camera's stack had a fault the decoder repaired exactly: the stack is used.
+    StackRepaired {
+        /// Pose index.
+        pose: usize,
+        /// Camera.
+        camera: String,
+        /// What was found, what was done and what to do.
+        what: String,
+    },
     /// A camera's stack failed the stack check: the pose is captured again.
     StackRefused {
         /// Pose index.
@@ -187,6 +196,9 @@ impl std::fmt::Display for Event {
                 camera,
                 reason,
             } => write!(f, "pose {pose}, camera {camera}: {reason}"),
+            Event::StackRepaired { pose, camera, what } => {
+                write!(f, "{camera}, pose {pose}: {what}")
+            }
             Event::StackRefused {
                 pose,
                 camera,

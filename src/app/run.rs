@@ -23,6 +23,7 @@ use crate::capture::Session;
 use crate::dataset::{Dataset, Leftover, PoseInfo, Timeline};
 use crate::images::CameraFrame;
 use crate::pattern::Sequence;
+use crate::phase::check::{StackNote, StackVerdict};
 use crate::rig::OpenedRig;
 use crate::stop::Stop;
 use crossbeam_channel::{bounded, unbounded, Receiver, Sender};
@@ -180,7 +181,7 @@ impl Coverage {
 #[derive(Clone, Debug, serde::Serialize)]
 struct RefusedStack {
     camera: String,
-    verdict: crate::phase::check::StackVerdict,
+    verdict: StackVerdict,
 }
 
 /// Places the board again for a pose whose capture was refused (`Ok(false)`: the capture
@@ -443,7 +444,7 @@ fn preview_rounds(session: &mut Session, tap: &PreviewFn, quit: &AtomicBool) {
 type StackWorkers = (
     Vec<Sender<CameraFrame>>,
     Vec<JoinHandle<StackResult>>,
-    Receiver<(usize, crate::phase::check::StackVerdict)>,
+    Receiver<(usize, StackVerdict)>,
 );
 
 /// A run between poses: the dataset, every pose's views so far, and the one pose whose
@@ -664,8 +665,20 @@ impl<'e> Stream<'e> {
         });
         // The next pose's decoders start filling only once this pose's are compact: the
         // capture of pose k + 1 overlaps the processing of pose k, not its decoding.
-        let refused = decoded
-            .iter()
+        let verdicts: Vec<(usize, StackVerdict)> = decoded.iter().collect();
+        for (c, verdict) in &verdicts {
+            for note in &verdict.notes {
+                if matches!(note, StackNote::Repaired { .. }) {
+                    (self.events)(&Event::StackRepaired {
+                        pose: k,
+                        camera: self.data.info.cameras[*c].name.clone(),
+                        what: note.describe(),
+                    });
+                }
+            }
+        }
+        let refused = verdicts
+            .into_iter()
             .filter(|(_, v)| !v.passed())
             .map(|(c, verdict)| RefusedStack {
                 camera: self.data.info.cameras[c].name.clone(),

@@ -454,7 +454,9 @@ impl Console {
                 s.status = "stopped".into();
                 s.message = e.to_string();
             }
-            Event::StackFailed { .. } => s.warnings.push(e.to_string()),
+            Event::StackFailed { .. } | Event::StackRepaired { .. } => {
+                s.warnings.push(e.to_string())
+            }
             _ => s.message = e.to_string(),
         }
     }

@@ -585,10 +585,7 @@ impl<T: Sample> Decoder<T> {
                 s.verdict(&CheckParams::default())
             });
         let np = self.seq.projectors().len();
-        let (verdict, left_out) = match repair::plan(&verdict, &self.seq) {
-            Some(left_out) => (repair::repaired(verdict), left_out),
-            None => (verdict, 0),
-        };
+        let left_out = repair::left_out(&verdict);
         let noise = self.noise(&verdict);
         let (fundamental, mean_ratio) = harmonics(self.seq.projectors());
         let (w, h) = (self.width as usize, self.height as usize);

@@ -103,6 +103,11 @@ pub(super) fn judge(
     if clipped > params.clipped {
         faults.push(StackFault::Clipped { fraction: clipped });
     }
+    if let Some(out) = super::repair::plan(&faults, &sampler.seq) {
+        if stack.kept_groups_agree(&sampler.seq, params, out) {
+            notes.extend(faults.drain(..).map(|fault| StackNote::Repaired { fault }));
+        }
+    }
     stack.modulation_notes(sampler.full_scale, params, &mut notes);
     // A figure of a stack with nothing usable (every block clipped) may be 0/0: kept as 0.
     let finite = |v: f64| if v.is_finite() { v } else { 0.0 };

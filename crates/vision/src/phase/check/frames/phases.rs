@@ -9,6 +9,7 @@
 
 use super::{Stack, StackFault};
 use crate::phase::check::fit::median;
+use crate::phase::check::repair::kept_groups;
 use crate::phase::check::CheckParams;
 use crate::phase::Constellation;
 use hexcal_core::pattern::{Direction, Sequence};
@@ -70,31 +71,7 @@ impl Stack<'_> {
             for (first, dir) in [(0, Direction::Columns), (n_col, Direction::Rows)] {
                 let counts = seq.counts(dir);
                 let groups: Vec<usize> = (first..first + counts.len()).collect();
-                let Some(sums) = self.disagreements(p, &groups, counts) else {
-                    continue;
-                };
-                // One fault per projector and direction: the fusion spreads one group's
-                // bias over the others (−δ·n_j·n_k/Σn²), so the worst group is the cause.
-                let medians: Vec<f64> = sums.iter().map(Disagreement::median).collect();
-                let worst = sums
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(j, d)| {
-                        // The scatter of the direction's quietest other group: a noise model
-                        // a little off shifts every group's alike.
-                        let reference = (medians.iter().enumerate())
-                            .filter(|&(k, _)| k != j)
-                            .map(|(_, &m)| m)
-                            .fold(f64::INFINITY, f64::min)
-                            .max(1.0);
-                        let (score, f) =
-                            self.judge_group(p, groups[j], counts.len(), d, reference, params)?;
-                        Some((score, groups[j], f))
-                    })
-                    .max_by(|a, b| a.0.total_cmp(&b.0));
-                if let Some((_, g, f)) = worst {
-                    faults.push((g, f));
-                }
+                faults.extend(self.worst_group(p, &groups, counts, params));
             }
         }
         // A lag leaks into the other projectors' bins of its group (its frames' change is not
@@ -108,6 +85,60 @@ impl Stack<'_> {
             !(matches!(f, StackFault::PhaseDisagreement { .. }) && lagged.contains(g))
         });
         faults
+    }
+
+    /// Whether, with the groups in `left_out` (a bit each) left out, every projector's
+    /// kept groups agree: a repair's check that the lag was placed in the right group.
+    pub(super) fn kept_groups_agree(
+        &self,
+        seq: &Sequence,
+        params: &CheckParams,
+        left_out: u32,
+    ) -> bool {
+        let n_col = seq.counts(Direction::Columns).len();
+        (0..self.model.projectors).all(|p| {
+            [(0, Direction::Columns), (n_col, Direction::Rows)]
+                .into_iter()
+                .all(|(first, dir)| {
+                    let kept = kept_groups(seq, dir, first, left_out);
+                    if kept.len() == seq.counts(dir).len() {
+                        return true;
+                    }
+                    let (groups, counts): (Vec<usize>, Vec<u32>) = kept.into_iter().unzip();
+                    self.worst_group(p, &groups, &counts, params).is_none()
+                })
+        })
+    }
+
+    /// Projector p's worst group of `groups` (one direction's, fringe `counts`) whose phases
+    /// disagree with the others, with its fault. One fault per projector and direction: the
+    /// fusion spreads one group's bias over the others (−δ·n_j·n_k/Σn²), so the worst group
+    /// is the cause.
+    pub(super) fn worst_group(
+        &self,
+        p: usize,
+        groups: &[usize],
+        counts: &[u32],
+        params: &CheckParams,
+    ) -> Option<(usize, StackFault)> {
+        let sums = self.disagreements(p, groups, counts)?;
+        let medians: Vec<f64> = sums.iter().map(Disagreement::median).collect();
+        sums.iter()
+            .enumerate()
+            .filter_map(|(j, d)| {
+                // The scatter of the direction's quietest other group: a noise model a
+                // little off shifts every group's alike.
+                let reference = (medians.iter().enumerate())
+                    .filter(|&(k, _)| k != j)
+                    .map(|(_, &m)| m)
+                    .fold(f64::INFINITY, f64::min)
+                    .max(1.0);
+                let (score, f) =
+                    self.judge_group(p, groups[j], counts.len(), d, reference, params)?;
+                Some((score, groups[j], f))
+            })
+            .max_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, g, f)| (g, f))
     }
 
     /// Per group of `groups` (one direction's, fringe `counts`), projector p's disagreement
