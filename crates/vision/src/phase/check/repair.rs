@@ -1,5 +1,5 @@
 //! Repair of a stack whose only faults are projectors showing another frame's pattern
-//! (docs/design.md §6b, "Repair"): takes the check's faults; gives the fringe groups every
+//! (docs/design.md §6b, eq. 6b.7): takes the check's faults; gives the fringe groups every
 //! projector's fusion leaves out (the check confirms them and turns the faults into
 //! [`StackNote::Repaired`] notes; the decoder reads them back from the verdict).
 //!

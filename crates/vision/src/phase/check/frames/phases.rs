@@ -13,6 +13,7 @@ use crate::phase::check::repair::kept_groups;
 use crate::phase::check::CheckParams;
 use crate::phase::Constellation;
 use hexcal_core::pattern::{Direction, Sequence};
+use rayon::prelude::*;
 use std::f64::consts::TAU;
 
 /// Median of χ²₁: a clean group's median scaled disagreement.
@@ -65,15 +66,19 @@ impl Stack<'_> {
         seq: &Sequence,
         params: &CheckParams,
     ) -> Vec<(usize, StackFault)> {
-        let mut faults = Vec::new();
         let n_col = seq.counts(Direction::Columns).len();
-        for p in 0..self.model.projectors {
-            for (first, dir) in [(0, Direction::Columns), (n_col, Direction::Rows)] {
+        let tasks: Vec<(usize, usize, Direction)> = (0..self.model.projectors)
+            .flat_map(|p| [(p, 0, Direction::Columns), (p, n_col, Direction::Rows)])
+            .collect();
+        // Each projector and direction on its own core.
+        let mut faults: Vec<(usize, StackFault)> = tasks
+            .into_par_iter()
+            .filter_map(|(p, first, dir)| {
                 let counts = seq.counts(dir);
                 let groups: Vec<usize> = (first..first + counts.len()).collect();
-                faults.extend(self.worst_group(p, &groups, counts, params));
-            }
-        }
+                self.worst_group(p, &groups, counts, params)
+            })
+            .collect();
         // A lag leaks into the other projectors' bins of its group (its frames' change is not
         // one frequency): their disagreement there is its consequence.
         let lagged: Vec<usize> = faults
