@@ -170,14 +170,17 @@ impl Stack<'_> {
                     // |C|² = B² + 4σ_I²/N on average: B without the noise's share.
                     let c2 = f64::from(re).powi(2) + f64::from(im).powi(2);
                     b[j] = (c2 - 2.0 * phase_var * block.var).max(0.0).sqrt();
-                    // C = B·e^{−iφ}: the phase in cycles is arg(C̄)/2π.
-                    psi[j] = (f64::from(-im).atan2(f64::from(re)) / TAU).rem_euclid(1.0) as f32;
                     weight[j] = (b[j] * b[j]) as f32;
                 }
                 // Phases of B ≥ 6σ_I are Gaussian to the test's precision (σ_φ ≤ 0.09 rad
                 // for N = 7; lower, the noise's own B biases the measured spread).
                 if b.iter().any(|&bj| bj < MIN_SNR * block.var.sqrt()) {
                     continue;
+                }
+                for (j, &g) in groups.iter().enumerate() {
+                    // C = B·e^{−iφ}: the phase in cycles is arg(C̄)/2π (f32: ≈ 10⁻⁷ rad).
+                    let [re, im] = f.fundamental(g, p, np);
+                    psi[j] = ((-im).atan2(re) / std::f32::consts::TAU).rem_euclid(1.0);
                 }
                 let un = cons.unwrap(&psi, &weight);
                 if un.distance >= half_spacing {
@@ -194,8 +197,9 @@ impl Stack<'_> {
                     let s = &mut sums[j];
                     s.sum_e += e / var;
                     s.sum_w += 1.0 / var;
-                    s.sum_ratio[0] += b[j] / mean_b * e.cos();
-                    s.sum_ratio[1] -= b[j] / mean_b * e.sin();
+                    let (sin, cos) = (e as f32).sin_cos();
+                    s.sum_ratio[0] += b[j] / mean_b * f64::from(cos);
+                    s.sum_ratio[1] -= b[j] / mean_b * f64::from(sin);
                     s.sum_h += h;
                     s.count += 1.0;
                     s.scaled.push(e * e / (var * (1.0 - h)));
