@@ -245,6 +245,11 @@ fn motion_light_and_lag_faults_are_named_recaptured_or_repaired_and_the_calibrat
         !log.iter().any(|e| matches!(e, Event::StackRefused { .. })),
         "{log:?}"
     );
+    // The report's notes keep both repairs.
+    let noted = (lagged.diagnosis.notes.iter())
+        .filter(|n| n.starts_with("pose 2, camera cam") && n.contains(": repaired: projector 0"))
+        .count();
+    assert_eq!(noted, 2, "{:?}", lagged.diagnosis.notes);
     within_clean_uncertainty(&clean, &lagged);
 }
 

@@ -80,6 +80,18 @@ pub(crate) struct Collected<'a> {
     pub(crate) self_tests: Vec<super::check::SelfTests>,
 }
 
+/// One line per stack of `all` that the decoder repaired ("pose 2, camera cam0: repaired:
+/// …"), for the report's notes: the stack was used, the rig wants a look.
+fn repaired_stacks(all: &[Option<PoseViews>]) -> impl Iterator<Item = String> + '_ {
+    all.iter().flatten().flat_map(|p| {
+        p.stacks.iter().flat_map(move |s| {
+            (s.verdict.iter().flat_map(|v| &v.notes))
+                .filter(|n| matches!(n, crate::phase::check::StackNote::Repaired { .. }))
+                .map(move |n| format!("pose {}, camera {}: {}", p.pose, s.camera, n.describe()))
+        })
+    })
+}
+
 /// Calibrate from the views of `all` poses (those from `held_from` on are held out and
 /// verified), write the outputs to `dir`.
 pub(crate) fn finish(
@@ -119,7 +131,8 @@ pub(crate) fn finish(
     warnings.extend(self_tests.iter().flat_map(|t| t.warnings()));
     warnings.extend(skipped.iter().map(|s| format!("verification: {s}")));
     let warnings = &warnings[..];
-    let diagnosis = Diagnosis::of(&cal, &verification, warnings, &target);
+    let mut diagnosis = Diagnosis::of(&cal, &verification, warnings, &target);
+    diagnosis.notes.extend(repaired_stacks(all));
     std::fs::create_dir_all(dir).map_err(AppError::io(dir))?;
     let mut files = crate::report::write_outputs(&cal, &diagnosis.rows, dir, stereo)?.files;
     if !held.is_empty() {
