@@ -42,9 +42,12 @@ pub struct Circle {
 pub struct DetectParams {
     /// Smallest radius √(ab) to look for (px). Default 4.
     pub min_radius: f64,
-    /// Largest axis ratio a/b of the ellipses to look for: 4 (the default) reaches ~75° of
-    /// tilt. The first scale is σ = max(min(r/√2, r/√ratio), 1): a disk of radius r responds
-    /// most at σ = r/√2, a long ellipse (a bar) of minor semi-axis b = r/√ratio at σ ≈ b.
+    /// Largest axis ratio a/b of the ellipses to look for: 5 (the default), the thinnest
+    /// fit accepted (b/a ≥ 0.2). 1/cos of a 75° tilt is 3.9, but perspective makes the far
+    /// side of a board seen at 73° read a/b up to 4.5 (circles of √(ab) = 3 px there have
+    /// b = 1.45 px). A disk of radius r responds most at σ = r/√2, a long ellipse (a bar) of
+    /// minor semi-axis b = r/√ratio at σ ≈ b: the scales σ = max(r/√2, 1)·2^(k/4) reach down
+    /// to the first at or below max(r/√ratio, 1) (1.68 px at r = 4).
     pub max_aspect: f64,
     /// Largest radius to look for (px): the last scale reaches r/√2. Default 40.
     pub max_radius: f64,
@@ -77,7 +80,7 @@ impl Default for DetectParams {
     fn default() -> Self {
         DetectParams {
             min_radius: 4.0,
-            max_aspect: 4.0,
+            max_aspect: 5.0,
             max_radius: 40.0,
             min_circleness: 0.008,
             contrast_ref: None,
@@ -108,13 +111,20 @@ pub fn detect(image: &FloatImage, params: &DetectParams) -> Vec<Circle> {
     }
     // Peaks at the scales below r_min/√2, there for thin foreshortened circles, are refined
     // after the others: on a rounder circle they mark parts of it (a marker's annulus) and
-    // would refine to a worse fit of a circle the others find whole.
+    // would refine to a worse fit of a circle the others find whole. The thinnest scales,
+    // below r_min/2 (axis ratios 4–5), are suppressed among themselves only and refined
+    // last: there a marker's inner disk outscores its whole circle's peak (docs/design.md §4).
     let sigma_disk = (params.min_radius / SQRT_2).max(1.0) - 1e-9;
-    let (mut peaks, thin): (Vec<Peak>, Vec<Peak>) =
-        suppress(circleness_peaks(full, params, Constants::new(h_ref)))
+    let sigma_thinnest = 0.5 * params.min_radius - 1e-9;
+    let (peaks, thinnest): (Vec<Peak>, Vec<Peak>) =
+        circleness_peaks(full, params, Constants::new(h_ref))
             .into_iter()
-            .partition(|p| p.sigma >= sigma_disk);
+            .partition(|p| p.sigma >= sigma_thinnest);
+    let (mut peaks, thin): (Vec<Peak>, Vec<Peak>) = suppress(peaks)
+        .into_iter()
+        .partition(|p| p.sigma >= sigma_disk);
     peaks.extend(thin);
+    peaks.extend(suppress(thinnest));
     let settings = refine::Settings {
         rays: params.rays.max(12),
         min_contrast: (params.min_contrast as f64 * h_ref) as f32,
@@ -126,13 +136,17 @@ pub fn detect(image: &FloatImage, params: &DetectParams) -> Vec<Circle> {
     circles
 }
 
-/// Scales σ_k = σ_min·2^(k/4) over [σ_min, r_max/√2], σ_min = max(min(r_min/√2,
-/// r_min/√max_aspect), 1), grouped into pyramid octaves; the peaks of every octave in
-/// full-resolution coordinates.
+/// Scales σ_k = σ_disk·2^(k/4), σ_disk = max(r_min/√2, 1), from the first at or below
+/// max(r_min/√max_aspect, 1) up to the first reaching r_max/√2, grouped into pyramid
+/// octaves; the peaks of every octave in full-resolution coordinates. Anchoring the scales
+/// on the disk scale keeps them where they are when max_aspect only adds thinner ones.
 fn circleness_peaks(full: View<'_>, params: &DetectParams, k: Constants) -> Vec<Peak> {
-    let sigma_min = (params.min_radius / SQRT_2)
-        .min(params.min_radius / params.max_aspect.max(1.0).sqrt())
-        .max(1.0);
+    let sigma_disk = (params.min_radius / SQRT_2).max(1.0);
+    let sigma_thin = (params.min_radius / params.max_aspect.max(1.0).sqrt()).max(1.0);
+    let below = (4.0 * (sigma_disk / sigma_thin).log2() - 1e-9)
+        .ceil()
+        .max(0.0);
+    let sigma_min = sigma_disk * 2f64.powf(-below / 4.0);
     let sigma_max = (params.max_radius / SQRT_2).max(sigma_min);
     let n_scales = (4.0 * (sigma_max / sigma_min).log2() - 1e-9)
         .ceil()

@@ -18,7 +18,7 @@ use std::collections::HashMap;
 const ROW: f64 = 0.866_025_403_784_438_6;
 
 /// A lattice position in the lattice plane, in pitch units (docs/design.md (5) over d).
-fn plane(h: Hex) -> Vector2<f64> {
+pub(super) fn plane(h: Hex) -> Vector2<f64> {
     Vector2::new(f64::from(h.q) + 0.5 * f64::from(h.r), ROW * f64::from(h.r))
 }
 
@@ -75,13 +75,13 @@ fn fit_homography(pairs: &[(Vector2<f64>, Vector2<f64>)]) -> Option<Matrix3<f64>
 }
 
 /// H applied to a point; `None` at the line sent to infinity.
-fn apply(h: &Matrix3<f64>, p: Vector2<f64>) -> Option<Vector2<f64>> {
+pub(super) fn apply(h: &Matrix3<f64>, p: Vector2<f64>) -> Option<Vector2<f64>> {
     let v = h * Vector3::new(p.x, p.y, 1.0);
     (v.z.abs() > 1e-12).then(|| Vector2::new(v.x / v.z, v.y / v.z))
 }
 
 /// The plane distances (pitch units) between H(image) and the lattice positions.
-fn residuals(h: &Matrix3<f64>, pairs: &[(Vector2<f64>, Vector2<f64>)]) -> Vec<f64> {
+pub(super) fn residuals(h: &Matrix3<f64>, pairs: &[(Vector2<f64>, Vector2<f64>)]) -> Vec<f64> {
     pairs
         .iter()
         .map(|(a, b)| apply(h, *a).map_or(f64::INFINITY, |p| (p - b).norm()))
@@ -92,14 +92,14 @@ fn residuals(h: &Matrix3<f64>, pairs: &[(Vector2<f64>, Vector2<f64>)]) -> Vec<f6
 /// local fit leaves it out. For n = 16 residual norms of Gaussian centre noise σ (Rayleigh,
 /// median 1.18σ) the largest exceeds 4.7σ = 4 medians with probability 16·e^(−11) ≈ 3·10⁻⁴;
 /// leaving out a sound circle then costs only a little support.
-const OUTLIER_MEDIANS: f64 = 4.0;
+pub(super) const OUTLIER_MEDIANS: f64 = 4.0;
 
 /// A homography that fits `pairs` within `tolerance` (pitch units) (docs/design.md §5,
 /// "Joining across gaps"). Up to `outliers` circles are left out, worst first, each when its
 /// residual exceeds [`OUTLIER_MEDIANS`] times the median: a circle cut by the occluder can
 /// keep a centre off by a pixel under blur, and as the support's circle nearest the gap it
 /// would bend every prediction across it.
-fn sound_fit(
+pub(super) fn sound_fit(
     mut pairs: Vec<(Vector2<f64>, Vector2<f64>)>,
     tolerance: f64,
     outliers: usize,
@@ -121,13 +121,14 @@ fn sound_fit(
 }
 
 /// The component that others join: its circles' image centres and lattice positions.
-struct Reference {
-    points: Vec<(Vector2<f64>, Hex)>,
+pub(super) struct Reference {
+    /// Image centre and lattice position of every circle.
+    pub(super) points: Vec<(Vector2<f64>, Hex)>,
     taken: HashMap<Hex, u32>,
 }
 
 impl Reference {
-    fn new(comp: &Component, centres: &[Point2<f64>]) -> Reference {
+    pub(super) fn new(comp: &Component, centres: &[Point2<f64>]) -> Reference {
         Reference {
             points: comp
                 .points
@@ -139,7 +140,7 @@ impl Reference {
     }
 
     /// Indices of the `k` reference circles nearest `p` in the image.
-    fn nearest(&self, p: Vector2<f64>, k: usize) -> Vec<usize> {
+    pub(super) fn nearest(&self, p: Vector2<f64>, k: usize) -> Vec<usize> {
         let mut order: Vec<(f64, usize)> = self
             .points
             .iter()
@@ -155,7 +156,7 @@ impl Reference {
     }
 
     /// (image, lattice plane) pairs of the reference circles `idx`.
-    fn pairs(&self, idx: &[usize]) -> Vec<(Vector2<f64>, Vector2<f64>)> {
+    pub(super) fn pairs(&self, idx: &[usize]) -> Vec<(Vector2<f64>, Vector2<f64>)> {
         idx.iter()
             .map(|&i| (self.points[i].0, plane(self.points[i].1)))
             .collect()

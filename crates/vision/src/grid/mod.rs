@@ -26,11 +26,15 @@
 //!   their circles onto free lattice positions under one transform, both ways, and (when
 //!   anchored) the board's rings agree. Components that do not join are kept as pieces, each
 //!   labelled in a frame of its own.
+//! - Lattice check (`off_lattice`): a labelled centre far off where a local homography of its
+//!   neighbours puts its lattice position — a fit to what an occluder left of a circle — is
+//!   dropped.
 
 mod anchor;
 mod assemble;
 mod cell;
 mod join;
+mod off_lattice;
 mod ring;
 
 use anchor::{BoardRings, Frame, PlacedMarker};
@@ -201,6 +205,10 @@ pub struct GridStats {
     /// Sizes (labelled points) of the pieces left beside the grid after joining.
     #[serde(default)]
     pub pieces: Vec<usize>,
+    /// Labelled points dropped (from the grid and its pieces) because their centres lie off
+    /// the lattice their neighbours predict: fits to what an occluder left of a circle.
+    #[serde(default)]
+    pub off_lattice: usize,
 }
 
 /// The labelled grid of one image.
@@ -267,7 +275,11 @@ pub fn build(image: &FloatImage, circles: &[Circle], board: &Board, params: &Gri
     stats.components = std::iter::once(reference.points.len())
         .chain(components.iter().map(|c| c.points.len()))
         .collect();
-    let (grid, pieces) = scene.join(&mut reference, components, frames[best], &mut stats);
+    let (grid, mut pieces) = scene.join(&mut reference, components, frames[best], &mut stats);
+    stats.off_lattice = std::iter::once(&mut reference)
+        .chain(pieces.iter_mut())
+        .map(|c| off_lattice::drop_off_lattice(c, circles, params))
+        .sum();
     let mut grid = scene.output(&reference, grid, stats);
     grid.pieces = pieces
         .iter()
