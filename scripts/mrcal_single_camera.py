@@ -18,51 +18,32 @@ observations. OUT.json: fx, fy, cx, cy, k1, k2, p1, p2, k3 and mrcal's RMS repro
 error.
 """
 
-import json
+import os
 import sys
 
-import cv2
 import mrcal
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from opencv_single_camera import calibrate, write  # noqa: E402
+
 
 def main(src, dst):
-    with open(src) as f:
-        data = json.load(f)
-    objects = [
-        np.array([[x, y, 0.0] for x, y in v["board"]], np.float64) for v in data["views"]
-    ]
-    images = [np.array(v["image"], np.float64) for v in data["views"]]
-    size = (data["width"], data["height"])
-    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    _, k, d, rvecs, tvecs = cv2.calibrateCamera(
-        [o.astype(np.float32) for o in objects],
-        [i.astype(np.float32) for i in images],
-        size,
-        None,
-        None,
-        criteria=criteria,
-    )
+    objects, images, size, (_, k, d, rvecs, tvecs) = calibrate(src)
     d = d.ravel()
     intrinsics = np.array(
         [[k[0, 0], k[1, 1], k[0, 2], k[1, 2], d[0], d[1], d[2], d[3], d[4]]], np.float64
     )
     # The camera's pose in view i maps that view's points (the reference frame of its own
-    # fixed points) into the camera: rt_fromref = (r, t) of solvePnP.
+    # fixed points) into the camera: rt_fromref = (r, t) of calibrateCamera's view i.
     extrinsics = np.array(
         [np.concatenate([r.ravel(), t.ravel()]) for r, t in zip(rvecs, tvecs)], np.float64
     )
     points = np.concatenate(objects)
-    observations = np.concatenate(
-        [np.column_stack([i, np.ones(len(i))]) for i in images]
-    ).astype(np.float64)
+    observations = np.concatenate([np.column_stack([i, np.ones(len(i))]) for i in images])
     first = np.cumsum([0] + [len(o) for o in objects])
     indices = np.array(
-        [
-            [first[v] + j, 0, v]
-            for v in range(len(objects))
-            for j in range(len(objects[v]))
-        ],
+        [[first[v] + j, 0, v] for v in range(len(objects)) for j in range(len(objects[v]))],
         np.int32,
     )
     stats = mrcal.optimize(
@@ -87,21 +68,7 @@ def main(src, dst):
         do_apply_regularization=False,
         verbose=False,
     )
-    fx, fy, cx, cy, k1, k2, p1, p2, k3 = intrinsics[0]
-    out = {
-        "fx": fx,
-        "fy": fy,
-        "cx": cx,
-        "cy": cy,
-        "k1": k1,
-        "k2": k2,
-        "p1": p1,
-        "p2": p2,
-        "k3": k3,
-        "rms": float(stats["rms_reproj_error__pixels"]),
-    }
-    with open(dst, "w") as f:
-        json.dump(out, f)
+    write(dst, intrinsics[0], stats["rms_reproj_error__pixels"])
 
 
 if __name__ == "__main__":

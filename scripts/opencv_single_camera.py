@@ -21,31 +21,42 @@ import cv2
 import numpy as np
 
 
-def main(src, dst):
+def calibrate(src):
+    """OpenCV's calibrateCamera on IN.json `src` (in float32, as OpenCV takes them): each
+    view's board points (z = 0) and image points as read (float64), the image size, and
+    OpenCV's (rms, camera matrix, distortion, rvecs, tvecs)."""
     with open(src) as f:
         data = json.load(f)
     objects = [
-        np.array([[x, y, 0.0] for x, y in v["board"]], np.float32) for v in data["views"]
+        np.array([[x, y, 0.0] for x, y in v["board"]], np.float64) for v in data["views"]
     ]
-    images = [np.array(v["image"], np.float32) for v in data["views"]]
+    images = [np.array(v["image"], np.float64) for v in data["views"]]
     size = (data["width"], data["height"])
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    rms, k, d, _, _ = cv2.calibrateCamera(objects, images, size, None, None, criteria=criteria)
-    d = d.ravel()
-    out = {
-        "fx": k[0, 0],
-        "fy": k[1, 1],
-        "cx": k[0, 2],
-        "cy": k[1, 2],
-        "k1": d[0],
-        "k2": d[1],
-        "p1": d[2],
-        "p2": d[3],
-        "k3": d[4],
-        "rms": rms,
-    }
+    found = cv2.calibrateCamera(
+        [o.astype(np.float32) for o in objects],
+        [i.astype(np.float32) for i in images],
+        size,
+        None,
+        None,
+        criteria=criteria,
+    )
+    return objects, images, size, found
+
+
+def write(dst, values, rms):
+    """OUT.json: the nine model values (fx, fy, cx, cy, k1, k2, p1, p2, k3) and the RMS."""
+    keys = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
+    out = {key: float(v) for key, v in zip(keys, values)}
+    out["rms"] = float(rms)
     with open(dst, "w") as f:
-        json.dump({key: float(v) for key, v in out.items()}, f)
+        json.dump(out, f)
+
+
+def main(src, dst):
+    _, _, _, (rms, k, d, _, _) = calibrate(src)
+    d = d.ravel()
+    write(dst, [k[0, 0], k[1, 1], k[0, 2], k[1, 2], *d[:5]], rms)
 
 
 if __name__ == "__main__":
