@@ -176,8 +176,8 @@ pub enum Bench {
         /// Number of projectors.
         #[arg(long, default_value_t = 3)]
         projectors: usize,
-        /// Timed decodes of the same stack.
-        #[arg(long, default_value_t = 3)]
+        /// Timed decodes of the same stack (each with the stack check and without it).
+        #[arg(long, default_value_t = 5)]
         repeats: usize,
     },
 }
@@ -338,13 +338,16 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
                 rayon::current_num_threads(),
                 r.render_seconds
             );
-            for run in &r.runs {
-                let cpu = |s: Option<f64>| s.map_or("n/a".into(), |s| format!("{s:.2} s"));
+            let cpu = |s: Option<f64>| s.map_or("n/a".into(), |s| format!("{s:.2} s"));
+            for (run, bare) in r.runs.iter().zip(&r.unchecked_runs) {
                 println!(
-                    "decode {:.3} s wall; CPU {} in frame pushes + {} in finish",
+                    "decode {:.3} s wall; CPU {} in frame pushes + {} in finish (without the check: {:.3} s wall; CPU {} + {})",
                     run.wall_seconds,
                     cpu(run.push_cpu_seconds),
-                    cpu(run.finish_cpu_seconds)
+                    cpu(run.finish_cpu_seconds),
+                    bare.wall_seconds,
+                    cpu(bare.push_cpu_seconds),
+                    cpu(bare.finish_cpu_seconds)
                 );
             }
             println!(
@@ -366,14 +369,19 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
                     a.valid, a.compared, a.rms_u, a.rms_v, a.predicted_u, a.predicted_v, a.gross
                 );
             }
-            let mut walls: Vec<f64> = r.runs.iter().map(|run| run.wall_seconds).collect();
-            walls.sort_by(f64::total_cmp);
-            let median = walls[walls.len() / 2];
-            let mut cpus: Vec<f64> = (r.runs.iter())
-                .filter_map(|run| Some(run.push_cpu_seconds? + run.finish_cpu_seconds?))
-                .collect();
-            cpus.sort_by(f64::total_cmp);
-            let cpu_median = cpus.get(cpus.len() / 2).copied();
+            let (median, cpu_median) = medians(&r.runs);
+            let (bare, bare_cpu) = medians(&r.unchecked_runs);
+            println!(
+                "the check within the decode: {:.3} s wall ({:.1} % of the median decode), CPU {} ({}): the medians with and without it",
+                median - bare,
+                100.0 * (median - bare) / median,
+                cpu_median
+                    .zip(bare_cpu)
+                    .map_or("n/a".into(), |(c, b)| format!("{:.2} s", c - b)),
+                cpu_median
+                    .zip(bare_cpu)
+                    .map_or("n/a".into(), |(c, b)| format!("{:.1} %", 100.0 * (c - b) / c)),
+            );
             println!(
                 "stack check {:.3} s wall alone ({:.1} % of the median decode {median:.3} s, which includes it); CPU {} ({} of a decode's median CPU); verdict: {}",
                 r.check_seconds,
@@ -390,6 +398,17 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The median wall time of `runs` and their median CPU time (pushes + finish), if measured.
+fn medians(runs: &[hexcal::bench::decode::DecodeRun]) -> (f64, Option<f64>) {
+    let mut walls: Vec<f64> = runs.iter().map(|run| run.wall_seconds).collect();
+    walls.sort_by(f64::total_cmp);
+    let mut cpus: Vec<f64> = (runs.iter())
+        .filter_map(|run| Some(run.push_cpu_seconds? + run.finish_cpu_seconds?))
+        .collect();
+    cpus.sort_by(f64::total_cmp);
+    (walls[walls.len() / 2], cpus.get(cpus.len() / 2).copied())
 }
 
 /// `hexcal bench capture`: one simulated pose through the engine, frames discarded.

@@ -30,6 +30,8 @@ pub struct DecodeBench {
     pub render_seconds: f64,
     /// Each timed decode.
     pub runs: Vec<DecodeRun>,
+    /// Each timed decode without the stack check (interleaved with `runs`).
+    pub unchecked_runs: Vec<DecodeRun>,
     /// Bytes the decoder holds at its peak (frame buffer + phases + statistics).
     pub decoder_bytes: usize,
     /// Bytes of the decoded maps.
@@ -65,9 +67,44 @@ fn proc_status_bytes(field: &str) -> Option<usize> {
     Some(kib * 1024)
 }
 
+/// Decode `frames` of `seq` at `size` once, with the stack check or `without` it: the
+/// timing, the decoded stack and the decoder's peak buffer bytes.
+fn timed_decode(
+    seq: &Sequence,
+    frames: &[image::GrayImage],
+    (width, height): (u32, u32),
+    checked: bool,
+) -> (DecodeRun, crate::phase::DecodedStack, usize) {
+    let cpu0 = process_cpu_seconds();
+    let t1 = std::time::Instant::now();
+    let mut decoder =
+        Decoder::<u8>::new(seq, "bench", width, height, 255.0).expect("a valid frame format");
+    if !checked {
+        decoder = decoder.without_check();
+    }
+    let mut bytes = 0;
+    for (k, f) in frames.iter().enumerate() {
+        // The peak is just before the last frame frees the frame buffer.
+        bytes = bytes.max(decoder.buffer_bytes());
+        decoder
+            .push_frame(k, FrameRef::from(f))
+            .expect("frames match the sequence");
+    }
+    let cpu1 = process_cpu_seconds();
+    let decoded = decoder.finish().expect("complete stack");
+    let wall_seconds = t1.elapsed().as_secs_f64();
+    let cpu2 = process_cpu_seconds();
+    let run = DecodeRun {
+        wall_seconds,
+        push_cpu_seconds: cpu0.zip(cpu1).map(|(a, b)| b - a),
+        finish_cpu_seconds: cpu1.zip(cpu2).map(|(a, b)| b - a),
+    };
+    (run, decoded, bytes)
+}
+
 /// Render the default stack of the standard scene (P projectors of 1920×1080 with gamma 2.2
 /// uncorrected, default sequence) for a `width` × `height` camera, then decode it
-/// `repeats` times, timing each decode.
+/// `repeats` times, timing each decode, each beside a decode without the stack check.
 pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) -> DecodeBench {
     let setups = vec![
         ProjectorSetup {
@@ -84,37 +121,26 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
     let frames: Vec<image::GrayImage> = (0..seq.frame_count()).map(|k| renderer.frame(k)).collect();
     let render_seconds = t0.elapsed().as_secs_f64();
     let mut runs = Vec::new();
+    let mut unchecked_runs = Vec::new();
     let mut decoder_bytes = 0;
     let mut peak_growth_bytes = None;
     let mut last = None;
     for _ in 0..repeats.max(1) {
         drop(last.take()); // free the previous maps before decoding again
+                           // Without the check first, then with it, under the same conditions.
+        let (run, unchecked, _) = timed_decode(&seq, &frames, (width, height), false);
+        unchecked_runs.push(run);
+        drop(unchecked);
         let before = proc_status_bytes("VmRSS:");
-        let cpu0 = process_cpu_seconds();
-        let t1 = std::time::Instant::now();
-        let mut decoder =
-            Decoder::<u8>::new(&seq, "bench", width, height, 255.0).expect("a valid frame format");
-        for (k, f) in frames.iter().enumerate() {
-            // The peak is just before the last frame frees the frame buffer.
-            decoder_bytes = decoder_bytes.max(decoder.buffer_bytes());
-            decoder
-                .push_frame(k, FrameRef::from(f))
-                .expect("frames match the sequence");
-        }
-        let cpu1 = process_cpu_seconds();
-        last = Some(decoder.finish().expect("complete stack"));
-        let wall_seconds = t1.elapsed().as_secs_f64();
-        let cpu2 = process_cpu_seconds();
-        runs.push(DecodeRun {
-            wall_seconds,
-            push_cpu_seconds: cpu0.zip(cpu1).map(|(a, b)| b - a),
-            finish_cpu_seconds: cpu1.zip(cpu2).map(|(a, b)| b - a),
-        });
+        let (run, decoded, bytes) = timed_decode(&seq, &frames, (width, height), true);
+        runs.push(run);
+        decoder_bytes = decoder_bytes.max(bytes);
         if peak_growth_bytes.is_none() {
             peak_growth_bytes = before
                 .zip(proc_status_bytes("VmHWM:"))
                 .map(|(b, h)| h.saturating_sub(b));
         }
+        last = Some(decoded);
     }
     let decoded = last.expect("at least one decode");
     let cpu0 = process_cpu_seconds();
@@ -134,6 +160,7 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
         frames: frames.len(),
         render_seconds,
         runs,
+        unchecked_runs,
         decoder_bytes,
         output_bytes,
         peak_growth_bytes,

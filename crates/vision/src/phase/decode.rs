@@ -335,6 +335,14 @@ impl<T: Sample> Decoder<T> {
         })
     }
 
+    /// The decoder without its stack check (its verdict is then [`StackVerdict::unchecked`]):
+    /// what `hexcal bench decode` times beside the checked decoder, to measure what the check
+    /// costs within a decode.
+    pub fn without_check(mut self) -> Self {
+        self.sampler = None;
+        self
+    }
+
     /// Bytes the decoder holds now: the group's frame buffer, the lit pixels' 16-bit phases
     /// and modulations, the lit bits and row slots, the unlit pixels' root sums of B, level
     /// statistics and saturation flags (once every group is in, its peak before
