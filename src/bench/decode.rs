@@ -67,7 +67,7 @@ fn proc_status_bytes(field: &str) -> Option<usize> {
     Some(kib * 1024)
 }
 
-/// Decode `frames` of `seq` at `size` once, with the stack check or `without` it: the
+/// Decode `frames` of `seq` at `size` once, with the stack check when `checked`: the
 /// timing, the decoded stack and the decoder's peak buffer bytes.
 fn timed_decode(
     seq: &Sequence,
@@ -126,8 +126,9 @@ pub fn bench_decode(width: u32, height: u32, projectors: usize, repeats: usize) 
     let mut peak_growth_bytes = None;
     let mut last = None;
     for _ in 0..repeats.max(1) {
-        drop(last.take()); // free the previous maps before decoding again
-                           // Without the check first, then with it, under the same conditions.
+        // Free the previous maps before decoding again; without the check first, then with
+        // it, under the same conditions.
+        drop(last.take());
         let (run, unchecked, _) = timed_decode(&seq, &frames, (width, height), false);
         unchecked_runs.push(run);
         drop(unchecked);

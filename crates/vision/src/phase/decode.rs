@@ -1147,19 +1147,17 @@ impl KeptGroups {
     /// Direction `dir` of `seq` without the groups in `left_out` (a bit per group); `None`
     /// when none of its groups is left out.
     fn new(seq: &Sequence, dir: Direction, left_out: u32) -> Option<KeptGroups> {
-        let counts = seq.counts(dir);
         let first = match dir {
             Direction::Columns => 0,
             Direction::Rows => seq.counts(Direction::Columns).len(),
         };
+        let groups = repair::kept_groups(seq, dir, first, left_out);
         let mut kept = [false; MAX_COUNTS];
-        for (j, k) in kept[..counts.len()].iter_mut().enumerate() {
-            *k = left_out & (1 << (first + j)) == 0;
+        for &(g, _) in &groups {
+            kept[g - first] = true;
         }
-        let kept_counts: Vec<u32> = (counts.iter().zip(kept))
-            .filter_map(|(&c, k)| k.then_some(c))
-            .collect();
-        (kept_counts.len() < counts.len()).then(|| KeptGroups {
+        let kept_counts: Vec<u32> = groups.iter().map(|&(_, c)| c).collect();
+        (kept_counts.len() < seq.counts(dir).len()).then(|| KeptGroups {
             cons: Constellation::shared(&kept_counts).expect("a repair keeps a constellation"),
             kept,
         })
@@ -1190,7 +1188,7 @@ struct Position {
     /// Predicted σ_u, σ_v (projector px).
     sigma: [f32; 2],
     /// Whether both lie farther than 6σ from the wrap point t = 0 ≡ 1 (and, where a group
-    /// was left out, the kept groups agree: [`Judge::kept_agree`]).
+    /// was left out, the kept groups agree: [`KeptGroups::agrees`]).
     clear_of_wrap: bool,
 }
 

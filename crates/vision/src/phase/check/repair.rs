@@ -47,7 +47,7 @@ pub(super) fn plan(faults: &[StackFault], seq: &Sequence) -> Option<u32> {
 
 /// The groups of direction `dir` (its first group `first`) not in `left_out`, with their
 /// counts.
-pub(super) fn kept_groups(
+pub(crate) fn kept_groups(
     seq: &Sequence,
     dir: Direction,
     first: usize,
