@@ -399,22 +399,33 @@ impl<T: Sample> Decoder<T> {
                 expected: npx,
             });
         }
-        if let Some(sampler) = &mut self.sampler {
-            sampler.push(k, &frame);
-        }
+        // The check samples the frame on one core while the decoder takes it in.
+        let mut sampler = self.sampler.take();
+        let sample = || {
+            if let Some(s) = sampler.as_mut() {
+                s.push(k, &frame);
+            }
+        };
+        rayon::join(sample, || self.take_in(k, frame.pixels));
+        self.sampler = sampler;
+        Ok(())
+    }
+
+    /// Store frame k's pixels, or close its group with them when it is the group's last.
+    fn take_in(&mut self, k: usize, pixels: &[T]) {
+        let (count, npx) = (self.seq.frame_count(), pixels.len());
         let n = self.seq.steps() as usize;
         let step = k % n;
         self.next += 1;
         if step < n - 1 {
-            self.frames[step * npx..(step + 1) * npx].copy_from_slice(frame.pixels);
+            self.frames[step * npx..(step + 1) * npx].copy_from_slice(pixels);
         } else {
-            self.close_group(k / n, frame.pixels);
+            self.close_group(k / n, pixels);
             if self.next == count {
                 // The last group is in: the frame buffer is not needed any more.
                 self.frames = Vec::new();
             }
         }
-        Ok(())
     }
 
     /// Take the DFT of the completed group g (its last frame `last`) on all cores: each
@@ -586,15 +597,19 @@ impl<T: Sample> Decoder<T> {
             });
         }
         drop(std::mem::take(&mut self.frames));
-        let verdict = self
-            .sampler
-            .take()
-            .map_or_else(StackVerdict::unchecked, |s| {
-                s.verdict(&CheckParams::default())
-            });
+        // The verdict on one core, the noise from the group means on the other.
+        let sampler = self.sampler.take();
+        let (verdict, between) = rayon::join(
+            || {
+                sampler.map_or_else(StackVerdict::unchecked, |s| {
+                    s.verdict(&CheckParams::default())
+                })
+            },
+            || self.noise_between(),
+        );
         let np = self.seq.projectors().len();
         let left_out = repair::left_out(&verdict);
-        let noise = self.noise(&verdict);
+        let noise = choose_noise(&verdict, between);
         let (fundamental, mean_ratio) = harmonics(self.seq.projectors());
         let (w, h) = (self.width as usize, self.height as usize);
         let mut sink = Sink::new(w * h, np, self.candidates(), dense_modulation);
@@ -619,27 +634,14 @@ impl<T: Sample> Decoder<T> {
         ))
     }
 
-    /// The noise model: from the spread of the group means (docs/design.md §6), unless the
-    /// check found the light or the board changing between groups, which that spread would
-    /// count as noise; then the check's, measured within the groups (§6b).
-    fn noise(&self, verdict: &StackVerdict) -> NoiseModel {
-        let between = |v: &StackVerdict| {
-            v.notes
-                .iter()
-                .any(|n| matches!(n, super::check::StackNote::LightStep { .. }))
-                || v.faults
-                    .iter()
-                    .any(|f| matches!(f, super::check::StackFault::Motion { .. }))
-        };
-        match between(verdict) {
-            true => verdict.figures.noise,
-            false => fit_noise(&noise_sums(
-                &self.levels,
-                &self.saturated,
-                f64::from(self.seq.steps()),
-                self.seq.groups(),
-            )),
-        }
+    /// The noise model from the spread of the group means (docs/design.md §6).
+    fn noise_between(&self) -> NoiseModel {
+        fit_noise(&noise_sums(
+            &self.levels,
+            &self.saturated,
+            f64::from(self.seq.steps()),
+            self.seq.groups(),
+        ))
     }
 
     /// Whether pixel i is a candidate: some projector lights it.
@@ -650,6 +652,24 @@ impl<T: Sample> Decoder<T> {
     /// Candidate pixels (0 before the first group is in).
     fn candidates(&self) -> usize {
         self.row_slots.last().map_or(0, |&n| n as usize)
+    }
+}
+
+/// The noise model: `between`, from the spread of the group means (docs/design.md §6),
+/// unless the check found the light or the board changing between groups, which that spread
+/// would count as noise; then the check's, measured within the groups (§6b).
+fn choose_noise(verdict: &StackVerdict, between: NoiseModel) -> NoiseModel {
+    let changed = verdict
+        .notes
+        .iter()
+        .any(|n| matches!(n, super::check::StackNote::LightStep { .. }))
+        || verdict
+            .faults
+            .iter()
+            .any(|f| matches!(f, super::check::StackFault::Motion { .. }));
+    match changed {
+        true => verdict.figures.noise,
+        false => between,
     }
 }
 

@@ -4,7 +4,9 @@
 
 use super::super::maps::NoiseModel;
 use hexcal_core::pattern::{pattern_harmonic, Sequence, CHECKED_HARMONICS};
+use rayon::prelude::*;
 use std::f64::consts::TAU;
+use std::ops::Range;
 
 /// The model of every group: which DFT bins it holds and their twiddles.
 pub(super) struct GroupFits {
@@ -25,67 +27,101 @@ pub(super) struct GroupFits {
     pub(super) mean_ratio: Vec<f64>,
 }
 
-/// What the fit keeps of one pixel, in one allocation: per group the mean level (DN), per
-/// group Σ of the squared residuals over its frames, and per group and projector the
-/// fundamental's complex amplitude C = (2/N)·Σ_s I_s·e^{−i2πf_p s/N} (the contribution at
-/// step s is Re(C·e^{i2πf_p s/N})).
-#[derive(Clone, Debug, Default)]
-pub(super) struct PixelFit {
+/// What the fit keeps of every sampled pixel, as rows of one value per pixel (so each
+/// group is fitted across pixels at once): per group the mean level (DN), Σ of the squared
+/// residuals over its frames, and per projector the fundamental's complex amplitude
+/// C = (2/N)·Σ_s I_s·e^{−i2πf_p s/N} (the contribution at step s is Re(C·e^{i2πf_p s/N})).
+pub(super) struct Fits {
+    /// Pixels sampled.
+    pixels: usize,
     /// Groups G.
     groups: usize,
-    /// [means (G) | rss (G) | fundamentals (2·G·P, re and im at [g·P + p])].
+    /// Projectors P.
+    projectors: usize,
+    /// Row g·(2 + 2P) + r of `pixels` values: r = 0 the means, 1 the rss, 2 + 2p and 3 + 2p
+    /// projector p's fundamental (re, im).
     data: Vec<f32>,
 }
 
-impl PixelFit {
-    /// Per group, the mean level (DN).
-    pub(super) fn means(&self) -> &[f32] {
-        &self.data[..self.groups]
+impl Fits {
+    /// Pixels sampled.
+    pub(super) fn len(&self) -> usize {
+        self.pixels
     }
 
-    /// Per group, Σ of the squared residuals over its frames.
-    fn rss(&self) -> &[f32] {
-        &self.data[self.groups..2 * self.groups]
+    /// Pixel i's fit.
+    pub(super) fn pixel(&self, i: usize) -> PixelFit<'_> {
+        PixelFit { fits: self, i }
     }
 
-    /// Group g's fundamental of projector p of `projectors` (re, im).
-    pub(super) fn fundamental(&self, g: usize, p: usize, projectors: usize) -> [f32; 2] {
-        let at = 2 * self.groups + 2 * (g * projectors + p);
-        [self.data[at], self.data[at + 1]]
+    /// Every pixel's fit, in order.
+    pub(super) fn pixels(&self) -> impl Iterator<Item = PixelFit<'_>> {
+        (0..self.pixels).map(|i| self.pixel(i))
+    }
+
+    /// Row r of group g, pixel i.
+    fn at(&self, g: usize, r: usize, i: usize) -> f32 {
+        self.data[(g * (2 + 2 * self.projectors) + r) * self.pixels + i]
+    }
+}
+
+/// One pixel's fit.
+#[derive(Clone, Copy)]
+pub(super) struct PixelFit<'a> {
+    fits: &'a Fits,
+    i: usize,
+}
+
+impl<'a> PixelFit<'a> {
+    /// Group g's mean level (DN).
+    pub(super) fn mean(&self, g: usize) -> f32 {
+        self.fits.at(g, 0, self.i)
+    }
+
+    /// Group g's fundamental of projector p (re, im).
+    pub(super) fn fundamental(&self, g: usize, p: usize) -> [f32; 2] {
+        [
+            self.fits.at(g, 2 + 2 * p, self.i),
+            self.fits.at(g, 3 + 2 * p, self.i),
+        ]
     }
 
     /// The per-frame noise variance statistic: one value per group from its residuals when
     /// the model leaves `dof` ≥ 2 (σ_I²·χ²_dof/dof), else one from the group means (N
     /// `steps`): N·median_g (m_g − median m)², robust to a group that differs from the others
     /// (a lag, a light step), whose median over pixels is [`means_median_ratio`]·σ_I².
-    pub(super) fn variances(&self, dof: usize, steps: usize) -> Vec<f64> {
-        if dof >= 2 {
-            return self
-                .rss()
-                .iter()
-                .map(|&r| f64::from(r) / dof as f64)
-                .collect();
-        }
-        let mut m: Vec<f64> = self.means().iter().map(|&m| f64::from(m)).collect();
-        vec![steps as f64 * median_square_deviation(&mut m)]
+    pub(super) fn variances(self, dof: usize, steps: usize) -> impl Iterator<Item = f64> + 'a {
+        let groups = 0..self.fits.groups;
+        let from_means = (dof < 2).then(|| {
+            let mut m: Vec<f64> = groups.clone().map(|g| f64::from(self.mean(g))).collect();
+            steps as f64 * median_square_deviation(&mut m)
+        });
+        let from_rss = (dof >= 2)
+            .then(|| groups.map(move |g| f64::from(self.fits.at(g, 1, self.i)) / dof as f64));
+        from_rss.into_iter().flatten().chain(from_means)
     }
 
     /// The mean level over the groups (DN).
     pub(super) fn level(&self) -> f64 {
-        self.means().iter().map(|&m| f64::from(m)).sum::<f64>() / self.groups as f64
+        let g = self.fits.groups;
+        (0..g).map(|g| f64::from(self.mean(g))).sum::<f64>() / g as f64
     }
 
     /// Projector p's modulation: the RMS over groups of |C| (DN).
-    pub(super) fn modulation(&self, p: usize, projectors: usize) -> f64 {
-        let s: f64 = (0..self.groups)
+    pub(super) fn modulation(&self, p: usize) -> f64 {
+        let g = self.fits.groups;
+        let s: f64 = (0..g)
             .map(|g| {
-                let [re, im] = self.fundamental(g, p, projectors);
+                let [re, im] = self.fundamental(g, p);
                 f64::from(re * re + im * im)
             })
             .sum();
-        (s / self.groups as f64).sqrt()
+        (s / g as f64).sqrt()
     }
 }
+
+/// Pixels fitted at once: their sums stay in the first-level cache.
+const TILE: usize = 256;
 
 impl GroupFits {
     /// The model of `seq`'s groups; `None` for a single group (nothing to test against).
@@ -150,58 +186,91 @@ impl GroupFits {
         self.steps - self.params
     }
 
-    /// A buffer of the bins' coefficients for [`Self::fit`].
-    pub(super) fn coefficients(&self) -> Vec<[f32; 2]> {
-        vec![[0f32; 2]; self.bins.len()]
+    /// Fit every pixel of frame-major `samples` (pixel i of frame k at [k·m + i], m pixels),
+    /// replacing them by their residuals; each group on its own core, its pixels a tile at
+    /// a time.
+    pub(super) fn fit(&self, samples: &mut [f32], m: usize) -> Fits {
+        let rows = 2 + 2 * self.projectors;
+        let mut data = vec![0f32; self.groups * rows * m];
+        if m > 0 {
+            samples
+                .par_chunks_mut(self.steps * m)
+                .zip(data.par_chunks_mut(rows * m))
+                .for_each(|(frames, out)| {
+                    for first in (0..m).step_by(TILE) {
+                        self.fit_tile(frames, out, m, first..m.min(first + TILE));
+                    }
+                });
+        }
+        Fits {
+            pixels: m,
+            groups: self.groups,
+            projectors: self.projectors,
+            data,
+        }
     }
 
-    /// Fit one pixel's series (every frame, in order), replacing it by its residuals;
-    /// `coef` is a buffer of [`Self::coefficients`].
-    pub(super) fn fit(&self, series: &mut [f32], coef: &mut [[f32; 2]]) -> PixelFit {
-        let (n, g) = (self.steps, self.groups);
-        let mut data = vec![0f32; 2 * g + 2 * g * self.projectors];
-        let (sums, fundamentals) = data.split_at_mut(2 * g);
-        let (means, rss) = sums.split_at_mut(g);
-        for (((seg, mean), rss), fund) in series
-            .chunks_exact_mut(n)
-            .zip(means)
-            .zip(rss)
-            .zip(fundamentals.chunks_exact_mut(2 * self.projectors))
-        {
-            *mean = seg.iter().sum::<f32>() / n as f32;
-            for (j, (&b, c)) in self.bins.iter().zip(coef.iter_mut()).enumerate() {
-                let tw = &self.twiddles[j * n..(j + 1) * n];
-                let (re, im) = seg
-                    .iter()
-                    .zip(tw)
-                    .fold((0f32, 0f32), |(re, im), (&v, &[c, s])| {
-                        (re + v * c, im - v * s)
-                    });
-                let scale = if 2 * b == n { 1.0 } else { 2.0 } / n as f32;
-                *c = [re * scale, im * scale];
-            }
-            for (s, v) in seg.iter_mut().enumerate() {
-                let model: f32 = coef
-                    .iter()
-                    .enumerate()
-                    .map(|(j, &[re, im])| {
-                        let [c, sn] = self.twiddles[j * n + s];
-                        re * c - im * sn
-                    })
-                    .sum();
-                *v -= *mean + model;
-                *rss += *v * *v;
-            }
-            for (f, c) in fund.chunks_exact_mut(2).zip(coef.iter()) {
-                f.copy_from_slice(c);
+    /// One group's fit (eq. 6b.1) of the pixels in `tile`: its `frames` (N rows of m) become
+    /// residuals, its rows of `out` get the means, rss and fundamentals.
+    fn fit_tile(&self, frames: &mut [f32], out: &mut [f32], m: usize, tile: Range<usize>) {
+        let (n, t) = (self.steps, tile.len());
+        let row = |s: usize| s * m + tile.start..s * m + tile.end;
+        // The mean, then (re, im) of each bin, over the tile's pixels.
+        let mut sums = vec![0f32; (1 + 2 * self.bins.len()) * t];
+        let (mean, coef) = sums.split_at_mut(t);
+        for s in 0..n {
+            let values = &frames[row(s)];
+            add(mean, values, 1.0);
+            for (j, c) in coef.chunks_exact_mut(2 * t).enumerate() {
+                let [cos, sin] = self.twiddles[j * n + s];
+                let (re, im) = c.split_at_mut(t);
+                add(re, values, cos);
+                add(im, values, -sin);
             }
         }
-        PixelFit { groups: g, data }
+        mean.iter_mut().for_each(|v| *v /= n as f32);
+        for (&b, c) in self.bins.iter().zip(coef.chunks_exact_mut(2 * t)) {
+            let scale = if 2 * b == n { 1.0 } else { 2.0 } / n as f32;
+            c.iter_mut().for_each(|v| *v *= scale);
+        }
+        let mut rss = vec![0f32; t];
+        let mut model = vec![0f32; t];
+        for s in 0..n {
+            model.fill(0.0);
+            for (j, c) in coef.chunks_exact(2 * t).enumerate() {
+                let [cos, sin] = self.twiddles[j * n + s];
+                let (re, im) = c.split_at(t);
+                for ((v, &re), &im) in model.iter_mut().zip(re).zip(im) {
+                    *v += re * cos - im * sin;
+                }
+            }
+            let values = &mut frames[row(s)];
+            for (((v, &mu), &md), r) in values.iter_mut().zip(&*mean).zip(&model).zip(&mut rss) {
+                *v -= mu + md;
+                *r += *v * *v;
+            }
+        }
+        let mut put = |r: usize, from: &[f32]| {
+            out[r * m + tile.start..r * m + tile.end].copy_from_slice(from)
+        };
+        put(0, mean);
+        put(1, &rss);
+        for (p, c) in coef.chunks_exact(2 * t).take(self.projectors).enumerate() {
+            put(2 + 2 * p, &c[..t]);
+            put(3 + 2 * p, &c[t..]);
+        }
     }
 
     /// Projector p's temporal frequency θ_p = 2π·f_p/N (rad per step).
     pub(super) fn theta(&self, p: usize) -> f64 {
         TAU * self.bins[p] as f64 / self.steps as f64
+    }
+}
+
+/// acc += w·values, element by element.
+fn add(acc: &mut [f32], values: &[f32], w: f32) {
+    for (a, &v) in acc.iter_mut().zip(values) {
+        *a += v * w;
     }
 }
 

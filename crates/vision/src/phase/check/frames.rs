@@ -7,7 +7,7 @@ mod lit;
 mod per_frame;
 mod phases;
 
-use super::fit::{chi2_median_ratio, means_median_ratio, robust_noise, GroupFits, PixelFit};
+use super::fit::{chi2_median_ratio, means_median_ratio, robust_noise, Fits, GroupFits};
 use super::{CheckFigures, CheckParams, StackFault, StackNote, StackSampler, StackVerdict};
 use crate::phase::NoiseModel;
 use nalgebra::{SMatrix, SVector};
@@ -59,9 +59,9 @@ pub(super) fn unchecked(blocks: usize) -> StackVerdict {
 /// Everything the tests share: the fits per pixel, the noise model, the blocks.
 struct Stack<'a> {
     model: &'a GroupFits,
-    /// Residuals, pixel-major ([i·K + k]).
+    /// Residuals, frame-major (pixel i of frame k at [k·m + i], m = [`Fits::len`]).
     residuals: Vec<f32>,
-    fits: Vec<PixelFit>,
+    fits: Fits,
     /// Per block: whether it clips.
     clipped: Vec<bool>,
     noise: NoiseModel,
@@ -72,11 +72,11 @@ struct Stack<'a> {
 
 /// The verdict on a sampled stack.
 pub(super) fn judge(
-    sampler: &StackSampler,
+    mut sampler: StackSampler,
     model: &GroupFits,
     params: &CheckParams,
 ) -> StackVerdict {
-    let stack = Stack::fit(sampler, model);
+    let stack = Stack::fit(&mut sampler, model);
     let mut faults = Vec::new();
     let mut notes = Vec::new();
     let displacement = stack.between_groups(params, &mut faults, &mut notes);
@@ -129,37 +129,33 @@ pub(super) fn judge(
 }
 
 impl<'a> Stack<'a> {
-    /// Fit every sampled pixel (on all cores), measure the noise, form the blocks' shapes.
-    fn fit(sampler: &StackSampler, model: &'a GroupFits) -> Stack<'a> {
+    /// Fit every sampled pixel (on all cores), measure the noise, form the blocks' shapes;
+    /// the sampler's samples become the residuals.
+    fn fit(sampler: &mut StackSampler, model: &'a GroupFits) -> Stack<'a> {
         let k = sampler.seq.frame_count();
-        let mut residuals = sampler.series();
-        let fits: Vec<PixelFit> = residuals
-            .par_chunks_mut(k)
-            .map_init(
-                || model.coefficients(),
-                |coef, series| model.fit(series, coef),
-            )
+        let mut residuals = std::mem::take(&mut sampler.samples);
+        let fits = model.fit(&mut residuals, 4 * sampler.blocks.len());
+        // The unclipped pixels by level, ties by index: the (level, variance) pairs come in
+        // the order robust_noise sorts them in, and only a sixth as many are sorted.
+        let mut by_level: Vec<(f64, usize)> = (0..fits.len())
+            .into_par_iter()
+            .filter(|i| !sampler.clipped[i / 4])
+            .map(|i| (fits.pixel(i).level(), i))
             .collect();
-        let mut pairs = Vec::new();
-        for (_, f) in fits
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| !sampler.clipped[i / 4])
-        {
-            let level = f.level();
-            pairs.extend(
-                f.variances(model.dof(), model.steps)
-                    .into_iter()
-                    .map(|v| (level, v)),
-            );
-        }
+        by_level.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let pairs: Vec<(f64, f64)> = (by_level.par_iter())
+            .flat_map_iter(|&(level, i)| {
+                (fits.pixel(i).variances(model.dof(), model.steps)).map(move |v| (level, v))
+            })
+            .collect();
         let ratio = match model.dof() >= 2 {
             true => chi2_median_ratio(model.dof() as f64),
             false => means_median_ratio(model.groups),
         };
         let noise = robust_noise(pairs, ratio);
         let blocks = (0..sampler.blocks.len())
-            .map(|b| (!sampler.clipped[b]).then(|| block(&fits[4 * b..4 * b + 4], model, &noise)))
+            .into_par_iter()
+            .map(|b| (!sampler.clipped[b]).then(|| block(&fits, b, model, &noise)))
             .collect();
         Stack {
             model,
@@ -256,17 +252,14 @@ impl Fit {
     }
 }
 
-/// A block's shapes from its four pixels' fits (corners (0,0), (1,0), (0,1), (1,1)).
-fn block(fits: &[PixelFit], model: &GroupFits, noise: &NoiseModel) -> Block {
-    let levels: Vec<f64> = fits.iter().map(PixelFit::level).collect();
+/// Block b's shapes from its four pixels' fits (corners (0,0), (1,0), (0,1), (1,1)).
+fn block(fits: &Fits, b: usize, model: &GroupFits, noise: &NoiseModel) -> Block {
+    let pixels = || (4 * b..4 * b + 4).map(|i| fits.pixel(i));
+    let levels: Vec<f64> = pixels().map(|f| f.level()).collect();
     let level = levels.iter().sum::<f64>() / 4.0;
     let lit: f64 = (0..model.projectors)
         .map(|p| {
-            let b = fits
-                .iter()
-                .map(|f| f.modulation(p, model.projectors))
-                .sum::<f64>()
-                / 4.0;
+            let b = pixels().map(|f| f.modulation(p)).sum::<f64>() / 4.0;
             model.mean_ratio[p] * b
         })
         .sum();

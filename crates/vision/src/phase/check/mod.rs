@@ -82,7 +82,7 @@ pub struct StackSampler {
     /// Top-left pixel of each block.
     blocks: Vec<[u32; 2]>,
     /// Frame-major samples as they arrive: pixel i (block i / 4, corner i % 4) of frame k at
-    /// [k·4B + i] (contiguous writes; [`Self::series`] turns them pixel-major).
+    /// [k·4B + i] (contiguous writes, and each group fitted across pixels).
     samples: Vec<f32>,
     /// Blocks with a sample at full scale.
     clipped: Vec<bool>,
@@ -147,34 +147,12 @@ impl StackSampler {
         }
     }
 
-    /// The samples pixel-major (pixel i's frames at [i·K + k]), transposed in tiles of 16
-    /// pixels (one cache line of each frame) on all cores.
-    fn series(&self) -> Vec<f32> {
-        use rayon::prelude::*;
-        let k = self.seq.frame_count();
-        let m = 4 * self.blocks.len();
-        let mut out = vec![0f32; m * k];
-        out.par_chunks_mut(16 * k)
-            .enumerate()
-            .for_each(|(t, tile)| {
-                let first = 16 * t;
-                let n = tile.len() / k;
-                for f in 0..k {
-                    let row = &self.samples[f * m + first..f * m + first + n];
-                    for (i, &v) in row.iter().enumerate() {
-                        tile[i * k + f] = v;
-                    }
-                }
-            });
-        out
-    }
-
     /// The verdict on the stack (every frame pushed).
     pub fn verdict(self, params: &CheckParams) -> StackVerdict {
         let fits = match GroupFits::new(&self.seq) {
             Some(f) => f,
             None => return frames::unchecked(self.blocks.len()),
         };
-        frames::judge(&self, &fits, params)
+        frames::judge(self, &fits, params)
     }
 }

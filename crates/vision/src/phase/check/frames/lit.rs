@@ -15,9 +15,8 @@ const CANDIDATE: f64 = 0.015;
 impl Stack<'_> {
     /// Block b's modulation of projector p (DN).
     fn modulation(&self, b: usize, p: usize) -> f64 {
-        let np = self.model.projectors;
         (0..4)
-            .map(|j| self.fits[4 * b + j].modulation(p, np))
+            .map(|j| self.fits.pixel(4 * b + j).modulation(p))
             .sum::<f64>()
             / 4.0
     }

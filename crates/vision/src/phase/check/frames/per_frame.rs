@@ -76,36 +76,26 @@ impl Stack<'_> {
         (faults, sigma)
     }
 
-    /// Per frame, in one pass over the residuals in memory order (pixel by pixel, on all
-    /// cores): the right-hand side Σ_b x_b·R_b/var_b of its block residuals R_b regressed on
-    /// the shapes (var_b = σ_I²/4·(N − q)/N), and Σ over the usable pixels of residual² /
-    /// (σ_I²·(N − q)/N), whose expected value per pixel is 1 in a clean stack.
+    /// Per frame, on all cores: the right-hand side Σ_b x_b·R_b/var_b of its block
+    /// residuals R_b regressed on the shapes (var_b = σ_I²/4·(N − q)/N), and Σ over the
+    /// usable pixels of residual² / (σ_I²·(N − q)/N), whose expected value per pixel is 1 in
+    /// a clean stack.
     fn frame_sums(&self, shrink: f64) -> (Vec<SVector<f64, 5>>, Vec<f64>) {
-        let k = self.frames;
-        let zero = || (vec![SVector::<f64, 5>::zeros(); k], vec![0.0; k]);
+        let m = self.fits.len();
         let blocks: Vec<(usize, &super::Block)> = self.usable().collect();
-        blocks
-            .par_iter()
-            .fold(zero, |(mut rhs, mut energy), &(b, blk)| {
-                let x = SVector::<f64, 5>::from(blk.shapes);
-                let pixels = &self.residuals[4 * b * k..(4 * b + 4) * k];
-                for f in 0..k {
-                    let r = [0, 1, 2, 3].map(|j| f64::from(pixels[j * k + f]));
+        self.residuals
+            .par_chunks(m.max(1))
+            .map(|frame| {
+                let (mut rhs, mut energy) = (SVector::<f64, 5>::zeros(), 0.0);
+                for &(b, blk) in &blocks {
+                    let r = [0, 1, 2, 3].map(|j| f64::from(frame[4 * b + j]));
                     let mean = r.iter().sum::<f64>() / 4.0;
-                    rhs[f] += mean / (blk.var / 4.0 * shrink) * x;
-                    energy[f] += r.iter().map(|v| v * v).sum::<f64>() / (blk.var * shrink);
+                    rhs += mean / (blk.var / 4.0 * shrink) * SVector::<f64, 5>::from(blk.shapes);
+                    energy += r.iter().map(|v| v * v).sum::<f64>() / (blk.var * shrink);
                 }
                 (rhs, energy)
             })
-            .reduce(zero, |(mut r1, mut e1), (r2, e2)| {
-                for (a, b) in r1.iter_mut().zip(r2) {
-                    *a += b;
-                }
-                for (a, b) in e1.iter_mut().zip(e2) {
-                    *a += b;
-                }
-                (r1, e1)
-            })
+            .unzip()
     }
 
     /// Light change or jolt, whichever explains more of a frame's residual.

@@ -49,11 +49,11 @@ struct Disagreement {
 
 impl Disagreement {
     /// The median of the scaled disagreements over that of χ²₁: 1 for a clean group whose
-    /// noise model is right.
-    fn median(&self) -> f64 {
+    /// noise model is right (reorders them).
+    fn median(&mut self) -> f64 {
         match self.scaled.is_empty() {
             true => 1.0,
-            false => median(&mut self.scaled.clone()) / CHI2_1_MEDIAN,
+            false => median(&mut self.scaled) / CHI2_1_MEDIAN,
         }
     }
 }
@@ -126,8 +126,8 @@ impl Stack<'_> {
         counts: &[u32],
         params: &CheckParams,
     ) -> Option<(usize, StackFault)> {
-        let sums = self.disagreements(p, groups, counts)?;
-        let medians: Vec<f64> = sums.iter().map(Disagreement::median).collect();
+        let mut sums = self.disagreements(p, groups, counts)?;
+        let medians: Vec<f64> = sums.iter_mut().map(Disagreement::median).collect();
         sums.iter()
             .enumerate()
             .filter_map(|(j, d)| {
@@ -138,8 +138,9 @@ impl Stack<'_> {
                     .map(|(_, &m)| m)
                     .fold(f64::INFINITY, f64::min)
                     .max(1.0);
+                let scatter = [medians[j], reference];
                 let (score, f) =
-                    self.judge_group(p, groups[j], counts.len(), d, reference, params)?;
+                    self.judge_group(p, groups[j], counts.len(), d, scatter, params)?;
                 Some((score, groups[j], f))
             })
             .max_by(|a, b| a.0.total_cmp(&b.0))
@@ -155,18 +156,21 @@ impl Stack<'_> {
         counts: &[u32],
     ) -> Option<Vec<Disagreement>> {
         let cons = Constellation::shared(counts).ok()?;
-        let (np, m) = (self.model.projectors, groups.len());
+        let m = groups.len();
         let half_spacing = 0.5 * cons.spacing() as f32;
         let phase_var = 2.0 / self.model.steps as f64;
         let mut sums = vec![Disagreement::default(); m];
+        for s in &mut sums {
+            s.scaled.reserve(self.fits.len());
+        }
         let (mut psi, mut weight, mut b) = (vec![0f32; m], vec![0f32; m], vec![0f64; m]);
         for (blk, block) in self.usable() {
             if !block.interior() {
                 continue;
             }
-            for f in &self.fits[4 * blk..4 * blk + 4] {
+            for f in (4 * blk..4 * blk + 4).map(|i| self.fits.pixel(i)) {
                 for (j, &g) in groups.iter().enumerate() {
-                    let [re, im] = f.fundamental(g, p, np);
+                    let [re, im] = f.fundamental(g, p);
                     // |C|² = B² + 4σ_I²/N on average: B without the noise's share.
                     let c2 = f64::from(re).powi(2) + f64::from(im).powi(2);
                     b[j] = (c2 - 2.0 * phase_var * block.var).max(0.0).sqrt();
@@ -179,8 +183,9 @@ impl Stack<'_> {
                 }
                 for (j, &g) in groups.iter().enumerate() {
                     // C = B·e^{−iφ}: the phase in cycles is arg(C̄)/2π (f32: ≈ 10⁻⁷ rad).
-                    let [re, im] = f.fundamental(g, p, np);
-                    psi[j] = ((-im).atan2(re) / std::f32::consts::TAU).rem_euclid(1.0);
+                    let [re, im] = f.fundamental(g, p);
+                    let cycles = (-im).atan2(re) / std::f32::consts::TAU;
+                    psi[j] = if cycles < 0.0 { cycles + 1.0 } else { cycles };
                 }
                 let un = cons.unwrap(&psi, &weight);
                 if un.distance >= half_spacing {
@@ -191,7 +196,7 @@ impl Stack<'_> {
                 let info: f64 = (0..m).map(|j| (f64::from(counts[j]) * b[j]).powi(2)).sum();
                 for j in 0..m {
                     let nj = f64::from(counts[j]);
-                    let e = TAU * ((f64::from(psi[j]) - nj * t + 0.5).rem_euclid(1.0) - 0.5);
+                    let e = TAU * centred(f64::from(psi[j]) - nj * t);
                     let var = phase_var * block.var / (b[j] * b[j]);
                     let h = (nj * b[j]).powi(2) / info;
                     let s = &mut sums[j];
@@ -211,14 +216,15 @@ impl Stack<'_> {
 
     /// The fault of projector p's group g (one of `m` in its direction), if its phases
     /// disagree: coherently beyond the budget (named as a lag when one fits), or incoherently
-    /// beyond [`SCATTER`]; with its score (the disagreement in noise units).
+    /// beyond [`SCATTER`] (`scatter`: its median scaled disagreement and the reference's);
+    /// with its score (the disagreement in noise units).
     fn judge_group(
         &self,
         p: usize,
         g: usize,
         m: usize,
         d: &Disagreement,
-        reference: f64,
+        [median, reference]: [f64; 2],
         params: &CheckParams,
     ) -> Option<(f64, StackFault)> {
         if d.count < 100.0 {
@@ -233,7 +239,6 @@ impl Stack<'_> {
         let sigma_phi = (d.count / d.sum_w).sqrt();
         let bias = mean_e / (1.0 - leverage);
         let coherent = mean_e.abs() > params.z * se && bias.abs() > params.phase_bias * sigma_phi;
-        let median = d.median();
         // The sample median's standard error is ≈ 1.6× the mean's (χ²₁).
         let excess = median / reference - 1.0;
         let incoherent = excess > SCATTER && excess > params.z * 1.6 * (2.0 / d.count).sqrt();
@@ -295,4 +300,12 @@ impl Stack<'_> {
             .min_by(|x, y| x.2.total_cmp(&y.2))
             .map(|(lag, _, _)| lag)
     }
+}
+
+/// x minus its nearest integer, in [−½, ½) (x within ±2⁶² of 0; no libm call).
+fn centred(x: f64) -> f64 {
+    let y = x + 0.5;
+    let whole = y as i64 as f64;
+    let floor = if whole > y { whole - 1.0 } else { whole };
+    y - floor - 0.5
 }
