@@ -597,24 +597,35 @@ impl<T: Sample> Decoder<T> {
             });
         }
         drop(std::mem::take(&mut self.frames));
-        // The verdict on one core, the noise from the group means on the other.
         let sampler = self.sampler.take();
-        let (verdict, between) = rayon::join(
+        let np = self.seq.projectors().len();
+        let (fundamental, mean_ratio) = harmonics(self.seq.projectors());
+        let (w, h) = (self.width as usize, self.height as usize);
+        let pass = |noise: NoiseModel, left_out: u32| {
+            let mut sink = Sink::new(w * h, np, self.candidates(), dense_modulation);
+            let judge = Judge::new(&self, noise, mean_ratio.clone(), left_out);
+            let stats = judge.rows(sink.rows(w, &self.row_slots));
+            (sink, stats, noise)
+        };
+        // The verdict beside the final pass with every group and the noise from the group
+        // means; a stack the verdict repairs, or whose noise it replaces, is passed again.
+        let (verdict, first) = rayon::join(
             || {
                 sampler.map_or_else(StackVerdict::unchecked, |s| {
                     s.verdict(&CheckParams::default())
                 })
             },
-            || self.noise_between(),
+            || pass(self.noise_between(), 0),
         );
-        let np = self.seq.projectors().len();
         let left_out = repair::left_out(&verdict);
-        let noise = choose_noise(&verdict, between);
-        let (fundamental, mean_ratio) = harmonics(self.seq.projectors());
-        let (w, h) = (self.width as usize, self.height as usize);
-        let mut sink = Sink::new(w * h, np, self.candidates(), dense_modulation);
-        let judge = Judge::new(&self, noise, mean_ratio, left_out);
-        let stats = judge.rows(sink.rows(w, &self.row_slots));
+        let noise = choose_noise(&verdict, first.2);
+        let (sink, stats, noise) = match left_out == 0 && noise == first.2 {
+            true => first,
+            false => {
+                drop(first);
+                pass(noise, left_out)
+            }
+        };
         // The groups' phases, the B² sums and the statistics are dropped with the decoder.
         let saturated = Mask {
             width: self.width,
@@ -1500,7 +1511,7 @@ fn fit_noise(s: &[f64; 5]) -> NoiseModel {
 /// arg(re + i·im) in cycles, in [0, 1] (1 ≡ 0, for a zero angle approached from below);
 /// |error| < 2·10⁻⁶ cycles (Abramowitz & Stegun 4.4.49 on the reduced octant, ≤ 10⁻⁵ rad).
 #[inline(always)]
-fn phase_cycles(im: f32, re: f32) -> f32 {
+pub(crate) fn phase_cycles(im: f32, re: f32) -> f32 {
     // Selects, not branches (phases are random): the loop over a strip vectorises.
     let (ax, ay) = (re.abs(), im.abs());
     let (lo, hi) = (ax.min(ay), ax.max(ay));

@@ -11,6 +11,7 @@ use super::{Stack, StackFault};
 use crate::phase::check::fit::median;
 use crate::phase::check::repair::kept_groups;
 use crate::phase::check::CheckParams;
+use crate::phase::decode::phase_cycles;
 use crate::phase::Constellation;
 use hexcal_core::pattern::{Direction, Sequence};
 use rayon::prelude::*;
@@ -182,10 +183,10 @@ impl Stack<'_> {
                     continue;
                 }
                 for (j, &g) in groups.iter().enumerate() {
-                    // C = B·e^{−iφ}: the phase in cycles is arg(C̄)/2π (f32: ≈ 10⁻⁷ rad).
+                    // C = B·e^{−iφ}: the phase in cycles is arg(C̄)/2π, as the decoder takes
+                    // it (≤ 2·10⁻⁶ cycles off atan2).
                     let [re, im] = f.fundamental(g, p);
-                    let cycles = (-im).atan2(re) / std::f32::consts::TAU;
-                    psi[j] = if cycles < 0.0 { cycles + 1.0 } else { cycles };
+                    psi[j] = phase_cycles(-im, re);
                 }
                 let un = cons.unwrap(&psi, &weight);
                 if un.distance >= half_spacing {
