@@ -1,12 +1,21 @@
 //! The Aravis driver through the real GigE Vision protocol: a fake camera on 127.0.0.1 in
 //! this process serves frames we give it (rendered board views, synthetic patterns), the
 //! driver opens it by address, configures it, triggers it in software and must hand back
-//! exactly those frames in order — or say clearly, naming the device, why it cannot.
+//! exactly those frames in order — or say clearly, naming the device, why it cannot. A
+//! loopback camera that sees a live scene (the projector's slide, at the exposure the driver
+//! set through GenICam) lets the exposure check run through the driver end to end.
 #![cfg(feature = "loopback")]
 
+use hexcal::capture::Session;
+use hexcal::check::exposure::{check_exposure, ExposurePlan};
+use hexcal::pattern::{ProjectorResponse, ProjectorSetup, Sequence};
 use hexcal::rig::aravis::loopback::synthetic_frame;
-use hexcal::rig::aravis::{list_cameras, AravisCamera, LoopbackCamera, LOOPBACK_ADDRESS};
-use std::sync::{Mutex, MutexGuard};
+use hexcal::rig::aravis::{
+    list_cameras, AravisCamera, LiveScene, LoopbackCamera, LOOPBACK_ADDRESS,
+};
+use hexcal::rig::{CaptureTiming, Projector, RigDevices, Slide};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use {
     hexcal::images::{CameraFrame, Pixels},
@@ -396,4 +405,126 @@ fn lists_cameras_and_opens_one_by_device_id() {
     assert_eq!((b.width, b.height), (256, 128));
     assert_eq!(b.counter, a.counter + 1);
     camera.stop().unwrap();
+}
+
+/// A projector that only says what it shows (the loopback scene reads it).
+struct Shown(Arc<Mutex<Slide>>);
+
+impl Projector for Shown {
+    fn name(&self) -> &str {
+        "proj"
+    }
+
+    fn resolution(&self) -> (u32, u32) {
+        (1920, 1080)
+    }
+
+    fn prepare(&mut self, _: &Sequence, _: usize) -> Result<(), DeviceError> {
+        Ok(())
+    }
+
+    fn show(&mut self, slide: Slide) -> Result<(), DeviceError> {
+        *self.0.lock().unwrap() = slide;
+        Ok(())
+    }
+}
+
+/// Light at 5000 µs (DN): the room everywhere, and the projector's full white on the board
+/// (the middle of the view), whose light goes as level^γ.
+const AMBIENT_DN: f64 = 4.0;
+const PROJECTOR_DN: f64 = 120.0;
+const GAMMA: f64 = 2.2;
+
+/// The board as the camera sees it under `slide` at `exposure_us`, with 1 DN of read noise
+/// (frame `k`'s own draw).
+fn seen(slide: Slide, exposure_us: f64, k: u64) -> Pixels {
+    let light = match slide {
+        Slide::Black => 0.0,
+        Slide::White => 1.0,
+        Slide::Level(l) => (f64::from(l) / 255.0).powf(GAMMA),
+        Slide::Pattern(_) => 0.5,
+    };
+    let mut state = k.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    let mut uniform = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    let (w, h) = (64usize, 48usize);
+    let samples = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let board = (16..48).contains(&x) && (12..36).contains(&y);
+            let dn = (AMBIENT_DN + PROJECTOR_DN * light * f64::from(u8::from(board))) * exposure_us
+                / 5000.0;
+            // Four uniforms: σ = 1 DN.
+            let noise = (0..4).map(|_| uniform()).sum::<f64>() * 3f64.sqrt();
+            (dn + noise).round().clamp(0.0, 255.0) as u8
+        })
+        .collect();
+    Pixels::Gray8(samples)
+}
+
+#[test]
+fn the_exposure_check_sets_an_aravis_cameras_exposure_through_genicam() {
+    let _one = exclusive();
+    let slide = Arc::new(Mutex::new(Slide::Black));
+    let shown = Arc::clone(&slide);
+    let frames = AtomicU64::new(0);
+    let scene: LiveScene = Box::new(move |exposure_us| {
+        let k = frames.fetch_add(1, Ordering::SeqCst);
+        seen(*shown.lock().unwrap(), exposure_us, k)
+    });
+    let _fake = LoopbackCamera::start_scene("HEXTEST", scene).unwrap();
+    let camera = AravisCamera::open("cam", LOOPBACK_ADDRESS).unwrap();
+    let setup = ProjectorSetup {
+        width: 1920,
+        height: 1080,
+        response: ProjectorResponse::Gamma { gamma: GAMMA },
+    };
+    let sequence = Sequence::default_for(&[setup]).unwrap();
+    let mut session = Session::start(
+        RigDevices {
+            cameras: vec![Box::new(camera) as Box<dyn Camera>],
+            configs: vec![config(64, 48, 8)],
+            projectors: vec![Box::new(Shown(slide)) as Box<dyn Projector>],
+            trigger: None,
+            timing: CaptureTiming {
+                settle: Duration::from_millis(2),
+                latency: vec![Duration::ZERO],
+                frame_timeout: TIMEOUT,
+                retries: 2,
+                repeats: 1,
+            },
+        },
+        &sequence,
+    )
+    .unwrap();
+    let plan = ExposurePlan {
+        white_level: 0.8,
+        max_exposure_us: 20_000.0,
+        max_gain_db: 0.0,
+        wait: Duration::from_millis(5),
+        set_exposure: true,
+    };
+    let report = check_exposure(&mut session, &plan).unwrap();
+    eprintln!("{report:?}");
+    assert!(report.warnings().is_empty(), "{:?}", report.warnings());
+    // The white the check reached was read from frames taken at the exposure it set through
+    // ExposureTime: the board's brightest white (124 DN and its noise's 99th percentile at
+    // 5000 µs) at 0.8 of 255 needs about 204/126.3 of 5000 µs.
+    let cam = &report.cameras[0];
+    assert!(cam.converged && (cam.white - 0.8).abs() <= 0.03, "{cam:?}");
+    let expected = 5000.0 * 0.8 * 255.0 / (AMBIENT_DN + PROJECTOR_DN + 2.3);
+    assert!((cam.exposure_us / expected - 1.0).abs() < 0.04, "{cam:?}");
+    assert_eq!(session.exposures(), vec![(cam.exposure_us, 0.0)]);
+    let r = &report.responses[0];
+    assert!(r.seen && !r.non_monotone && !r.clips, "{r:?}");
+    assert!(
+        (r.gamma - GAMMA).abs() < 4.0 * r.gamma_sigma,
+        "γ {} ± {}",
+        r.gamma,
+        r.gamma_sigma
+    );
 }

@@ -15,7 +15,7 @@
 pub mod loopback;
 
 #[cfg(feature = "loopback")]
-pub use loopback::{bench_loopback, LoopbackBench, LoopbackCamera, LOOPBACK_ADDRESS};
+pub use loopback::{bench_loopback, LiveScene, LoopbackBench, LoopbackCamera, LOOPBACK_ADDRESS};
 
 use super::device::{Camera, CameraConfig, DeviceError, TriggerSource};
 use aravis::glib::{self, object::Cast};

@@ -24,9 +24,21 @@ pub const LOOPBACK_ADDRESS: &str = "127.0.0.1";
 /// How often the fake camera looks for a software trigger (its default is 25 Hz).
 const TRIGGER_POLL_HZ: f64 = 2000.0;
 
+/// A scene a loopback camera sees: the frame it takes at an exposure (µs), called on the fake
+/// camera's stream thread at each frame.
+pub type LiveScene = Box<dyn Fn(f64) -> Pixels + Send + Sync>;
+
+/// What a loopback camera serves.
+enum Served {
+    /// Frame k of the stream is `frames[k % len]`.
+    Frames(Vec<Pixels>),
+    /// Each frame rendered when it is taken, at the exposure the camera is set to then.
+    Scene(LiveScene),
+}
+
 /// The frames a loopback camera serves, shared with the fake camera's stream thread.
 struct FrameSource {
-    frames: Vec<Pixels>,
+    served: Served,
     next: AtomicUsize,
     mismatches: AtomicUsize,
 }
@@ -48,13 +60,27 @@ impl LoopbackCamera {
     /// `Gray16`); a frame that does
     /// not is sent as zeros and counted in [`mismatches`](Self::mismatches).
     pub fn start(serial: &str, frames: Vec<Pixels>) -> Result<Self, DeviceError> {
+        if frames.is_empty() {
+            return Err(DeviceError::Failed {
+                device: format!("loopback camera {serial}"),
+                reason: "no frames to serve".into(),
+            });
+        }
+        Self::serve(serial, Served::Frames(frames))
+    }
+
+    /// Start a camera that sees `scene`: each frame is what the scene gives at the exposure
+    /// (µs) the driver has set through GenICam's `ExposureTime` when the frame is taken (the
+    /// sensor end of the driver's exposure control). Sizes as for [`Self::start`].
+    pub fn start_scene(serial: &str, scene: LiveScene) -> Result<Self, DeviceError> {
+        Self::serve(serial, Served::Scene(scene))
+    }
+
+    fn serve(serial: &str, served: Served) -> Result<Self, DeviceError> {
         let error = |reason: String| DeviceError::Failed {
             device: format!("loopback camera {serial}"),
             reason,
         };
-        if frames.is_empty() {
-            return Err(error("no frames to serve".into()));
-        }
         let fake = GvFakeCamera::new(Some(LOOPBACK_ADDRESS), Some(serial));
         if !fake.is_running() {
             return Err(error(format!(
@@ -66,7 +92,7 @@ impl LoopbackCamera {
             .ok_or_else(|| error("no fake camera inside".into()))?;
         camera.set_trigger_frequency(TRIGGER_POLL_HZ);
         let source = Box::into_raw(Box::new(FrameSource {
-            frames,
+            served,
             next: AtomicUsize::new(0),
             mismatches: AtomicUsize::new(0),
         }));
@@ -183,13 +209,20 @@ impl Drop for LoopbackCamera {
 unsafe extern "C" fn fill(
     buffer: *mut aravis_sys::ArvBuffer,
     data: *mut c_void,
-    _exposure_us: u32,
+    exposure_us: u32,
     _gain: u32,
     format: aravis_sys::ArvPixelFormat,
 ) {
     let source = &*(data as *const FrameSource);
     let k = source.next.fetch_add(1, Ordering::SeqCst);
-    let frame = &source.frames[k % source.frames.len()];
+    let taken;
+    let frame = match &source.served {
+        Served::Frames(frames) => &frames[k % frames.len()],
+        Served::Scene(scene) => {
+            taken = scene(f64::from(exposure_us));
+            &taken
+        }
+    };
     let width = aravis_sys::arv_buffer_get_image_width(buffer).max(0) as usize;
     let height = aravis_sys::arv_buffer_get_image_height(buffer).max(0) as usize;
     let mut received = 0usize;
