@@ -115,7 +115,9 @@ fn exposure_converges_and_recovers_gamma_and_a_clipping_projector_is_warned() {
     }
     assert_eq!(s.exposures()[0], (half.cameras[0].exposure_us, 0.0));
     // Gamma from the response at this exposure, within 4σ of its noise. (With gain added
-    // below, a bias of about 0.005 — 6σ — appears that is not explained yet.)
+    // below, γ is 0.005 low — 6σ: the simulated camera scales an already rounded frame, and
+    // rounding twice moves the level means by up to ±0.09 DN against their 0.02 DN noise;
+    // design §11b.)
     let g = (half.responses.iter())
         .find(|x| x.projector == "p0" && x.seen)
         .unwrap();
