@@ -165,6 +165,19 @@ pub enum Bench {
         #[arg(long, default_value_t = 0)]
         from: usize,
     },
+    /// The stack check against faults of drawn kinds and sizes: each stack refused with its
+    /// cause named, or as accurate as the same stack clean (within 1.5×).
+    Faults {
+        /// Stacks to decode (each twice: clean and faulty).
+        #[arg(long, default_value_t = 300)]
+        stacks: usize,
+        /// Seed of the scenes and faults.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// The first stack decoded (the ones before it are drawn, not decoded).
+        #[arg(long, default_value_t = 0)]
+        from: usize,
+    },
     /// Decode one camera's default phase-shift stack (synthetic scene, gamma 2.2).
     Decode {
         /// Camera width (px).
@@ -322,6 +335,7 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
                 r.seconds / r.stacks.max(1) as f64
             );
         }
+        Bench::Faults { stacks, seed, from } => print_faults(stacks, seed, from),
         Bench::Decode {
             width,
             height,
@@ -522,4 +536,42 @@ fn bench_script(rig_path: &Path) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// `bench faults`: per kind of fault the stacks refused (with the cause named or not),
+/// used accurately, and used although inaccurate (silent), with every silent case.
+fn print_faults(stacks: usize, seed: u64, from: usize) {
+    use hexcal::bench::faults::{bench_faults, KINDS};
+    let t = std::time::Instant::now();
+    let cases = bench_faults(stacks, seed, from);
+    for c in cases
+        .iter()
+        .filter(|c| c.silent() || (c.refused && !c.right_cause))
+    {
+        let what = if c.silent() { "SILENT" } else { "other cause" };
+        println!(
+            "{what}: {} (ratio {:.2}): {}\n    {}",
+            c.label, c.ratio, c.verdict, c.detail
+        );
+    }
+    println!("kind           stacks  refused (named)  used  worst used ratio  silent");
+    for (k, name) in KINDS.iter().enumerate() {
+        let of: Vec<_> = cases.iter().filter(|c| c.kind == k).collect();
+        let refused = of.iter().filter(|c| c.refused).count();
+        let named = of.iter().filter(|c| c.refused && c.right_cause).count();
+        let used: Vec<f64> = of.iter().filter(|c| !c.refused).map(|c| c.ratio).collect();
+        let worst = used.iter().cloned().fold(0.0, f64::max);
+        let silent = of.iter().filter(|c| c.silent()).count();
+        println!(
+            "{name:<14} {:>6}  {refused:>7} ({named:>3})  {:>4}  {worst:>16.2}  {silent:>6}",
+            of.len(),
+            used.len()
+        );
+    }
+    println!(
+        "{} faulty stacks, {} silent; {:.1} s",
+        cases.len(),
+        cases.iter().filter(|c| c.silent()).count(),
+        t.elapsed().as_secs_f64()
+    );
 }

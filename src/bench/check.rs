@@ -56,7 +56,7 @@ pub fn bench_check(stacks: usize, seed: u64, from: usize) -> CheckBench {
 }
 
 /// One scene: its projectors, sequence and imaging drawn at random; a label naming them.
-fn draw(rng: &mut impl Rng, seed: u64) -> (FringeScene, Sequence, String) {
+pub(super) fn draw(rng: &mut impl Rng, seed: u64) -> (FringeScene, Sequence, String) {
     let p = rng.random_range(1..=3usize);
     let gamma = rng.random_range(1.8..2.6);
     let response = match rng.random_range(0..3) {

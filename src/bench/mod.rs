@@ -7,6 +7,7 @@ pub mod check;
 pub mod decode;
 pub mod detect;
 pub mod detect_grid;
+pub mod faults;
 pub mod formats;
 pub mod formats_rig;
 pub mod guide;
