@@ -41,7 +41,7 @@ pub struct FaultCase {
 }
 
 impl FaultCase {
-    /// Used although its error is beyond [`ACCURATE`] times the clean stack's.
+    /// Used although its error is beyond 1.5× the clean stack's.
     pub fn silent(&self) -> bool {
         !self.refused && self.ratio > ACCURATE
     }
