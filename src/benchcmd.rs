@@ -541,7 +541,7 @@ fn bench_script(rig_path: &Path) -> anyhow::Result<()> {
 /// `bench faults`: per kind of fault the stacks refused (with the cause named or not),
 /// used accurately, and used although inaccurate (silent), with every silent case.
 fn print_faults(stacks: usize, seed: u64, from: usize) {
-    use hexcal::bench::faults::{bench_faults, KINDS};
+    use hexcal::bench::faults::{bench_faults, FaultKind};
     let t = std::time::Instant::now();
     let cases = bench_faults(stacks, seed, from);
     for c in cases
@@ -555,8 +555,9 @@ fn print_faults(stacks: usize, seed: u64, from: usize) {
         );
     }
     println!("kind           stacks  refused (named)  used  worst used ratio  silent");
-    for (k, name) in KINDS.iter().enumerate() {
-        let of: Vec<_> = cases.iter().filter(|c| c.kind == k).collect();
+    for kind in FaultKind::ALL {
+        let name = kind.name();
+        let of: Vec<_> = cases.iter().filter(|c| c.kind == kind).collect();
         let refused = of.iter().filter(|c| c.refused).count();
         let named = of.iter().filter(|c| c.refused && c.right_cause).count();
         let used: Vec<f64> = of.iter().filter(|c| !c.refused).map(|c| c.ratio).collect();

@@ -19,13 +19,51 @@ const PATCH: usize = 16;
 const PATCH_PIXELS: usize = 64;
 
 /// The kinds of fault drawn.
-pub const KINDS: [&str; 6] = ["lag", "drift", "jolt", "flicker", "ambient step", "gain"];
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FaultKind {
+    /// A projector shows another frame's pattern in some frames of a group.
+    Lag,
+    /// The board drifts over the sequence.
+    Drift,
+    /// The board jolts at a frame.
+    Jolt,
+    /// The room light flickers.
+    Flicker,
+    /// The room light steps at a frame.
+    AmbientStep,
+    /// A camera gain that may clip.
+    Gain,
+}
+
+impl FaultKind {
+    /// Every kind, in the order they are drawn and listed.
+    pub const ALL: [FaultKind; 6] = [
+        FaultKind::Lag,
+        FaultKind::Drift,
+        FaultKind::Jolt,
+        FaultKind::Flicker,
+        FaultKind::AmbientStep,
+        FaultKind::Gain,
+    ];
+
+    /// Its name in the bench's table.
+    pub fn name(self) -> &'static str {
+        match self {
+            FaultKind::Lag => "lag",
+            FaultKind::Drift => "drift",
+            FaultKind::Jolt => "jolt",
+            FaultKind::Flicker => "flicker",
+            FaultKind::AmbientStep => "ambient step",
+            FaultKind::Gain => "gain",
+        }
+    }
+}
 
 /// One faulty stack's outcome.
 #[derive(Clone, Debug)]
 pub struct FaultCase {
-    /// Index into [`KINDS`].
-    pub kind: usize,
+    /// The fault's kind.
+    pub kind: FaultKind,
     /// The scene and the fault with its size.
     pub label: String,
     /// Whether the check refused the stack.
@@ -54,7 +92,7 @@ pub fn bench_faults(stacks: usize, seed: u64, from: usize) -> Vec<FaultCase> {
     (0..from + stacks)
         .filter_map(|i| {
             let (scene, seq, label) = draw(&mut rng, i as u64);
-            let kind = rng.random_range(0..KINDS.len());
+            let kind = FaultKind::ALL[rng.random_range(0..FaultKind::ALL.len())];
             let (fault, what) = fault(&mut rng, kind, &seq, scene.projectors.len());
             if i < from {
                 return None;
@@ -82,23 +120,25 @@ pub fn bench_faults(stacks: usize, seed: u64, from: usize) -> Vec<FaultCase> {
 }
 
 /// Whether `f` names a fault of kind `kind`.
-fn names(kind: usize, f: &StackFault) -> bool {
+fn names(kind: FaultKind, f: &StackFault) -> bool {
     use StackFault::*;
-    match KINDS[kind] {
-        "lag" => matches!(
+    match kind {
+        FaultKind::Lag => matches!(
             f,
             WrongPattern { .. } | PhaseDisagreement { .. } | Disturbed { .. }
         ),
-        "drift" | "jolt" => matches!(f, Motion { .. } | Jolt { .. }),
-        "flicker" | "ambient step" => matches!(f, LightChange { .. } | Disturbed { .. }),
-        _ => matches!(f, Clipped { .. }),
+        FaultKind::Drift | FaultKind::Jolt => matches!(f, Motion { .. } | Jolt { .. }),
+        FaultKind::Flicker | FaultKind::AmbientStep => {
+            matches!(f, LightChange { .. } | Disturbed { .. })
+        }
+        FaultKind::Gain => matches!(f, Clipped { .. }),
     }
 }
 
 /// A fault of kind `kind` as a per-frame disturbance, with words for it.
 fn fault(
     rng: &mut impl Rng,
-    kind: usize,
+    kind: FaultKind,
     seq: &crate::pattern::Sequence,
     np: usize,
 ) -> (Box<dyn Fn(usize) -> Disturbance>, String) {
@@ -107,8 +147,8 @@ fn fault(
         (lo.ln() + rng.random::<f64>() * (hi / lo).ln()).exp()
     };
     let none = move || Disturbance::none(np);
-    match KINDS[kind] {
-        "lag" => {
+    match kind {
+        FaultKind::Lag => {
             let (p, g) = (rng.random_range(0..np), rng.random_range(0..seq.groups()));
             let frames = rng.random_range(1..=n);
             let first = g * n + rng.random_range(0..=n - frames);
@@ -126,11 +166,11 @@ fn fault(
             );
             (Box::new(f), what)
         }
-        "drift" | "jolt" => {
+        FaultKind::Drift | FaultKind::Jolt => {
             let px = log_uniform(rng, 0.01, 0.5);
             let a = rng.random::<f64>() * TAU;
             let at = rng.random_range(1..count);
-            let drift = KINDS[kind] == "drift";
+            let drift = kind == FaultKind::Drift;
             let f = move |k: usize| {
                 let s = match drift {
                     true => px * k as f64 / (count - 1) as f64,
@@ -147,7 +187,7 @@ fn fault(
             };
             (Box::new(f), what)
         }
-        "flicker" => {
+        FaultKind::Flicker => {
             let amp = log_uniform(rng, 0.005, 0.2);
             let period = rng.random_range(4..=12) as f64;
             let phase = rng.random::<f64>() * TAU;
@@ -163,7 +203,7 @@ fn fault(
                 ),
             )
         }
-        "ambient step" => {
+        FaultKind::AmbientStep => {
             let size = log_uniform(rng, 0.02, 0.5) * [-0.6, 1.0][rng.random_range(0..2)];
             let at = rng.random_range(1..count);
             let f = move |k: usize| Disturbance {
@@ -175,7 +215,7 @@ fn fault(
                 format!("ambient {:+.1} % from frame {at}", 100.0 * size),
             )
         }
-        _ => {
+        FaultKind::Gain => {
             let gain = rng.random_range(1.0..2.2);
             let f = move |_: usize| Disturbance { gain, ..none() };
             (Box::new(f), format!("camera gain ×{gain:.2}"))

@@ -605,21 +605,24 @@ impl<T: Sample> Decoder<T> {
             let mut sink = Sink::new(w * h, np, self.candidates(), dense_modulation);
             let judge = Judge::new(&self, noise, mean_ratio.clone(), left_out);
             let stats = judge.rows(sink.rows(w, &self.row_slots));
-            (sink, stats, noise)
+            (sink, stats)
         };
         // The verdict beside the final pass with every group and the noise from the group
         // means; a stack the verdict repairs, or whose noise it replaces, is passed again.
-        let (verdict, first) = rayon::join(
+        let (verdict, (between, first)) = rayon::join(
             || {
                 sampler.map_or_else(StackVerdict::unchecked, |s| {
                     s.verdict(&CheckParams::default())
                 })
             },
-            || pass(self.noise_between(), 0),
+            || {
+                let between = self.noise_between();
+                (between, pass(between, 0))
+            },
         );
         let left_out = repair::left_out(&verdict);
-        let noise = choose_noise(&verdict, first.2);
-        let (sink, stats, noise) = match left_out == 0 && noise == first.2 {
+        let noise = choose_noise(&verdict, between);
+        let (sink, stats) = match left_out == 0 && noise == between {
             true => first,
             false => {
                 drop(first);

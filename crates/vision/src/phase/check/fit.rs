@@ -54,11 +54,6 @@ impl Fits {
         PixelFit { fits: self, i }
     }
 
-    /// Every pixel's fit, in order.
-    pub(super) fn pixels(&self) -> impl Iterator<Item = PixelFit<'_>> {
-        (0..self.pixels).map(|i| self.pixel(i))
-    }
-
     /// Row r of group g, pixel i.
     fn at(&self, g: usize, r: usize, i: usize) -> f32 {
         self.data[(g * (2 + 2 * self.projectors) + r) * self.pixels + i]

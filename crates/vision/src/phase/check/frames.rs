@@ -62,6 +62,8 @@ struct Stack<'a> {
     /// Residuals, frame-major (pixel i of frame k at [k·m + i], m = [`Fits::len`]).
     residuals: Vec<f32>,
     fits: Fits,
+    /// Per pixel, its mean level over the groups (DN).
+    levels: Vec<f64>,
     /// Per block: whether it clips.
     clipped: Vec<bool>,
     noise: NoiseModel,
@@ -135,12 +137,15 @@ impl<'a> Stack<'a> {
         let k = sampler.seq.frame_count();
         let mut residuals = std::mem::take(&mut sampler.samples);
         let fits = model.fit(&mut residuals, 4 * sampler.blocks.len());
+        let levels: Vec<f64> = (0..fits.len())
+            .into_par_iter()
+            .map(|i| fits.pixel(i).level())
+            .collect();
         // The unclipped pixels by level, ties by index: the (level, variance) pairs come in
         // the order robust_noise sorts them in, and only a sixth as many are sorted.
         let mut by_level: Vec<(f64, usize)> = (0..fits.len())
-            .into_par_iter()
             .filter(|i| !sampler.clipped[i / 4])
-            .map(|i| (fits.pixel(i).level(), i))
+            .map(|i| (levels[i], i))
             .collect();
         by_level.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let pairs: Vec<(f64, f64)> = (by_level.par_iter())
@@ -155,12 +160,13 @@ impl<'a> Stack<'a> {
         let noise = robust_noise(pairs, ratio);
         let blocks = (0..sampler.blocks.len())
             .into_par_iter()
-            .map(|b| (!sampler.clipped[b]).then(|| block(&fits, b, model, &noise)))
+            .map(|b| (!sampler.clipped[b]).then(|| block(&fits, &levels, b, model, &noise)))
             .collect();
         Stack {
             model,
             residuals,
             fits,
+            levels,
             clipped: sampler.clipped.clone(),
             noise,
             blocks,
@@ -252,10 +258,11 @@ impl Fit {
     }
 }
 
-/// Block b's shapes from its four pixels' fits (corners (0,0), (1,0), (0,1), (1,1)).
-fn block(fits: &Fits, b: usize, model: &GroupFits, noise: &NoiseModel) -> Block {
+/// Block b's shapes from its four pixels' fits and `levels` (corners (0,0), (1,0), (0,1),
+/// (1,1)).
+fn block(fits: &Fits, levels: &[f64], b: usize, model: &GroupFits, noise: &NoiseModel) -> Block {
     let pixels = || (4 * b..4 * b + 4).map(|i| fits.pixel(i));
-    let levels: Vec<f64> = pixels().map(|f| f.level()).collect();
+    let levels = &levels[4 * b..4 * b + 4];
     let level = levels.iter().sum::<f64>() / 4.0;
     let lit: f64 = (0..model.projectors)
         .map(|p| {

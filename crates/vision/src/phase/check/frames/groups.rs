@@ -28,7 +28,6 @@ impl Stack<'_> {
         let m = self.model;
         let (n, g) = (m.steps as f64, m.groups as f64);
         let mean_shapes = self.mean_shapes();
-        let levels: Vec<f64> = self.fits.pixels().map(|f| f.level()).collect();
         // The group mean of a block: σ²/(4N), less the part the overall mean shares.
         let var = |blk: &Block| blk.var / (4.0 * n) * (1.0 - 1.0 / g);
         let cov = self.covariance(var);
@@ -37,7 +36,7 @@ impl Stack<'_> {
                 let target = |b: usize| {
                     (0..4)
                         .map(|j| {
-                            f64::from(self.fits.pixel(4 * b + j).mean(grp)) - levels[4 * b + j]
+                            f64::from(self.fits.pixel(4 * b + j).mean(grp)) - self.levels[4 * b + j]
                         })
                         .sum::<f64>()
                         / 4.0
