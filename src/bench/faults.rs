@@ -125,7 +125,7 @@ fn names(kind: FaultKind, f: &StackFault) -> bool {
     match kind {
         FaultKind::Lag => matches!(
             f,
-            WrongPattern { .. } | PhaseDisagreement { .. } | Disturbed { .. }
+            WrongPattern { .. } | PhaseDisagreement { .. } | Unwrapping { .. } | Disturbed { .. }
         ),
         FaultKind::Drift | FaultKind::Jolt => matches!(f, Motion { .. } | Jolt { .. }),
         FaultKind::Flicker | FaultKind::AmbientStep => {
@@ -272,17 +272,32 @@ fn worst_ratio(
                     .filter(|&&v| v)
                     .count()
             };
+            let gross = |d: &DecodedStack| gross_errors(d, truth, p, dir);
             detail.push(format!(
-                "p{p} {}: {:.3}/{:.3} px over {m} patches, valid {}/{}",
+                "p{p} {}: {:.3}/{:.3} px over {m} patches, valid {}/{}, off by > 1 px {}/{}",
                 ["u", "v"][dir],
                 (sa / m.max(1) as f64).sqrt(),
                 (sb / m.max(1) as f64).sqrt(),
                 valid(faulty),
-                valid(clean)
+                valid(clean),
+                gross(faulty),
+                gross(clean)
             ));
         }
     }
     (worst, detail.join("; "))
+}
+
+/// Valid interior pixels of projector p whose u (`dir` 0) or v is off by more than 1 px.
+fn gross_errors(d: &DecodedStack, truth: &Truth, p: usize, dir: usize) -> usize {
+    let maps = &d.projectors[p];
+    let (got, want) = match dir {
+        0 => (maps.u.as_raw(), &truth.u[p]),
+        _ => (maps.v.as_raw(), &truth.v[p]),
+    };
+    (maps.valid.as_slice().iter().enumerate())
+        .filter(|&(i, &ok)| ok && truth.interior[i] && (f64::from(got[i]) - want[i]).abs() > 1.0)
+        .count()
 }
 
 /// Per 16 × 16 patch, the mean error of projector p's u (`dir` 0) or v over its valid

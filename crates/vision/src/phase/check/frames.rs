@@ -3,6 +3,7 @@
 //! clipping; each finding sized in the unit its threshold is set in.
 
 mod groups;
+mod leak;
 mod lit;
 mod per_frame;
 mod phases;
@@ -86,12 +87,15 @@ pub(super) fn judge(
     let phases = stack.phase_consistency(&sampler.seq, params);
     faults.extend(merge(within, phases, stack.model.steps));
     // A lag changes its group's mean image too (by (1/N)·Σ of the pattern change), which the
-    // gradient shapes partly take for motion: the lag is the cause.
+    // gradient shapes partly take for motion: the lag is the cause, and so are phases that
+    // do not unwrap (a whole group shown late).
     let lagged: Vec<usize> = (faults.iter())
-        .filter_map(|f| match f {
-            StackFault::WrongPattern { group, .. } => Some(*group),
+        .filter_map(|f| match *f {
+            StackFault::WrongPattern { group, .. } => Some(group..=group),
+            StackFault::Unwrapping { groups, .. } => Some(groups[0]..=groups[1]),
             _ => None,
         })
+        .flatten()
         .collect();
     faults.retain(|f| match f {
         StackFault::Motion {

@@ -336,3 +336,73 @@ fn lags_are_named_in_a_linearised_sequence_and_for_every_projector() {
     // Group 5 has count 21: the counts left, 20 and 25, share a factor, so no repair.
     assert!(!d.verdict.passed(), "{}", show(&d.verdict));
 }
+
+#[test]
+fn light_changing_within_a_group_is_named_where_the_model_uses_every_step() {
+    // N = 5 for two linear projectors: no residual per frame, so the light is seen only in
+    // the pattern it leaves in the phases (eq. 6b.8). ±2 % of 40 DN of ambient light moves
+    // a pixel's phase by ≈ 0.1 of its noise, coherently over a circle.
+    let seq = sequence(2, ProjectorResponse::Linear);
+    let (flicker, truth) = decode_with_truth(&seq, (480, 384), 13, |f| Disturbance {
+        ambient: 1.0 + 0.02 * (std::f64::consts::TAU * f as f64 / 7.0).sin(),
+        ..Disturbance::none(2)
+    });
+    eprintln!("flicker: {}", show(&flicker.verdict));
+    assert!(
+        (flicker.verdict.faults.iter()).any(|f| matches!(f, StackFault::LightChange { .. })),
+        "{}",
+        show(&flicker.verdict)
+    );
+    // The same stack without the flicker passes: the finding is the light's.
+    let (clean, _) = decode_with_truth(&seq, (480, 384), 13, clean(2));
+    assert!(clean.verdict.passed(), "{}", show(&clean.verdict));
+    // And the flicker did bias the decode: patch means of 16 × 16 px off by more than the
+    // clean stack's.
+    let patch_rms = |d: &DecodedStack| {
+        let maps = &d.projectors[0];
+        let mut sums = std::collections::HashMap::<(usize, usize), (f64, usize)>::new();
+        for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
+            if ok && truth.interior[i] {
+                let e = sums.entry((i % 480 / 16, i / 480 / 16)).or_default();
+                *e = (e.0 + f64::from(maps.u.as_raw()[i]) - truth.u[0][i], e.1 + 1);
+            }
+        }
+        let means: Vec<f64> = (sums.values())
+            .filter(|(_, n)| *n >= 64)
+            .map(|(s, n)| s / *n as f64)
+            .collect();
+        (means.iter().map(|m| m * m).sum::<f64>() / means.len() as f64).sqrt()
+    };
+    let (faulty, good) = (patch_rms(&flicker), patch_rms(&clean));
+    eprintln!("patch-mean u error RMS: {faulty:.4} px flickering, {good:.4} px clean");
+    assert!(faulty > 1.5 * good);
+}
+
+#[test]
+fn a_whole_group_shown_late_is_named_not_taken_for_light() {
+    // Projector 0 shows the previous frame's pattern in every frame of the last row group:
+    // that group's phases are off by a fifth of a cycle, which takes most pixels to no or the
+    // wrong fringe orders.
+    let seq = sequence(2, ProjectorResponse::Linear);
+    let d = decode(&seq, (480, 384), 14, |k| {
+        let mut d = Disturbance::none(2);
+        if (25..30).contains(&k) {
+            d.shown[0] = Some(k - 1);
+        }
+        d
+    });
+    eprintln!("{}", show(&d.verdict));
+    assert!(
+        (d.verdict.faults.iter()).any(|f| matches!(f, StackFault::Unwrapping { projector: 0, .. })),
+        "{}",
+        show(&d.verdict)
+    );
+    assert!(
+        d.verdict.faults.iter().all(|f| !matches!(
+            f,
+            StackFault::LightChange { .. } | StackFault::Motion { .. }
+        )),
+        "{}",
+        show(&d.verdict)
+    );
+}

@@ -46,6 +46,19 @@ pub enum StackFault {
         /// RMS disagreement in units of the phase noise.
         sigma: f64,
     },
+    /// One projector's phases of one direction match no fringe-order tuple at more of its
+    /// pixels than the noise explains: its groups disagree by a large fraction of a fringe (a
+    /// whole group shown late, a large light change), and pixels near them take wrong orders.
+    Unwrapping {
+        /// The projector (sequence order).
+        projector: usize,
+        /// The direction's first and last group.
+        groups: [usize; 2],
+        /// Their first and last frame.
+        frames: [usize; 2],
+        /// Fraction of the tested pixels that failed beyond the expected.
+        fraction: f64,
+    },
     /// The light changed within a fringe group (room light flicker or a step, a camera whose
     /// exposure wandered): frames differ from the phase-shift model by a common level.
     LightChange {
@@ -124,6 +137,18 @@ impl StackFault {
                 "projector {projector}'s phases in fringe group {} ({}) disagree with its other groups ({sigma:.1} × noise) — check the board, the projector's sync and the light",
                 group + 1,
                 frames(a, b)
+            ),
+            StackFault::Unwrapping {
+                projector,
+                groups: [g, h],
+                frames: [a, b],
+                fraction,
+            } => format!(
+                "projector {projector}'s fringe groups {}–{} ({}) do not agree on a position at {:.0} % of its pixels — check the projector's sync and raise settle_ms, hold the board still and keep the light steady",
+                g + 1,
+                h + 1,
+                frames(a, b),
+                100.0 * fraction
             ),
             StackFault::LightChange {
                 first_frame,

@@ -5,8 +5,11 @@
 //! its mean over the board with C_j's modulation ratio gives the complex factor 1 + w by which
 //! the group's fundamental is off. A projector that shows frame s + o's pattern in F of the
 //! group's N frames gives w = (F/N)·(e^{iθ_p o} − 1) (the rest averages out over the board),
-//! which names the lag.
+//! which names the lag. Light that changes within a group adds its shape times one complex
+//! number to the group's bins, which biases the phase by (shape/B)·sin(φ + α): that pattern
+//! of the disagreement over the board names the light change (eq. 6b.8).
 
+use super::leak::{Leak, OUTLIER};
 use super::{Stack, StackFault};
 use crate::phase::check::fit::median;
 use crate::phase::check::repair::kept_groups;
@@ -26,8 +29,17 @@ const CHI2_1_MEDIAN: f64 = 0.454_936;
 /// quarter more variance is harmless; more says the group is not what it should be.
 const SCATTER: f64 = 0.25;
 
-/// Modulation (σ_I units) every group of a pixel needs for its phases to be tested.
+/// Modulation (σ_I units) every group of a pixel needs for its phases' bias and scatter to be
+/// tested.
 const MIN_SNR: f64 = 6.0;
+
+/// Modulation (σ_I units) every group of a pixel needs for the light and unwrapping tests:
+/// the decoder's validity floor.
+const MIN_LINEAR: f64 = 5.0;
+
+/// Fraction of the tested pixels beyond the expected that may fail to unwrap: the loss that
+/// stops being incidental, as for clipping.
+const UNWRAP_LOSS: f64 = 0.02;
 
 /// Pattern offsets tried: up to two frames late or early.
 const OFFSETS: [i32; 4] = [-1, 1, -2, 2];
@@ -46,6 +58,8 @@ struct Disagreement {
     sum_h: f64,
     /// Per pixel e²/(σ²(1 − h)).
     scaled: Vec<f64>,
+    /// The light-leak regression.
+    leak: Leak,
 }
 
 impl Disagreement {
@@ -59,9 +73,50 @@ impl Disagreement {
     }
 }
 
+/// A projector's and direction's pixels that fail to unwrap (their phases match no order
+/// tuple), against what the noise makes fail.
+#[derive(Clone, Copy, Debug, Default)]
+struct Unwrapping {
+    tried: f64,
+    failed: f64,
+    /// Σ over the pixels of the probability that noise alone puts them beyond half the
+    /// constellation spacing r: exp(−r²/2σ²) (χ²₂ for M = 3 counts; σ² the mean of the
+    /// groups' phase variances).
+    expected: f64,
+}
+
+impl Unwrapping {
+    /// Count a pixel (`failed` or not) with half spacing `r` and mean phase variance `var`
+    /// (rad²).
+    fn add(&mut self, failed: bool, r: f32, var: f64) {
+        self.tried += 1.0;
+        self.failed += f64::from(u8::from(failed));
+        self.expected += (-(f64::from(r) * f64::from(r)) / (2.0 * var)).exp();
+    }
+
+    /// The fraction beyond the expected that failed, if significant at z and beyond
+    /// [`UNWRAP_LOSS`].
+    fn excess(&self, z: f64) -> Option<f64> {
+        let extra = self.failed - self.expected;
+        let significant = extra > z * (self.expected + 1.0).sqrt();
+        (significant && extra > UNWRAP_LOSS * self.tried).then(|| extra / self.tried)
+    }
+}
+
+/// What the phase tests find for one projector and direction.
+struct Findings {
+    /// The worst group whose phases disagree, with its fault.
+    worst: Option<(usize, StackFault)>,
+    /// The groups whose disagreement has the pattern of a light change.
+    leaks: Vec<(usize, StackFault)>,
+    /// The direction's phases fail to unwrap at more pixels than the noise explains.
+    unwrapping: Option<StackFault>,
+}
+
 impl Stack<'_> {
-    /// Faults of the groups whose phases disagree with their direction's other groups, with
-    /// the group each names.
+    /// Faults of the groups whose phases disagree with their direction's other groups (a
+    /// lag, light changing within the group, phases that match no fringe orders), with the
+    /// group each names.
     pub(super) fn phase_consistency(
         &self,
         seq: &Sequence,
@@ -72,14 +127,21 @@ impl Stack<'_> {
             .flat_map(|p| [(p, 0, Direction::Columns), (p, n_col, Direction::Rows)])
             .collect();
         // Each projector and direction on its own core.
-        let mut faults: Vec<(usize, StackFault)> = tasks
+        let findings: Vec<Findings> = tasks
             .into_par_iter()
             .filter_map(|(p, first, dir)| {
                 let counts = seq.counts(dir);
                 let groups: Vec<usize> = (first..first + counts.len()).collect();
-                self.worst_group(p, &groups, counts, params)
+                self.group_findings(p, &groups, counts, params)
             })
             .collect();
+        let mut faults = Vec::new();
+        let mut leaks = Vec::new();
+        for f in findings {
+            faults.extend(f.worst);
+            faults.extend(f.unwrapping.map(|u| (unwrapping_group(&u), u)));
+            leaks.extend(f.leaks);
+        }
         // A lag leaks into the other projectors' bins of its group (its frames' change is not
         // one frequency): their disagreement there is its consequence.
         let lagged: Vec<usize> = faults
@@ -87,9 +149,34 @@ impl Stack<'_> {
             .filter(|(_, f)| matches!(f, StackFault::WrongPattern { .. }))
             .map(|(g, _)| *g)
             .collect();
+        let unwrapped: Vec<usize> = faults
+            .iter()
+            .filter(|(_, f)| matches!(f, StackFault::Unwrapping { .. }))
+            .map(|(g, _)| *g)
+            .collect();
+        // One light change per group (the largest any projector sees); it explains the
+        // group's phase disagreement.
+        let mut light: Vec<(usize, StackFault)> = Vec::new();
+        for (g, f) in leaks {
+            // A lag biases its projector's fused positions, and through them the other
+            // groups of its direction: their patterns are the lag's (a repair checks them
+            // again with the lagged group left out). Positions that do not unwrap leave no
+            // pattern to read.
+            let same_direction = |&l: &usize| (l < n_col) == (g < n_col);
+            if lagged.iter().any(same_direction) || unwrapped.iter().any(same_direction) {
+                continue;
+            }
+            match light.iter_mut().find(|(h, _)| *h == g) {
+                Some(kept) if percent(&kept.1) >= percent(&f) => {}
+                Some(kept) => kept.1 = f,
+                None => light.push((g, f)),
+            }
+        }
         faults.retain(|(g, f)| {
-            !(matches!(f, StackFault::PhaseDisagreement { .. }) && lagged.contains(g))
+            !(matches!(f, StackFault::PhaseDisagreement { .. })
+                && (lagged.contains(g) || light.iter().any(|(h, _)| h == g)))
         });
+        faults.extend(light);
         faults
     }
 
@@ -111,41 +198,65 @@ impl Stack<'_> {
                         return true;
                     }
                     let (groups, counts): (Vec<usize>, Vec<u32>) = kept.into_iter().unzip();
-                    self.worst_group(p, &groups, &counts, params).is_none()
+                    self.group_findings(p, &groups, &counts, params)
+                        .is_none_or(|f| {
+                            f.worst.is_none() && f.unwrapping.is_none() && f.leaks.is_empty()
+                        })
                 })
         })
     }
 
-    /// Projector p's worst group of `groups` (one direction's, fringe `counts`) whose phases
-    /// disagree with the others, with its fault. One fault per projector and direction: the
-    /// fusion spreads one group's bias over the others (−δ·n_j·n_k/Σn²), so the worst group
-    /// is the cause.
-    pub(super) fn worst_group(
+    /// What the phase tests find for projector p's `groups` (one direction's, fringe
+    /// `counts`). One phase fault per projector and direction: the fusion spreads one
+    /// group's bias over the others (−δ·n_j·n_k/Σn²), so the worst group is the cause.
+    fn group_findings(
         &self,
         p: usize,
         groups: &[usize],
         counts: &[u32],
         params: &CheckParams,
-    ) -> Option<(usize, StackFault)> {
-        let mut sums = self.disagreements(p, groups, counts)?;
+    ) -> Option<Findings> {
+        let (mut sums, unwrapping) = self.disagreements(p, groups, counts)?;
         let medians: Vec<f64> = sums.iter_mut().map(Disagreement::median).collect();
-        sums.iter()
-            .enumerate()
+        // The scatter of the direction's quietest other group: a noise model a little off
+        // shifts every group's alike.
+        let reference = |j: usize| {
+            (medians.iter().enumerate())
+                .filter(|&(k, _)| k != j)
+                .map(|(_, &m)| m)
+                .fold(f64::INFINITY, f64::min)
+                .max(1.0)
+        };
+        let worst = (sums.iter().enumerate())
             .filter_map(|(j, d)| {
-                // The scatter of the direction's quietest other group: a noise model a
-                // little off shifts every group's alike.
-                let reference = (medians.iter().enumerate())
-                    .filter(|&(k, _)| k != j)
-                    .map(|(_, &m)| m)
-                    .fold(f64::INFINITY, f64::min)
-                    .max(1.0);
-                let scatter = [medians[j], reference];
+                let scatter = [medians[j], reference(j)];
                 let (score, f) =
                     self.judge_group(p, groups[j], counts.len(), d, scatter, params)?;
                 Some((score, groups[j], f))
             })
             .max_by(|a, b| a.0.total_cmp(&b.0))
-            .map(|(_, g, f)| (g, f))
+            .map(|(_, g, f)| (g, f));
+        let leaks = (sums.iter().enumerate())
+            .filter_map(|(j, d)| {
+                let fault = self.light_leak(groups[j], &d.leak, reference(j), params)?;
+                Some((groups[j], fault))
+            })
+            .collect();
+        let n = self.model.steps;
+        let (first, last) = (groups[0], groups[groups.len() - 1]);
+        let unwrapping = unwrapping
+            .excess(params.z)
+            .map(|fraction| StackFault::Unwrapping {
+                projector: p,
+                groups: [first, last],
+                frames: [first * n, last * n + n - 1],
+                fraction,
+            });
+        Some(Findings {
+            worst,
+            leaks,
+            unwrapping,
+        })
     }
 
     /// Per group of `groups` (one direction's, fringe `counts`), projector p's disagreement
@@ -155,7 +266,7 @@ impl Stack<'_> {
         p: usize,
         groups: &[usize],
         counts: &[u32],
-    ) -> Option<Vec<Disagreement>> {
+    ) -> Option<(Vec<Disagreement>, Unwrapping)> {
         let cons = Constellation::shared(counts).ok()?;
         let m = groups.len();
         let half_spacing = 0.5 * cons.spacing() as f32;
@@ -165,6 +276,8 @@ impl Stack<'_> {
             s.scaled.reserve(self.fits.len());
         }
         let (mut psi, mut weight, mut b) = (vec![0f32; m], vec![0f32; m], vec![0f64; m]);
+        let (mut z, mut hs) = (vec![0f64; m], vec![0f64; m]);
+        let mut unwrapping = Unwrapping::default();
         for (blk, block) in self.usable() {
             if !block.interior() {
                 continue;
@@ -177,11 +290,15 @@ impl Stack<'_> {
                     b[j] = (c2 - 2.0 * phase_var * block.var).max(0.0).sqrt();
                     weight[j] = (b[j] * b[j]) as f32;
                 }
-                // Phases of B ≥ 6σ_I are Gaussian to the test's precision (σ_φ ≤ 0.09 rad
-                // for N = 7; lower, the noise's own B biases the measured spread).
-                if b.iter().any(|&bj| bj < MIN_SNR * block.var.sqrt()) {
+                // Phases of B ≥ 6σ_I are Gaussian to the scatter test's precision (σ_φ ≤
+                // 0.09 rad for N = 7; lower, the noise's own B biases the measured spread);
+                // the light and unwrapping tests hold from the decoder's validity floor, 5σ_I,
+                // on (the coherent test keeps to 6σ_I: its lag model sizes B).
+                let sigma = block.var.sqrt();
+                if b.iter().any(|&bj| bj < MIN_LINEAR * sigma) {
                     continue;
                 }
+                let gaussian = b.iter().all(|&bj| bj >= MIN_SNR * sigma);
                 for (j, &g) in groups.iter().enumerate() {
                     // C = B·e^{−iφ}: the phase in cycles is arg(C̄)/2π, as the decoder takes
                     // it (≤ 2·10⁻⁶ cycles off atan2).
@@ -189,6 +306,15 @@ impl Stack<'_> {
                     psi[j] = phase_cycles(-im, re);
                 }
                 let un = cons.unwrap(&psi, &weight);
+                let mean_var = b
+                    .iter()
+                    .map(|bj| phase_var * block.var / (bj * bj))
+                    .sum::<f64>();
+                unwrapping.add(
+                    un.distance >= half_spacing,
+                    half_spacing,
+                    mean_var / m as f64,
+                );
                 if un.distance >= half_spacing {
                     continue;
                 }
@@ -200,6 +326,11 @@ impl Stack<'_> {
                     let e = TAU * centred(f64::from(psi[j]) - nj * t);
                     let var = phase_var * block.var / (b[j] * b[j]);
                     let h = (nj * b[j]).powi(2) / info;
+                    z[j] = e / (var * (1.0 - h)).sqrt();
+                    hs[j] = h;
+                    if !gaussian {
+                        continue;
+                    }
                     let s = &mut sums[j];
                     s.sum_e += e / var;
                     s.sum_w += 1.0 / var;
@@ -208,11 +339,17 @@ impl Stack<'_> {
                     s.sum_ratio[1] -= b[j] / mean_b * f64::from(sin);
                     s.sum_h += h;
                     s.count += 1.0;
-                    s.scaled.push(e * e / (var * (1.0 - h)));
+                    s.scaled.push(z[j] * z[j]);
+                }
+                if z.iter().all(|zj| zj.abs() <= OUTLIER) {
+                    for j in 0..m {
+                        let phi = TAU * f64::from(counts[j]) * t;
+                        sums[j].leak.add(block, [b[j], phi, hs[j]], z[j]);
+                    }
                 }
             }
         }
-        Some(sums)
+        Some((sums, unwrapping))
     }
 
     /// The fault of projector p's group g (one of `m` in its direction), if its phases
@@ -242,7 +379,9 @@ impl Stack<'_> {
         let coherent = mean_e.abs() > params.z * se && bias.abs() > params.phase_bias * sigma_phi;
         // The sample median's standard error is ≈ 1.6× the mean's (χ²₁).
         let excess = median / reference - 1.0;
-        let incoherent = excess > SCATTER && excess > params.z * 1.6 * (2.0 / d.count).sqrt();
+        let tested = d.scaled.len() as f64;
+        let incoherent =
+            tested >= 100.0 && excess > SCATTER && excess > params.z * 1.6 * (2.0 / tested).sqrt();
         if !(coherent || incoherent) {
             return None;
         }
@@ -300,6 +439,22 @@ impl Stack<'_> {
             .filter(|(_, fits, _)| *fits)
             .min_by(|x, y| x.2.total_cmp(&y.2))
             .map(|(lag, _, _)| lag)
+    }
+}
+
+/// The first group of an unwrapping fault (its place in the list of group faults).
+fn unwrapping_group(f: &StackFault) -> usize {
+    match f {
+        StackFault::Unwrapping { groups, .. } => groups[0],
+        _ => 0,
+    }
+}
+
+/// The size of a light change (0 for any other fault).
+fn percent(f: &StackFault) -> f64 {
+    match f {
+        StackFault::LightChange { percent, .. } => *percent,
+        _ => 0.0,
     }
 }
 
