@@ -274,7 +274,7 @@ fn worst_ratio(
             };
             let gross = |d: &DecodedStack| gross_errors(d, truth, p, dir);
             detail.push(format!(
-                "p{p} {}: {:.3}/{:.3} px over {m} patches, valid {}/{}, off by > 1 px {}/{}",
+                "p{p} {}: {:.3}/{:.3} px over {m} patches, valid {}/{}, off by > 5 px {}/{}",
                 ["u", "v"][dir],
                 (sa / m.max(1) as f64).sqrt(),
                 (sb / m.max(1) as f64).sqrt(),
@@ -288,7 +288,7 @@ fn worst_ratio(
     (worst, detail.join("; "))
 }
 
-/// Valid interior pixels of projector p whose u (`dir` 0) or v is off by more than 1 px.
+/// Valid interior pixels of projector p whose u (`dir` 0) or v is off by more than 5 px (gross: 10σ at the validity floor of N = 3).
 fn gross_errors(d: &DecodedStack, truth: &Truth, p: usize, dir: usize) -> usize {
     let maps = &d.projectors[p];
     let (got, want) = match dir {
@@ -296,12 +296,14 @@ fn gross_errors(d: &DecodedStack, truth: &Truth, p: usize, dir: usize) -> usize 
         _ => (maps.v.as_raw(), &truth.v[p]),
     };
     (maps.valid.as_slice().iter().enumerate())
-        .filter(|&(i, &ok)| ok && truth.interior[i] && (f64::from(got[i]) - want[i]).abs() > 1.0)
+        .filter(|&(i, &ok)| ok && truth.interior[i] && (f64::from(got[i]) - want[i]).abs() > 5.0)
         .count()
 }
 
 /// Per 16 × 16 patch, the mean error of projector p's u (`dir` 0) or v over its valid
-/// interior pixels, where it has enough of them.
+/// interior pixels, where it has enough of them; as the circle-centre fit does (docs/design.md
+/// §7), a pixel grossly off the patch's others (beyond 6 robust standard deviations and
+/// 1 px) is left out.
 fn patch_errors(
     d: &DecodedStack,
     truth: &Truth,
@@ -316,15 +318,33 @@ fn patch_errors(
     };
     let h = got.len() / w;
     let (pw, ph) = (w / PATCH, h / PATCH);
-    let mut sums = vec![(0.0, 0usize); pw * ph];
+    let mut errors = vec![Vec::new(); pw * ph];
     for (i, &ok) in maps.valid.as_slice().iter().enumerate() {
         let (x, y) = (i % w / PATCH, i / w / PATCH);
         if ok && truth.interior[i] && x < pw && y < ph {
-            let s = &mut sums[y * pw + x];
-            *s = (s.0 + f64::from(got[i]) - want[i], s.1 + 1);
+            errors[y * pw + x].push(f64::from(got[i]) - want[i]);
         }
     }
-    sums.into_iter()
-        .map(|(s, c)| (c >= PATCH_PIXELS).then(|| s / c as f64))
+    errors
+        .into_iter()
+        .map(|mut e| (e.len() >= PATCH_PIXELS).then(|| robust_mean(&mut e)))
         .collect()
+}
+
+/// The mean of `e` without the values beyond 6 robust standard deviations (and 1 px) of its
+/// median (reorders it).
+fn robust_mean(e: &mut [f64]) -> f64 {
+    let median = |x: &mut [f64]| {
+        let mid = x.len() / 2;
+        *x.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
+    let m = median(e);
+    let mut dev: Vec<f64> = e.iter().map(|v| (v - m).abs()).collect();
+    let limit = (6.0 * median(&mut dev) / 0.6745).max(1.0);
+    let kept: Vec<f64> = e
+        .iter()
+        .copied()
+        .filter(|v| (v - m).abs() <= limit)
+        .collect();
+    kept.iter().sum::<f64>() / kept.len() as f64
 }

@@ -176,18 +176,29 @@ fn pixels_inside(
     out
 }
 
+/// A pixel whose (u, v) lies farther than this many robust standard deviations of the
+/// patch's residuals from the first fit (and beyond [`GROSS_FLOOR`]) is left out of the
+/// second: a wrong fringe order (a gross error, hundreds of projector px) is not noise, and
+/// one among a thousand pixels would move the fit by a fraction of a pixel.
+const GROSS_SIGMAS: f64 = 6.0;
+
+/// Smallest residual taken for gross (projector px).
+const GROSS_FLOOR: f64 = 1.0;
+
+/// One valid pixel of a patch: the fit's row (24), its weight, and its (u, v).
+type PatchRow = (SVector<f64, 6>, f64, [f64; 2]);
+
 /// Quadratic fit (24) of u and v over `pixels` around `e`, evaluated at `e` (the constant
 /// term); each pixel weighted by its modulation² when the map has it (its phase noise is
-/// ∝ 1/B, so this is the inverse-variance weighting), else alike.
+/// ∝ 1/B, so this is the inverse-variance weighting), else alike. Pixels the first fit
+/// finds grossly off ([`GROSS_SIGMAS`]) are left out of a second.
 fn fit_at(
     map: &ProjectorMap,
     pixels: &[(u32, u32)],
     e: Point2<f64>,
     scale: f64,
 ) -> Option<Point2<f64>> {
-    let mut ata = SMatrix::<f64, 6, 6>::zeros();
-    let (mut atu, mut atv) = (SVector::<f64, 6>::zeros(), SVector::<f64, 6>::zeros());
-    let mut n = 0;
+    let mut rows: Vec<PatchRow> = Vec::with_capacity(pixels.len());
     for &(x, y) in pixels {
         let Some(i) = map.slot((y * map.width + x) as usize) else {
             continue;
@@ -201,16 +212,45 @@ fn fit_at(
         let w = map
             .modulation
             .map_or(1.0, |b| f64::from(b[i]).max(0.0).powi(2));
-        ata += row * row.transpose() * w;
-        atu += row * (w * f64::from(u));
-        atv += row * (w * f64::from(v));
-        n += 1;
+        rows.push((row, w, [f64::from(u), f64::from(v)]));
     }
-    if n < 6 {
+    let [cu, cv] = solve_rows(&rows)?;
+    let residual = |(row, _, uv): &PatchRow| (uv[0] - cu.dot(row)).hypot(uv[1] - cv.dot(row));
+    let r: Vec<f64> = rows.iter().map(residual).collect();
+    // The median residual length of 2-D normal noise is 1.18σ.
+    let sigma = median(&mut r.clone()) / 1.1774;
+    let limit = (GROSS_SIGMAS * sigma).max(GROSS_FLOOR);
+    if r.iter().all(|&ri| ri <= limit) {
+        return Some(Point2::new(cu[0], cv[0]));
+    }
+    let kept: Vec<PatchRow> = rows.into_iter().filter(|x| residual(x) <= limit).collect();
+    let [cu, cv] = solve_rows(&kept)?;
+    Some(Point2::new(cu[0], cv[0]))
+}
+
+/// The weighted least-squares coefficients of u and v over `rows` (at least 6).
+fn solve_rows(rows: &[PatchRow]) -> Option<[SVector<f64, 6>; 2]> {
+    if rows.len() < 6 {
         return None;
     }
+    let mut ata = SMatrix::<f64, 6, 6>::zeros();
+    let (mut atu, mut atv) = (SVector::<f64, 6>::zeros(), SVector::<f64, 6>::zeros());
+    for (row, w, [u, v]) in rows {
+        ata += row * row.transpose() * *w;
+        atu += row * (w * u);
+        atv += row * (w * v);
+    }
     let chol = ata.cholesky()?;
-    Some(Point2::new(chol.solve(&atu)[0], chol.solve(&atv)[0]))
+    Some([chol.solve(&atu), chol.solve(&atv)])
+}
+
+/// The median of `x` (reorders it; 0 when empty).
+fn median(x: &mut [f64]) -> f64 {
+    if x.is_empty() {
+        return 0.0;
+    }
+    let mid = x.len() / 2;
+    *x.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// Valid pixels of `pixels` under the map.
