@@ -670,17 +670,16 @@ impl<T: Sample> Decoder<T> {
 }
 
 /// The noise model: `between`, from the spread of the group means (docs/design.md §6),
-/// unless the check found the light or the board changing between groups, which that spread
-/// would count as noise; then the check's, measured within the groups (§6b).
+/// unless the check found the light or the board changing between groups, or repaired a
+/// group, which that spread would count as noise; then the check's, measured within the
+/// groups, or without the repaired ones (§6b).
 fn choose_noise(verdict: &StackVerdict, between: NoiseModel) -> NoiseModel {
+    use super::check::{StackFault, StackNote};
     let changed = verdict
         .notes
         .iter()
-        .any(|n| matches!(n, super::check::StackNote::LightStep { .. }))
-        || verdict
-            .faults
-            .iter()
-            .any(|f| matches!(f, super::check::StackFault::Motion { .. }));
+        .any(|n| matches!(n, StackNote::LightStep { .. } | StackNote::Repaired { .. }))
+        || (verdict.faults.iter()).any(|f| matches!(f, StackFault::Motion { .. }));
     match changed {
         true => verdict.figures.noise,
         false => between,

@@ -81,12 +81,18 @@ impl<'a> PixelFit<'a> {
         ]
     }
 
-    /// The per-frame noise variance statistic: one value per group from its residuals when
-    /// the model leaves `dof` ≥ 2 (σ_I²·χ²_dof/dof), else one from the group means (N
-    /// `steps`): N·median_g (m_g − median m)², robust to a group that differs from the others
-    /// (a lag, a light step), whose median over pixels is [`means_median_ratio`]·σ_I².
-    pub(super) fn variances(self, dof: usize, steps: usize) -> impl Iterator<Item = f64> + 'a {
-        let groups = 0..self.fits.groups;
+    /// The per-frame noise variance statistic of the groups not in `left_out` (a bit each):
+    /// one value per group from its residuals when the model leaves `dof` ≥ 2
+    /// (σ_I²·χ²_dof/dof), else one from the group means (N `steps`): N·median_g (m_g −
+    /// median m)², robust to a group that differs from the others (a lag, a light step),
+    /// whose median over pixels is [`means_median_ratio`]·σ_I² (G the groups kept).
+    pub(super) fn variances(
+        self,
+        dof: usize,
+        steps: usize,
+        left_out: u32,
+    ) -> impl Iterator<Item = f64> + 'a {
+        let groups = (0..self.fits.groups).filter(move |g| left_out & (1 << g) == 0);
         let from_means = (dof < 2).then(|| {
             let mut m: Vec<f64> = groups.clone().map(|g| f64::from(self.mean(g))).collect();
             steps as f64 * median_square_deviation(&mut m)

@@ -79,7 +79,7 @@ pub(super) fn judge(
     model: &GroupFits,
     params: &CheckParams,
 ) -> StackVerdict {
-    let stack = Stack::fit(&mut sampler, model);
+    let mut stack = Stack::fit(&mut sampler, model);
     let mut faults = Vec::new();
     let mut notes = Vec::new();
     let displacement = stack.between_groups(params, &mut faults, &mut notes);
@@ -109,9 +109,13 @@ pub(super) fn judge(
     if clipped > params.clipped {
         faults.push(StackFault::Clipped { fraction: clipped });
     }
+    // A repair measures the noise without the groups it leaves out (a lag's group mean or
+    // residuals would count as noise) and the decoder takes that noise.
     if let Some(out) = super::repair::plan(&faults, &sampler.seq) {
-        if stack.kept_groups_agree(&sampler.seq, params, out) {
-            notes.extend(faults.drain(..).map(|fault| StackNote::Repaired { fault }));
+        let noise = stack.set_noise(stack.noise_without(out));
+        match stack.repair_holds(&sampler.seq, params, out) {
+            true => notes.extend(faults.drain(..).map(|fault| StackNote::Repaired { fault })),
+            false => _ = stack.set_noise(noise),
         }
     }
     stack.modulation_notes(sampler.full_scale, params, &mut notes);
@@ -145,23 +149,7 @@ impl<'a> Stack<'a> {
             .into_par_iter()
             .map(|i| fits.pixel(i).level())
             .collect();
-        // The unclipped pixels by level, ties by index: the (level, variance) pairs come in
-        // the order robust_noise sorts them in, and only a sixth as many are sorted.
-        let mut by_level: Vec<(f64, usize)> = (0..fits.len())
-            .filter(|i| !sampler.clipped[i / 4])
-            .map(|i| (levels[i], i))
-            .collect();
-        by_level.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let pairs: Vec<(f64, f64)> = (by_level.par_iter())
-            .flat_map_iter(|&(level, i)| {
-                (fits.pixel(i).variances(model.dof(), model.steps)).map(move |v| (level, v))
-            })
-            .collect();
-        let ratio = match model.dof() >= 2 {
-            true => chi2_median_ratio(model.dof() as f64),
-            false => means_median_ratio(model.groups),
-        };
-        let noise = robust_noise(pairs, ratio);
+        let noise = measure_noise(&fits, &levels, &sampler.clipped, model, 0);
         let blocks = (0..sampler.blocks.len())
             .into_par_iter()
             .map(|b| (!sampler.clipped[b]).then(|| block(&fits, &levels, b, model, &noise)))
@@ -176,6 +164,27 @@ impl<'a> Stack<'a> {
             blocks,
             frames: k,
         }
+    }
+
+    /// The noise model measured without the groups in `left_out` (a bit each).
+    fn noise_without(&self, left_out: u32) -> NoiseModel {
+        measure_noise(
+            &self.fits,
+            &self.levels,
+            &self.clipped,
+            self.model,
+            left_out,
+        )
+    }
+
+    /// Give every block the variance of `noise`; the noise it replaces is returned.
+    fn set_noise(&mut self, noise: NoiseModel) -> NoiseModel {
+        for (b, blk) in self.blocks.iter_mut().enumerate() {
+            if let Some(blk) = blk {
+                blk.var = block_var(&noise, &self.levels[4 * b..4 * b + 4]);
+            }
+        }
+        std::mem::replace(&mut self.noise, noise)
     }
 
     /// The unclipped blocks with their index.
@@ -264,6 +273,35 @@ impl Fit {
 
 /// Block b's shapes from its four pixels' fits and `levels` (corners (0,0), (1,0), (0,1),
 /// (1,1)).
+/// The noise model of the unclipped pixels' residuals, or group means, of the groups not in
+/// `left_out` (a bit each).
+fn measure_noise(
+    fits: &Fits,
+    levels: &[f64],
+    clipped: &[bool],
+    model: &GroupFits,
+    left_out: u32,
+) -> NoiseModel {
+    // The unclipped pixels by level, ties by index: the (level, variance) pairs come in
+    // the order robust_noise sorts them in, and only a sixth as many are sorted.
+    let mut by_level: Vec<(f64, usize)> = (0..fits.len())
+        .filter(|i| !clipped[i / 4])
+        .map(|i| (levels[i], i))
+        .collect();
+    by_level.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let pairs: Vec<(f64, f64)> = (by_level.par_iter())
+        .flat_map_iter(|&(level, i)| {
+            (fits.pixel(i).variances(model.dof(), model.steps, left_out)).map(move |v| (level, v))
+        })
+        .collect();
+    let kept = model.groups - left_out.count_ones() as usize;
+    let ratio = match model.dof() >= 2 {
+        true => chi2_median_ratio(model.dof() as f64),
+        false => means_median_ratio(kept),
+    };
+    robust_noise(pairs, ratio)
+}
+
 fn block(fits: &Fits, levels: &[f64], b: usize, model: &GroupFits, noise: &NoiseModel) -> Block {
     let pixels = || (4 * b..4 * b + 4).map(|i| fits.pixel(i));
     let levels = &levels[4 * b..4 * b + 4];
@@ -276,12 +314,17 @@ fn block(fits: &Fits, levels: &[f64], b: usize, model: &GroupFits, noise: &Noise
         .sum();
     let gx = 0.5 * ((levels[1] + levels[3]) - (levels[0] + levels[2]));
     let gy = 0.5 * ((levels[2] + levels[3]) - (levels[0] + levels[1]));
-    let sigma = noise.sigma(level);
     Block {
         shapes: [1.0, (level - lit).max(0.0), level, gx, gy],
-        // A noise-free stack (rendered without noise) still gets finite weights.
-        var: (sigma * sigma).max(MIN_VAR),
+        var: block_var(noise, levels),
     }
+}
+
+/// A block's per-pixel noise variance σ_I² at its mean level (its pixels' `levels`): a
+/// noise-free stack (rendered without noise) still gets finite weights.
+fn block_var(noise: &NoiseModel, levels: &[f64]) -> f64 {
+    let level = levels.iter().sum::<f64>() / levels.len() as f64;
+    noise.sigma(level).powi(2).max(MIN_VAR)
 }
 
 impl Block {

@@ -59,6 +59,11 @@ pub struct CheckParams {
     /// Median modulation below which a projector gets a note (σ_I units; the decoder's
     /// validity floor: most of its pixels fail there).
     pub low_modulation: f64,
+    /// Largest predicted growth of a projector's position noise (σ ratio) a repair may
+    /// cost (eq. 6b.10): a used stack counts as accurate within 1.5× the clean stack's
+    /// error, and the prediction fell short of the measured growth by up to 1.1× on the
+    /// drawn faults (docs/design.md §6b), so 1.5/1.1.
+    pub repair_cost: f64,
 }
 
 impl Default for CheckParams {
@@ -70,6 +75,7 @@ impl Default for CheckParams {
             phase_bias: 0.025,
             clipped: 0.02,
             low_modulation: 5.0,
+            repair_cost: 1.35,
         }
     }
 }

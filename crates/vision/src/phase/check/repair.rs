@@ -21,7 +21,7 @@ use hexcal_core::pattern::{Direction, Sequence};
 /// the fringe orders. Each such group is left out of every projector (the wrong frames leak
 /// into the other projectors' bins of that group too). `None`: nothing to repair, or not
 /// repairable. The check then confirms that the kept groups agree (the lag was placed in
-/// the right group).
+/// the right group) and that the kept positions are not much noisier (eq. 6b.10).
 pub(super) fn plan(faults: &[StackFault], seq: &Sequence) -> Option<u32> {
     if faults.is_empty() {
         return None;

@@ -77,13 +77,24 @@ impl Disagreement {
 /// tuple), against what the noise makes fail.
 #[derive(Clone, Copy, Debug, Default)]
 struct Unwrapping {
+    /// Dimensions of the constellation's space: M − 1 for M counts.
+    dims: usize,
     tried: f64,
     failed: f64,
     /// Σ over the pixels of the probability that noise alone puts them beyond half the
-    /// constellation spacing r: exp(−r²/2σ²) (χ²₂ for M = 3 counts; σ² the mean of the
-    /// groups' phase variances).
+    /// constellation spacing r: P(χ²_{M−1} > r²/σ²) (σ² the mean of the groups' phase
+    /// variances). With M = 2 every point lies within r of a constellation point, so this
+    /// is the loss to wrong fringe orders, which no distance shows.
     expected: f64,
+    /// Σ over the pixels of 1/(1 − that probability), each at most [`MAX_INFLATION`]: how
+    /// much the loss inflates the variance of a mean over pixels, pixel by pixel (the loss
+    /// gathers where the modulation is low: the harmonic mean of the keep probabilities,
+    /// not their mean, sets the noise of a circle).
+    inflation: f64,
 }
+
+/// Largest variance inflation one pixel's loss counts with (its pixel almost surely lost).
+const MAX_INFLATION: f64 = 100.0;
 
 impl Unwrapping {
     /// Count a pixel (`failed` or not) with half spacing `r` and mean phase variance `var`
@@ -91,7 +102,9 @@ impl Unwrapping {
     fn add(&mut self, failed: bool, r: f32, var: f64) {
         self.tried += 1.0;
         self.failed += f64::from(u8::from(failed));
-        self.expected += (-(f64::from(r) * f64::from(r)) / (2.0 * var)).exp();
+        let lost = chi2_tail(self.dims, f64::from(r).powi(2) / var);
+        self.expected += lost;
+        self.inflation += (1.0 / (1.0 - lost)).min(MAX_INFLATION);
     }
 
     /// The fraction beyond the expected that failed, if significant at z and beyond
@@ -100,6 +113,17 @@ impl Unwrapping {
         let extra = self.failed - self.expected;
         let significant = extra > z * (self.expected + 1.0).sqrt();
         (significant && extra > UNWRAP_LOSS * self.tried).then(|| extra / self.tried)
+    }
+
+    /// The share of the information in the tested pixels that the pixels that unwrap to
+    /// the right fringe orders keep: the fraction of them that did not fail or, where less,
+    /// the harmonic mean of the probabilities that noise leaves them (1 when none was
+    /// tested).
+    fn kept_share(&self) -> f64 {
+        match self.tried > 0.0 {
+            true => (1.0 - self.failed / self.tried).min(self.tried / self.inflation),
+            false => 1.0,
+        }
     }
 }
 
@@ -111,6 +135,8 @@ struct Findings {
     leaks: Vec<(usize, StackFault)>,
     /// The direction's phases fail to unwrap at more pixels than the noise explains.
     unwrapping: Option<StackFault>,
+    /// The share of the tested pixels' information that unwraps ([`Unwrapping`]).
+    kept_share: f64,
 }
 
 impl Stack<'_> {
@@ -180,14 +206,12 @@ impl Stack<'_> {
         faults
     }
 
-    /// Whether, with the groups in `left_out` (a bit each) left out, every projector's
-    /// kept groups agree: a repair's check that the lag was placed in the right group.
-    pub(super) fn kept_groups_agree(
-        &self,
-        seq: &Sequence,
-        params: &CheckParams,
-        left_out: u32,
-    ) -> bool {
+    /// Whether a repair that leaves out the groups in `left_out` (a bit each) holds: every
+    /// projector's kept groups agree (the lag was placed in the right group), and the
+    /// positions they give are at most `params.repair_cost` times noisier than the full
+    /// stack's (eq. 6b.10: the kept counts' share of the information and the share of the
+    /// pixels their own constellation still unwraps).
+    pub(super) fn repair_holds(&self, seq: &Sequence, params: &CheckParams, left_out: u32) -> bool {
         let n_col = seq.counts(Direction::Columns).len();
         (0..self.model.projectors).all(|p| {
             [(0, Direction::Columns), (n_col, Direction::Rows)]
@@ -197,13 +221,46 @@ impl Stack<'_> {
                     if kept.len() == seq.counts(dir).len() {
                         return true;
                     }
+                    let left: Vec<(usize, u32)> = (kept_groups(seq, dir, first, 0).into_iter())
+                        .filter(|g| !kept.contains(g))
+                        .collect();
+                    let share = self.kept_information(p, &kept, &left);
                     let (groups, counts): (Vec<usize>, Vec<u32>) = kept.into_iter().unzip();
                     self.group_findings(p, &groups, &counts, params)
                         .is_none_or(|f| {
-                            f.worst.is_none() && f.unwrapping.is_none() && f.leaks.is_empty()
+                            let cost = (1.0 / (share * f.kept_share)).sqrt(); // (6b.10)
+                            f.worst.is_none()
+                                && f.unwrapping.is_none()
+                                && f.leaks.is_empty()
+                                && cost <= params.repair_cost
                         })
                 })
         })
+    }
+
+    /// The share of projector p's position information over the interior pixels that the
+    /// `kept` groups of a direction keep, of those groups and the `left` ones (group,
+    /// fringe count): Σ_kept n²B² over that plus Σ_left n²·B̄²_kept (a left-out group's own B
+    /// is the fault's: a lag lowers it in its projector and leaks into the others').
+    fn kept_information(&self, p: usize, kept: &[(usize, u32)], left: &[(usize, u32)]) -> f64 {
+        let phase_var = 2.0 / self.model.steps as f64;
+        let n2 = |gs: &[(usize, u32)]| gs.iter().map(|&(_, n)| f64::from(n).powi(2)).sum::<f64>();
+        let n2_left = n2(left);
+        let (mut kept_info, mut left_info) = (0.0, 0.0);
+        for (blk, block) in self.usable().filter(|(_, b)| b.interior()) {
+            for f in (4 * blk..4 * blk + 4).map(|i| self.fits.pixel(i)) {
+                let mut b2_sum = 0.0;
+                for &(g, n) in kept {
+                    let [re, im] = f.fundamental(g, p);
+                    let c2 = f64::from(re).powi(2) + f64::from(im).powi(2);
+                    let b2 = (c2 - 2.0 * phase_var * block.var).max(0.0);
+                    kept_info += f64::from(n).powi(2) * b2;
+                    b2_sum += b2;
+                }
+                left_info += n2_left * b2_sum / kept.len() as f64;
+            }
+        }
+        kept_info / (kept_info + left_info).max(f64::MIN_POSITIVE)
     }
 
     /// What the phase tests find for projector p's `groups` (one direction's, fringe
@@ -244,6 +301,7 @@ impl Stack<'_> {
             .collect();
         let n = self.model.steps;
         let (first, last) = (groups[0], groups[groups.len() - 1]);
+        let kept_share = unwrapping.kept_share();
         let unwrapping = unwrapping
             .excess(params.z)
             .map(|fraction| StackFault::Unwrapping {
@@ -256,6 +314,7 @@ impl Stack<'_> {
             worst,
             leaks,
             unwrapping,
+            kept_share,
         })
     }
 
@@ -277,7 +336,10 @@ impl Stack<'_> {
         }
         let (mut psi, mut weight, mut b) = (vec![0f32; m], vec![0f32; m], vec![0f64; m]);
         let (mut z, mut hs) = (vec![0f64; m], vec![0f64; m]);
-        let mut unwrapping = Unwrapping::default();
+        let mut unwrapping = Unwrapping {
+            dims: m - 1,
+            ..Unwrapping::default()
+        };
         for (blk, block) in self.usable() {
             if !block.interior() {
                 continue;
@@ -439,6 +501,16 @@ impl Stack<'_> {
             .filter(|(_, fits, _)| *fits)
             .min_by(|x, y| x.2.total_cmp(&y.2))
             .map(|(lag, _, _)| lag)
+    }
+}
+
+/// P(χ²_k > x) for k ≤ 3 (the regularised upper incomplete gamma Q(k/2, x/2)).
+fn chi2_tail(k: usize, x: f64) -> f64 {
+    let h = 0.5 * x;
+    match k {
+        1 => libm::erfc(h.sqrt()),
+        2 => (-h).exp(),
+        _ => libm::erfc(h.sqrt()) + (h / std::f64::consts::PI).sqrt() * 2.0 * (-h).exp(),
     }
 }
 
