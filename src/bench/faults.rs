@@ -125,7 +125,11 @@ fn names(kind: FaultKind, f: &StackFault) -> bool {
     match kind {
         FaultKind::Lag => matches!(
             f,
-            WrongPattern { .. } | PhaseDisagreement { .. } | Unwrapping { .. } | Disturbed { .. }
+            WrongPattern { .. }
+                | LagInGroups { .. }
+                | PhaseDisagreement { .. }
+                | Unwrapping { .. }
+                | Disturbed { .. }
         ),
         FaultKind::Drift | FaultKind::Jolt => matches!(f, Motion { .. } | Jolt { .. }),
         FaultKind::Flicker | FaultKind::AmbientStep => {

@@ -2,6 +2,7 @@
 //! per frame (light changes, jolts, another frame's pattern, unexplained disturbance), and
 //! clipping; each finding sized in the unit its threshold is set in.
 
+mod alone;
 mod groups;
 mod leak;
 mod lit;
@@ -11,6 +12,7 @@ mod phases;
 use super::fit::{chi2_median_ratio, means_median_ratio, robust_noise, Fits, GroupFits};
 use super::{CheckFigures, CheckParams, StackFault, StackNote, StackSampler, StackVerdict};
 use crate::phase::NoiseModel;
+use hexcal_core::pattern::Sequence;
 use nalgebra::{SMatrix, SVector};
 use rayon::prelude::*;
 
@@ -118,6 +120,9 @@ pub(super) fn judge(
             false => _ = stack.set_noise(noise),
         }
     }
+    // After the repair: a lag the fusion hid took its direction's orders astray, which a
+    // repair (orders from every group) would not undo.
+    name_hidden_lags(&stack, &sampler.seq, params, &mut faults);
     stack.modulation_notes(sampler.full_scale, params, &mut notes);
     // A figure of a stack with nothing usable (every block clipped) may be 0/0: kept as 0.
     let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
@@ -378,6 +383,57 @@ fn merge(
     let mut out: Vec<StackFault> = within.iter().filter(|f| !explained(f)).cloned().collect();
     out.extend(kept.into_iter().map(|(_, f)| f));
     out
+}
+
+/// A refused stack with no lag named: the lags its groups show against their direction's
+/// other counts alone (6b.11) replace what the fusion made of them in that direction (light
+/// changing or phases disagreeing in its groups, positions that do not unwrap, disturbed
+/// frames, motion between its groups).
+fn name_hidden_lags(
+    stack: &Stack,
+    seq: &Sequence,
+    params: &CheckParams,
+    faults: &mut Vec<StackFault>,
+) {
+    let lag = |f: &StackFault| matches!(f, StackFault::WrongPattern { .. });
+    if faults.is_empty() || faults.iter().any(lag) {
+        return;
+    }
+    let lags = stack.lags_alone(seq, params);
+    let n = stack.model.steps;
+    let spans: Vec<[usize; 2]> = (lags.iter())
+        .filter_map(|f| match *f {
+            StackFault::LagInGroups { groups, .. } => Some(groups),
+            _ => None,
+        })
+        .collect();
+    let within = |[a, b]: [usize; 2]| spans.iter().any(|&[g, h]| g <= a && b <= h);
+    faults.retain(|f| match *f {
+        StackFault::Motion {
+            from_group,
+            to_group,
+            ..
+        } => !within([from_group, from_group]) && !within([to_group, to_group]),
+        StackFault::LightChange {
+            first_frame,
+            last_frame,
+            ..
+        }
+        | StackFault::Disturbed {
+            first_frame,
+            last_frame,
+            ..
+        }
+        | StackFault::Jolt {
+            first_frame,
+            last_frame,
+            ..
+        } => !within([first_frame / n, last_frame / n]),
+        StackFault::PhaseDisagreement { group, .. } => !within([group, group]),
+        StackFault::Unwrapping { groups, .. } => !within(groups),
+        _ => true,
+    });
+    faults.extend(lags);
 }
 
 /// Consecutive runs of equal keys: (first, last, key) for indices with `Some(key)`.

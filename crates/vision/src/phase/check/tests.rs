@@ -406,3 +406,65 @@ fn a_whole_group_shown_late_is_named_not_taken_for_light() {
         show(&d.verdict)
     );
 }
+
+#[test]
+fn a_lag_that_takes_its_direction_to_wrong_orders_is_named_against_the_other_counts() {
+    // A dim, blurred scene (PSF σ 1.27 px, read noise 2.7 DN): projector 0 shows the next
+    // frame's pattern in 4 of the 15 frames of fringe group 4 (rows, count 20). The rows'
+    // fusion spreads the bias over all three groups and, at many pixels, into wrong orders,
+    // so that no group stands out against the fused position: the check read it as light
+    // changing in its group and the board moving next to it. Judged against the position
+    // the other counts give alone, a group of the rows is off by what a lag gives, which
+    // names the lag in the rows (6b.11: not which group, as each reference but one holds
+    // the lagged group); not repaired (the repair takes its orders from every group).
+    let response = ProjectorResponse::Gamma { gamma: 2.6 };
+    let seq = sequence(3, response);
+    let setups = vec![
+        ProjectorSetup {
+            width: 1920,
+            height: 1080,
+            response,
+        };
+        3
+    ];
+    let mut scene = FringeScene::standard(320, 256, &setups, 180);
+    let im = &mut scene.imaging;
+    (im.ambient, im.white, im.read_noise, im.psf_sigma) = (26.0, 197.0, 2.7, 1.27);
+    for sp in &mut scene.projectors {
+        sp.gain = (197.0 - 26.0) / 3.0;
+    }
+    let mut renderer = Renderer::new(&scene, &seq);
+    let mut decoder = Decoder::<u8>::new(&seq, "cam0", 320, 256, 255.0).unwrap();
+    for k in 0..seq.frame_count() {
+        let mut d = Disturbance::none(3);
+        if (50..=53).contains(&k) {
+            d.shown[0] = Some(k + 1);
+        }
+        decoder
+            .push_frame(k, FrameRef::from(&renderer.frame_with(k, &d)))
+            .unwrap();
+    }
+    let v = decoder.finish().unwrap().verdict;
+    eprintln!("{}", show(&v));
+    assert!(!v.passed(), "{}", show(&v));
+    let named = |f: &StackFault| {
+        matches!(
+            f,
+            StackFault::LagInGroups {
+                projector: 0,
+                groups: [3, 5],
+                frames: [45, 89],
+            }
+        )
+    };
+    assert!(v.faults.iter().any(named), "{}", show(&v));
+    // What the lag explains is not named besides it.
+    assert!(
+        !(v.faults.iter()).any(|f| matches!(
+            f,
+            StackFault::Motion { .. } | StackFault::LightChange { .. }
+        )),
+        "{}",
+        show(&v)
+    );
+}

@@ -34,6 +34,19 @@ pub enum StackFault {
         /// The pattern shown instead, as an offset in frames (−1: the previous frame's).
         offset: i32,
     },
+    /// One projector showed another frame's pattern somewhere in one direction's groups,
+    /// with a bias that took the direction's fused position to wrong fringe orders, so
+    /// that no one group stands out: a group, judged against the position the other counts
+    /// give alone, is off by what a lag gives (which group is not certain: each reference
+    /// but one holds the lagged group).
+    LagInGroups {
+        /// The projector (sequence order).
+        projector: usize,
+        /// The direction's first and last group.
+        groups: [usize; 2],
+        /// Their first and last frame.
+        frames: [usize; 2],
+    },
     /// One projector's phases in one fringe group disagree with its other groups by more
     /// than noise, with no one cause that fits.
     PhaseDisagreement {
@@ -126,6 +139,16 @@ impl StackFault {
                 "projector {projector} showed {} in about {count} of the frames of fringe group {} ({}) — check the projector's sync and raise settle_ms",
                 pattern_offset(offset),
                 group + 1,
+                frames(a, b)
+            ),
+            StackFault::LagInGroups {
+                projector,
+                groups: [g, h],
+                frames: [a, b],
+            } => format!(
+                "projector {projector} showed another frame's pattern in some frames of fringe groups {}–{} ({}) — check the projector's sync and raise settle_ms",
+                g + 1,
+                h + 1,
                 frames(a, b)
             ),
             StackFault::PhaseDisagreement {

@@ -31,7 +31,7 @@ const SCATTER: f64 = 0.25;
 
 /// Modulation (σ_I units) every group of a pixel needs for its phases' bias and scatter to be
 /// tested.
-const MIN_SNR: f64 = 6.0;
+pub(super) const MIN_SNR: f64 = 6.0;
 
 /// Modulation (σ_I units) every group of a pixel needs for the light and unwrapping tests:
 /// the decoder's validity floor.
@@ -480,7 +480,7 @@ impl Stack<'_> {
     /// modulation more than the phase). A lag always lowers the modulation
     /// (|1 + k·(e^{iθo} − 1)| < 1 for 0 < k ≤ 1); another projector's lag leaking into this
     /// one's bins biases its phase as much but leaves its modulation unchanged or higher.
-    fn lag(&self, p: usize, delta: f64, a: f64) -> Option<(usize, i32)> {
+    pub(super) fn lag(&self, p: usize, delta: f64, a: f64) -> Option<(usize, i32)> {
         let n = self.model.steps;
         let theta = self.model.theta(p);
         (1..=n)
@@ -505,7 +505,7 @@ impl Stack<'_> {
 }
 
 /// P(χ²_k > x) for k ≤ 3 (the regularised upper incomplete gamma Q(k/2, x/2)).
-fn chi2_tail(k: usize, x: f64) -> f64 {
+pub(super) fn chi2_tail(k: usize, x: f64) -> f64 {
     let h = 0.5 * x;
     match k {
         1 => libm::erfc(h.sqrt()),
@@ -531,7 +531,7 @@ fn percent(f: &StackFault) -> f64 {
 }
 
 /// x minus its nearest integer, in [−½, ½) (x within ±2⁶² of 0; no libm call).
-fn centred(x: f64) -> f64 {
+pub(super) fn centred(x: f64) -> f64 {
     let y = x + 0.5;
     let whole = y as i64 as f64;
     let floor = if whole > y { whole - 1.0 } else { whole };
