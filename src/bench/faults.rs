@@ -8,6 +8,7 @@ use super::check::draw;
 use crate::phase::check::StackFault;
 use crate::phase::{DecodedStack, Decoder, FrameRef};
 use crate::sim::fringe::{Disturbance, Renderer, Truth};
+use hexcal_vision::stats::median;
 use rand::{Rng, SeedableRng};
 use std::f64::consts::TAU;
 
@@ -338,10 +339,6 @@ fn patch_errors(
 /// The mean of `e` without the values beyond 6 robust standard deviations (and 1 px) of its
 /// median (reorders it).
 fn robust_mean(e: &mut [f64]) -> f64 {
-    let median = |x: &mut [f64]| {
-        let mid = x.len() / 2;
-        *x.select_nth_unstable_by(mid, f64::total_cmp).1
-    };
     let m = median(e);
     let mut dev: Vec<f64> = e.iter().map(|v| (v - m).abs()).collect();
     let limit = (6.0 * median(&mut dev) / 0.6745).max(1.0);

@@ -10,6 +10,7 @@ pub mod correspond;
 pub mod detect;
 pub mod grid;
 pub mod phase;
+pub mod stats;
 
 /// Paths of the test data vendored in the repository (`tests/data`).
 #[cfg(test)]

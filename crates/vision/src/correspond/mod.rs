@@ -11,6 +11,7 @@
 //! leaves its ring's band out; its white inside and outside the ring serves as any other.
 
 use crate::grid::{Grid, LabelledPoint};
+use crate::stats::median;
 use hexcal_core::board::{Hex, Side};
 use hexcal_core::observations::{CameraView, Frame, ProjectorPixel, ViewPoint};
 use nalgebra::{Point2, SMatrix, SVector};
@@ -223,7 +224,10 @@ fn fit_at(
     if r.iter().all(|&ri| ri <= limit) {
         return Some(Point2::new(cu[0], cv[0]));
     }
-    let kept: Vec<PatchRow> = rows.into_iter().filter(|x| residual(x) <= limit).collect();
+    let kept: Vec<PatchRow> = (rows.into_iter().zip(r))
+        .filter(|&(_, ri)| ri <= limit)
+        .map(|(row, _)| row)
+        .collect();
     let [cu, cv] = solve_rows(&kept)?;
     Some(Point2::new(cu[0], cv[0]))
 }
@@ -242,15 +246,6 @@ fn solve_rows(rows: &[PatchRow]) -> Option<[SVector<f64, 6>; 2]> {
     }
     let chol = ata.cholesky()?;
     Some([chol.solve(&atu), chol.solve(&atv)])
-}
-
-/// The median of `x` (reorders it; 0 when empty).
-fn median(x: &mut [f64]) -> f64 {
-    if x.is_empty() {
-        return 0.0;
-    }
-    let mid = x.len() / 2;
-    *x.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// Valid pixels of `pixels` under the map.

@@ -3,6 +3,7 @@
 //! noise model measured from the residuals.
 
 use super::super::maps::NoiseModel;
+use crate::stats::median;
 use hexcal_core::pattern::{pattern_harmonic, Sequence, CHECKED_HARMONICS};
 use rayon::prelude::*;
 use std::f64::consts::TAU;
@@ -305,15 +306,6 @@ pub(super) fn means_median_ratio(groups: usize) -> f64 {
         })
         .collect();
     median(&mut stats)
-}
-
-/// The median of `x` (reordered; 0 when empty).
-pub(super) fn median(x: &mut [f64]) -> f64 {
-    if x.is_empty() {
-        return 0.0;
-    }
-    let mid = x.len() / 2;
-    *x.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// The noise model σ_I² = a + b·A from per-pixel (level, variance statistic) pairs whose

@@ -9,7 +9,7 @@ mod lit;
 mod per_frame;
 mod phases;
 
-use super::fit::{chi2_median_ratio, means_median_ratio, robust_noise, Fits, GroupFits};
+use super::fit::{chi2_median_ratio, means_median_ratio, robust_noise, Fits, GroupFits, PixelFit};
 use super::{CheckFigures, CheckParams, StackFault, StackNote, StackSampler, StackVerdict};
 use crate::phase::NoiseModel;
 use hexcal_core::pattern::Sequence;
@@ -184,10 +184,8 @@ impl<'a> Stack<'a> {
 
     /// Give every block the variance of `noise`; the noise it replaces is returned.
     fn set_noise(&mut self, noise: NoiseModel) -> NoiseModel {
-        for (b, blk) in self.blocks.iter_mut().enumerate() {
-            if let Some(blk) = blk {
-                blk.var = block_var(&noise, &self.levels[4 * b..4 * b + 4]);
-            }
+        for blk in self.blocks.iter_mut().flatten() {
+            blk.var = block_var(&noise, blk.shapes[2]);
         }
         std::mem::replace(&mut self.noise, noise)
     }
@@ -276,8 +274,6 @@ impl Fit {
     }
 }
 
-/// Block b's shapes from its four pixels' fits and `levels` (corners (0,0), (1,0), (0,1),
-/// (1,1)).
 /// The noise model of the unclipped pixels' residuals, or group means, of the groups not in
 /// `left_out` (a bit each).
 fn measure_noise(
@@ -307,6 +303,8 @@ fn measure_noise(
     robust_noise(pairs, ratio)
 }
 
+/// Block b's shapes from its four pixels' fits and `levels` (corners (0,0), (1,0), (0,1),
+/// (1,1)).
 fn block(fits: &Fits, levels: &[f64], b: usize, model: &GroupFits, noise: &NoiseModel) -> Block {
     let pixels = || (4 * b..4 * b + 4).map(|i| fits.pixel(i));
     let levels = &levels[4 * b..4 * b + 4];
@@ -321,18 +319,25 @@ fn block(fits: &Fits, levels: &[f64], b: usize, model: &GroupFits, noise: &Noise
     let gy = 0.5 * ((levels[2] + levels[3]) - (levels[0] + levels[1]));
     Block {
         shapes: [1.0, (level - lit).max(0.0), level, gx, gy],
-        var: block_var(noise, levels),
+        var: block_var(noise, level),
     }
 }
 
-/// A block's per-pixel noise variance σ_I² at its mean level (its pixels' `levels`): a
-/// noise-free stack (rendered without noise) still gets finite weights.
-fn block_var(noise: &NoiseModel, levels: &[f64]) -> f64 {
-    let level = levels.iter().sum::<f64>() / levels.len() as f64;
+/// A block's per-pixel noise variance σ_I² at its mean `level`: a noise-free stack
+/// (rendered without noise) still gets finite weights.
+fn block_var(noise: &NoiseModel, level: f64) -> f64 {
     noise.sigma(level).powi(2).max(MIN_VAR)
 }
 
 impl Block {
+    /// Projector p's B² in group g at the block's pixel `f` (N `steps`): |C|² = B² + 4σ_I²/N
+    /// on average, so B² without the noise's share.
+    fn modulation_sq(&self, f: PixelFit, g: usize, p: usize, steps: usize) -> f64 {
+        let [re, im] = f.fundamental(g, p);
+        let c2 = f64::from(re).powi(2) + f64::from(im).powi(2);
+        (c2 - 4.0 * self.var / steps as f64).max(0.0)
+    }
+
     /// Whether the block is away from albedo edges (its level changes by under 2 % per
     /// pixel): there every group's phase is the pixel centre's, not a mix of differently
     /// bright neighbours'.

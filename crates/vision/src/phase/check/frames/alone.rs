@@ -10,7 +10,7 @@ use super::{Stack, StackFault};
 use crate::phase::check::CheckParams;
 use crate::phase::decode::phase_cycles;
 use crate::phase::Constellation;
-use hexcal_core::pattern::{Direction, Sequence};
+use hexcal_core::pattern::{Direction, Sequence, MAX_COUNTS};
 use rayon::prelude::*;
 use std::f64::consts::TAU;
 
@@ -87,32 +87,33 @@ impl Stack<'_> {
         let cons = Constellation::shared(&others).ok()?;
         let (m, r) = (counts.len(), 0.5 * cons.spacing());
         let phase_var = 2.0 / self.model.steps as f64;
-        let (mut psi, mut weight, mut b) = (vec![0f32; m], vec![0f32; m], vec![0f64; m]);
+        let (mut psi, mut b) = ([0f32; MAX_COUNTS], [0f64; MAX_COUNTS]);
+        // The other counts' phases and weights, in their order.
+        let (mut ps, mut ws) = ([0f32; MAX_COUNTS - 1], [0f32; MAX_COUNTS - 1]);
         let mut sums = Alone::default();
         for (blk, block) in self.usable().filter(|(_, b)| b.interior()) {
             let sigma = block.var.sqrt();
             for f in (4 * blk..4 * blk + 4).map(|i| self.fits.pixel(i)) {
                 for k in 0..m {
+                    b[k] = block
+                        .modulation_sq(f, first + k, p, self.model.steps)
+                        .sqrt();
                     let [re, im] = f.fundamental(first + k, p);
-                    let c2 = f64::from(re).powi(2) + f64::from(im).powi(2);
-                    b[k] = (c2 - 2.0 * phase_var * block.var).max(0.0).sqrt();
-                    weight[k] = (b[k] * b[k]) as f32;
                     psi[k] = phase_cycles(-im, re);
                 }
-                if b.iter().any(|&bk| bk < MIN_SNR * sigma) {
+                if b[..m].iter().any(|&bk| bk < MIN_SNR * sigma) {
                     continue;
                 }
                 let var = |k: usize| phase_var * block.var / (b[k] * b[k]);
-                let (ps, ws): (Vec<f32>, Vec<f32>) = (0..m)
-                    .filter(|&k| k != j)
-                    .map(|k| (psi[k], weight[k]))
-                    .unzip();
+                for (i, k) in (0..m).filter(|&k| k != j).enumerate() {
+                    (ps[i], ws[i]) = (psi[k], (b[k] * b[k]) as f32);
+                }
                 let mean_var = (0..m).filter(|&k| k != j).map(var).sum::<f64>() / (m - 1) as f64;
                 let wrong = chi2_tail(m - 2, r * r / mean_var);
                 if wrong > WRONG_ORDERS {
                     continue;
                 }
-                let t = f64::from(cons.unwrap(&ps, &ws).position);
+                let t = f64::from(cons.unwrap(&ps[..m - 1], &ws[..m - 1]).position);
                 let e = TAU * centred(f64::from(psi[j]) - f64::from(counts[j]) * t);
                 let mean_b = (0..m).filter(|&k| k != j).map(|k| b[k]).sum::<f64>() / (m - 1) as f64;
                 let im = -b[j] / mean_b * e.sin();

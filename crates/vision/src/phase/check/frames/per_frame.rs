@@ -4,8 +4,8 @@
 //! disturbed by more than the budget fails.
 
 use super::{runs, Stack, StackFault};
-use crate::phase::check::fit::median;
 use crate::phase::check::CheckParams;
+use crate::stats::median;
 use nalgebra::SVector;
 use rayon::prelude::*;
 

@@ -11,11 +11,11 @@
 
 use super::leak::{Leak, OUTLIER};
 use super::{Stack, StackFault};
-use crate::phase::check::fit::median;
 use crate::phase::check::repair::kept_groups;
 use crate::phase::check::CheckParams;
 use crate::phase::decode::phase_cycles;
 use crate::phase::Constellation;
+use crate::stats::median;
 use hexcal_core::pattern::{Direction, Sequence};
 use rayon::prelude::*;
 use std::f64::consts::TAU;
@@ -243,7 +243,6 @@ impl Stack<'_> {
     /// fringe count): Σ_kept n²B² over that plus Σ_left n²·B̄²_kept (a left-out group's own B
     /// is the fault's: a lag lowers it in its projector and leaks into the others').
     fn kept_information(&self, p: usize, kept: &[(usize, u32)], left: &[(usize, u32)]) -> f64 {
-        let phase_var = 2.0 / self.model.steps as f64;
         let n2 = |gs: &[(usize, u32)]| gs.iter().map(|&(_, n)| f64::from(n).powi(2)).sum::<f64>();
         let n2_left = n2(left);
         let (mut kept_info, mut left_info) = (0.0, 0.0);
@@ -251,9 +250,7 @@ impl Stack<'_> {
             for f in (4 * blk..4 * blk + 4).map(|i| self.fits.pixel(i)) {
                 let mut b2_sum = 0.0;
                 for &(g, n) in kept {
-                    let [re, im] = f.fundamental(g, p);
-                    let c2 = f64::from(re).powi(2) + f64::from(im).powi(2);
-                    let b2 = (c2 - 2.0 * phase_var * block.var).max(0.0);
+                    let b2 = block.modulation_sq(f, g, p, self.model.steps);
                     kept_info += f64::from(n).powi(2) * b2;
                     b2_sum += b2;
                 }
@@ -346,10 +343,7 @@ impl Stack<'_> {
             }
             for f in (4 * blk..4 * blk + 4).map(|i| self.fits.pixel(i)) {
                 for (j, &g) in groups.iter().enumerate() {
-                    let [re, im] = f.fundamental(g, p);
-                    // |C|² = B² + 4σ_I²/N on average: B without the noise's share.
-                    let c2 = f64::from(re).powi(2) + f64::from(im).powi(2);
-                    b[j] = (c2 - 2.0 * phase_var * block.var).max(0.0).sqrt();
+                    b[j] = block.modulation_sq(f, g, p, self.model.steps).sqrt();
                     weight[j] = (b[j] * b[j]) as f32;
                 }
                 // Phases of B ≥ 6σ_I are Gaussian to the scatter test's precision (σ_φ ≤
