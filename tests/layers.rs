@@ -381,7 +381,10 @@ const MODULES: &[(&str, &[&str])] = &[
             "observations",
         ],
     ),
-    ("crates/vision", &["phase", "detect", "grid", "correspond"]),
+    (
+        "crates/vision",
+        &["stats", "phase", "detect", "grid", "correspond"],
+    ),
     ("crates/rig", &["rig", "capture", "check"]),
     ("crates/calib", &["calib", "report"]),
     (
