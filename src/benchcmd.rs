@@ -177,6 +177,10 @@ pub enum Bench {
         /// The first stack decoded (the ones before it are drawn, not decoded).
         #[arg(long, default_value_t = 0)]
         from: usize,
+        /// Print every stack's fault and verdict, not only those used silently or refused
+        /// with another cause.
+        #[arg(long)]
+        every: bool,
     },
     /// Decode one camera's default phase-shift stack (synthetic scene, gamma 2.2).
     Decode {
@@ -335,7 +339,12 @@ pub fn run(what: Bench) -> anyhow::Result<()> {
                 r.seconds / r.stacks.max(1) as f64
             );
         }
-        Bench::Faults { stacks, seed, from } => print_faults(stacks, seed, from),
+        Bench::Faults {
+            stacks,
+            seed,
+            from,
+            every,
+        } => print_faults(stacks, seed, from, every),
         Bench::Decode {
             width,
             height,
@@ -539,16 +548,22 @@ fn bench_script(rig_path: &Path) -> anyhow::Result<()> {
 }
 
 /// `bench faults`: per kind of fault the stacks refused (with the cause named or not),
-/// used accurately, and used although inaccurate (silent), with every silent case.
-fn print_faults(stacks: usize, seed: u64, from: usize) {
+/// used accurately, and used although inaccurate (silent), with every silent case (`every`:
+/// every case).
+fn print_faults(stacks: usize, seed: u64, from: usize, every: bool) {
     use hexcal::bench::faults::{bench_faults, FaultKind};
     let t = std::time::Instant::now();
     let cases = bench_faults(stacks, seed, from);
     for c in cases
         .iter()
-        .filter(|c| c.silent() || (c.refused && !c.right_cause))
+        .filter(|c| every || c.silent() || (c.refused && !c.right_cause))
     {
-        let what = if c.silent() { "SILENT" } else { "other cause" };
+        let what = match (c.silent(), c.refused, c.right_cause) {
+            (true, _, _) => "SILENT",
+            (_, true, false) => "other cause",
+            (_, true, true) => "refused",
+            (_, false, _) => "used",
+        };
         println!(
             "{what}: {} (ratio {:.2}): {}\n    {}",
             c.label, c.ratio, c.verdict, c.detail

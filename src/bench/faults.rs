@@ -128,6 +128,7 @@ fn names(kind: FaultKind, f: &StackFault) -> bool {
             f,
             WrongPattern { .. }
                 | LagInGroups { .. }
+                | FringesInMean { .. }
                 | PhaseDisagreement { .. }
                 | Unwrapping { .. }
                 | Disturbed { .. }

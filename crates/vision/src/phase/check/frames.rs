@@ -6,13 +6,14 @@ mod alone;
 mod groups;
 mod leak;
 mod lit;
+mod means;
 mod per_frame;
 mod phases;
 
 use super::fit::{chi2_median_ratio, means_median_ratio, robust_noise, Fits, GroupFits, PixelFit};
 use super::{CheckFigures, CheckParams, StackFault, StackNote, StackSampler, StackVerdict};
 use crate::phase::NoiseModel;
-use hexcal_core::pattern::Sequence;
+use hexcal_core::pattern::{Direction, Sequence};
 use nalgebra::{SMatrix, SVector};
 use rayon::prelude::*;
 
@@ -390,29 +391,62 @@ fn merge(
     out
 }
 
-/// A refused stack with no lag named: the lags its groups show against their direction's
-/// other counts alone (6b.11) replace what the fusion made of them in that direction (light
-/// changing or phases disagreeing in its groups, positions that do not unwrap, disturbed
-/// frames, motion between its groups).
+/// A refused stack: the wrong patterns the phases named checked against the groups' means
+/// ([`drop_misplaced_patterns`]); with none left, the lags its groups' mean images show
+/// (6b.12, named per group) and those its groups show against their direction's other counts alone
+/// (6b.11, named per direction) replace what the other tests made of them there (light
+/// changing or phases disagreeing in their groups, positions that do not unwrap, disturbed
+/// frames, motion next to them). A group with a jolt named keeps it: a jolt moves the fringes
+/// too, which leaves them in the group's mean.
 fn name_hidden_lags(
     stack: &Stack,
     seq: &Sequence,
     params: &CheckParams,
     faults: &mut Vec<StackFault>,
 ) {
-    let lag = |f: &StackFault| matches!(f, StackFault::WrongPattern { .. });
-    if faults.is_empty() || faults.iter().any(lag) {
+    if faults.is_empty() {
         return;
     }
-    let lags = stack.lags_alone(seq, params);
     let n = stack.model.steps;
-    let spans: Vec<[usize; 2]> = (lags.iter())
-        .filter_map(|f| match *f {
-            StackFault::LagInGroups { groups, .. } => Some(groups),
-            _ => None,
-        })
-        .collect();
+    let jolted = |g: usize| {
+        (faults.iter())
+            .any(|f| matches!(*f, StackFault::Jolt { first_frame, .. } if first_frame / n == g))
+    };
+    let mut lags: Vec<(Vec<usize>, [usize; 2], StackFault)> =
+        (stack.lags_in_means(params).into_iter())
+            .filter_map(|f| Some((lag_place(&f)?, f)))
+            .filter(|((_, [g, _]), _)| !jolted(*g))
+            .map(|((p, groups), f)| (p, groups, f))
+            .collect();
+    let means: Vec<StackFault> = lags.iter().map(|l| l.2.clone()).collect();
+    if !drop_misplaced_patterns(faults, &means) {
+        return;
+    }
+    // A direction's lag that a group's mean places is named there (6b.11 names the
+    // projector of the largest bias, which the lag's leak into the others' bins may make
+    // another's); what it explains in the direction (its fusion went astray) stays explained.
+    let mut spans: Vec<[usize; 2]> = lags.iter().map(|l| l.1).collect();
+    for f in stack.lags_alone(seq, params) {
+        let Some((p, [a, b])) = lag_place(&f) else {
+            continue;
+        };
+        spans.push([a, b]);
+        if !lags.iter().any(|(_, [g, _], _)| a <= *g && *g <= b) {
+            lags.push((p, [a, b], f));
+        }
+    }
+    // A lag biases its projector's fused positions, and through them the phases of its
+    // direction's other groups.
+    let n_col = seq.counts(Direction::Columns).len();
+    let direction = |g: usize| match g < n_col {
+        true => [0, n_col - 1],
+        false => [n_col, stack.model.groups - 1],
+    };
     let within = |[a, b]: [usize; 2]| spans.iter().any(|&[g, h]| g <= a && b <= h);
+    let overlaps = |p: usize, [a, b]: [usize; 2]| {
+        lags.iter()
+            .any(|(q, [g, h], _)| q.contains(&p) && a <= *h && *g <= b)
+    };
     faults.retain(|f| match *f {
         StackFault::Motion {
             from_group,
@@ -434,11 +468,50 @@ fn name_hidden_lags(
             last_frame,
             ..
         } => !within([first_frame / n, last_frame / n]),
-        StackFault::PhaseDisagreement { group, .. } => !within([group, group]),
-        StackFault::Unwrapping { groups, .. } => !within(groups),
+        StackFault::PhaseDisagreement {
+            projector, group, ..
+        } => !within([group, group]) && !overlaps(projector, direction(group)),
+        StackFault::Unwrapping {
+            projector, groups, ..
+        } => !within(groups) && !overlaps(projector, groups),
         _ => true,
     });
-    faults.extend(lags);
+    faults.extend(lags.into_iter().map(|l| l.2));
+}
+
+/// The wrong patterns the phases named (6b.5) against the lags the groups' means show
+/// (6b.12): the phases place a lag through its projector's phase and modulation change,
+/// which its leak into the other projectors' bins of the group can mimic, and through the
+/// fusion, which can spread it to another group; the mean places it directly. A wrong
+/// pattern that no lag in the means matches (its group, its projector among theirs) is
+/// dropped, for those lags to be named instead. Whether the stack is left with no wrong
+/// pattern (true also when it had none).
+fn drop_misplaced_patterns(faults: &mut Vec<StackFault>, means: &[StackFault]) -> bool {
+    let matched = |p: usize, g: usize| {
+        (means.iter()).any(|m| matches!(m, StackFault::FringesInMean { projectors, group, .. } if *group == g && projectors.contains(&p)))
+    };
+    faults.retain(|f| match *f {
+        StackFault::WrongPattern {
+            projector, group, ..
+        } => means.is_empty() || matched(projector, group),
+        _ => true,
+    });
+    !faults
+        .iter()
+        .any(|f| matches!(f, StackFault::WrongPattern { .. }))
+}
+
+/// A lag's projectors and groups.
+fn lag_place(f: &StackFault) -> Option<(Vec<usize>, [usize; 2])> {
+    match f {
+        StackFault::LagInGroups {
+            projector, groups, ..
+        } => Some((vec![*projector], *groups)),
+        StackFault::FringesInMean {
+            projectors, group, ..
+        } => Some((projectors.clone(), [*group, *group])),
+        _ => None,
+    }
 }
 
 /// Consecutive runs of equal keys: (first, last, key) for indices with `Some(key)`.

@@ -47,6 +47,18 @@ pub enum StackFault {
         /// Their first and last frame.
         frames: [usize; 2],
     },
+    /// A fringe group's mean image holds a projector's fringes (every group shows the same
+    /// mean image): the projector showed another frame's pattern in some of its frames.
+    /// More than one projector is named when their fringes look alike on the board, so that
+    /// the mean cannot tell which.
+    FringesInMean {
+        /// The projectors it may be (sequence order), the likeliest first.
+        projectors: Vec<usize>,
+        /// The group.
+        group: usize,
+        /// Its first and last frame.
+        frames: [usize; 2],
+    },
     /// One projector's phases in one fringe group disagree with its other groups by more
     /// than noise, with no one cause that fits.
     PhaseDisagreement {
@@ -151,6 +163,20 @@ impl StackFault {
                 h + 1,
                 frames(a, b)
             ),
+            StackFault::FringesInMean {
+                ref projectors,
+                group,
+                frames: [a, b],
+            } => {
+                let who = (projectors.iter().map(|p| p.to_string()))
+                    .collect::<Vec<_>>()
+                    .join(" or ");
+                format!(
+                    "projector {who} showed another frame's pattern in fringe group {} ({}): the group's mean image holds its fringes — check the projector's sync and raise settle_ms",
+                    group + 1,
+                    frames(a, b)
+                )
+            }
             StackFault::PhaseDisagreement {
                 projector,
                 group,
