@@ -124,6 +124,7 @@ pub(super) fn judge(
     // After the repair: a lag the fusion hid took its direction's orders astray, which a
     // repair (orders from every group) would not undo.
     name_hidden_lags(&stack, &sampler.seq, params, &mut faults);
+    name_light_inside(&mut notes, stack.model.steps, &mut faults);
     stack.modulation_notes(sampler.full_scale, params, &mut notes);
     // A figure of a stack with nothing usable (every block clipped) may be 0/0: kept as 0.
     let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
@@ -499,6 +500,68 @@ fn drop_misplaced_patterns(faults: &mut Vec<StackFault>, means: &[StackFault]) -
     !faults
         .iter()
         .any(|f| matches!(f, StackFault::WrongPattern { .. }))
+}
+
+/// A light step between groups next to a group whose light changed or whose phases
+/// disagree: the step happened inside that group. A step exactly between groups leaves
+/// every group's phases alone (each group is measured against its own mean); one inside
+/// group g adds the light's shape to g's bins (6b.8), and where it is large its phases go to
+/// wrong fringe orders, which 6b.8 cannot read. On a stack with no lag named, the light
+/// change (sized by the step between the groups' means: less than the step inside) replaces
+/// g's phase faults and its direction's unwrapping; and the note that called the step
+/// harmless goes.
+fn name_light_inside(notes: &mut Vec<StackNote>, n: usize, faults: &mut Vec<StackFault>) {
+    let lag = |f: &StackFault| {
+        matches!(
+            f,
+            StackFault::WrongPattern { .. }
+                | StackFault::LagInGroups { .. }
+                | StackFault::FringesInMean { .. }
+        )
+    };
+    let no_lag = !faults.iter().any(lag);
+    let mut inside = Vec::new();
+    for (i, note) in notes.iter().enumerate() {
+        let StackNote::LightStep {
+            from_group,
+            to_group,
+            percent,
+        } = *note
+        else {
+            continue;
+        };
+        let light = |g: usize| {
+            (faults.iter()).any(|f| matches!(*f, StackFault::LightChange { first_frame, last_frame, .. } if first_frame / n <= g && g <= last_frame / n))
+        };
+        let disagrees = |g: usize| {
+            (faults.iter())
+                .any(|f| matches!(*f, StackFault::PhaseDisagreement { group, .. } if group == g))
+        };
+        if light(from_group) || light(to_group) {
+            inside.push(i);
+            continue;
+        }
+        let Some(g) = [from_group, to_group].into_iter().find(|&g| disagrees(g)) else {
+            continue;
+        };
+        if !no_lag {
+            continue;
+        }
+        faults.retain(|f| match *f {
+            StackFault::PhaseDisagreement { group, .. } => group != g,
+            StackFault::Unwrapping { groups, .. } => !(groups[0] <= g && g <= groups[1]),
+            _ => true,
+        });
+        faults.push(StackFault::LightChange {
+            first_frame: g * n,
+            last_frame: g * n + n - 1,
+            percent: percent.abs(),
+        });
+        inside.push(i);
+    }
+    for i in inside.into_iter().rev() {
+        notes.remove(i);
+    }
 }
 
 /// A lag's projectors and groups.

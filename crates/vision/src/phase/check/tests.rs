@@ -558,3 +558,52 @@ fn a_lag_the_phases_place_in_another_group_is_placed_by_the_means() {
     };
     assert!(!v.faults.iter().any(elsewhere), "{}", show(&v));
 }
+
+#[test]
+fn a_large_light_step_inside_a_short_group_is_named_as_light() {
+    // One linear projector, N = 3 (no residual per frame): the room light rises by a
+    // quarter from frame 1 on, inside fringe group 1. The light's shape in group 1's bin
+    // takes its phases to wrong orders at some pixels, which 6b.8 cannot read; the step
+    // between the groups' means, next to the group whose phases disagree, with no lag in
+    // any group's mean, names it.
+    let seq = sequence(1, ProjectorResponse::Linear);
+    let setups = vec![ProjectorSetup {
+        width: 1920,
+        height: 1080,
+        response: ProjectorResponse::Linear,
+    }];
+    let mut scene = FringeScene::standard(480, 384, &setups, 126);
+    let im = &mut scene.imaging;
+    (im.ambient, im.white, im.read_noise, im.psf_sigma) = (79.0, 139.0, 1.0, 0.55);
+    scene.projectors[0].gain = 139.0 - 79.0;
+    let mut renderer = Renderer::new(&scene, &seq);
+    let mut decoder = Decoder::<u8>::new(&seq, "cam0", 480, 384, 255.0).unwrap();
+    for k in 0..seq.frame_count() {
+        let d = Disturbance {
+            ambient: if k >= 1 { 1.23 } else { 1.0 },
+            ..Disturbance::none(1)
+        };
+        decoder
+            .push_frame(k, FrameRef::from(&renderer.frame_with(k, &d)))
+            .unwrap();
+    }
+    let v = decoder.finish().unwrap().verdict;
+    eprintln!("{}", show(&v));
+    assert_eq!(seq.steps(), 3);
+    assert!(!v.passed(), "{}", show(&v));
+    assert!(
+        (v.faults.iter()).any(|f| matches!(
+            f,
+            StackFault::LightChange {
+                first_frame: 0,
+                last_frame: 2,
+                ..
+            }
+        )),
+        "{}",
+        show(&v)
+    );
+    let other = |f: &StackFault| !matches!(f, StackFault::LightChange { .. });
+    assert!(!v.faults.iter().any(other), "{}", show(&v));
+    assert!(v.notes.is_empty(), "{}", show(&v));
+}
