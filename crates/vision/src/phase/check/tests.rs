@@ -38,17 +38,49 @@ fn decode_with_truth(
     seed: u64,
     fault: impl Fn(usize) -> Disturbance,
 ) -> (DecodedStack, Truth) {
-    let setups: Vec<ProjectorSetup> = seq
-        .projectors()
-        .iter()
+    let scene = FringeScene::standard(width, height, &setups(seq), seed);
+    decode_scene(seq, &scene, fault)
+}
+
+/// The verdict on a `width` × `height` stack of the standard scene for `seq` lit as
+/// `[ambient, white, read noise, PSF σ]` say, each projector's gain (white − ambient)/`share`,
+/// frame k disturbed as `fault(k)` says.
+fn verdict_lit(
+    seq: &Sequence,
+    (width, height): (u32, u32),
+    seed: u64,
+    [ambient, white, read_noise, psf]: [f64; 4],
+    share: f64,
+    fault: impl Fn(usize) -> Disturbance,
+) -> StackVerdict {
+    let mut scene = FringeScene::standard(width, height, &setups(seq), seed);
+    let im = &mut scene.imaging;
+    (im.ambient, im.white, im.read_noise, im.psf_sigma) = (ambient, white, read_noise, psf);
+    for sp in &mut scene.projectors {
+        sp.gain = (white - ambient) / share;
+    }
+    decode_scene(seq, &scene, fault).0.verdict
+}
+
+/// The projectors of `seq` as the scene takes them.
+fn setups(seq: &Sequence) -> Vec<ProjectorSetup> {
+    (seq.projectors().iter())
         .map(|c| ProjectorSetup {
             width: c.width,
             height: c.height,
             response: c.response,
         })
-        .collect();
-    let scene = FringeScene::standard(width, height, &setups, seed);
-    let mut renderer = Renderer::new(&scene, seq);
+        .collect()
+}
+
+/// Decode `scene`'s stack of `seq` with frame k disturbed as `fault(k)` says.
+fn decode_scene(
+    seq: &Sequence,
+    scene: &FringeScene,
+    fault: impl Fn(usize) -> Disturbance,
+) -> (DecodedStack, Truth) {
+    let mut renderer = Renderer::new(scene, seq);
+    let (width, height) = (scene.width, scene.height);
     let mut decoder = Decoder::<u8>::new(seq, "cam0", width, height, 255.0).unwrap();
     for k in 0..seq.frame_count() {
         let frame = renderer.frame_with(k, &fault(k));
@@ -414,34 +446,14 @@ fn a_lag_that_takes_its_direction_to_wrong_orders_is_named_against_the_other_cou
     // the other counts give alone, a group of the rows is off by what a lag gives (6b.11),
     // and the group's mean image holds projector 0's fringes (6b.12), which names the lag
     // and its group; not repaired (the repair takes its orders from every group).
-    let response = ProjectorResponse::Gamma { gamma: 2.6 };
-    let seq = sequence(3, response);
-    let setups = vec![
-        ProjectorSetup {
-            width: 1920,
-            height: 1080,
-            response,
-        };
-        3
-    ];
-    let mut scene = FringeScene::standard(320, 256, &setups, 180);
-    let im = &mut scene.imaging;
-    (im.ambient, im.white, im.read_noise, im.psf_sigma) = (26.0, 197.0, 2.7, 1.27);
-    for sp in &mut scene.projectors {
-        sp.gain = (197.0 - 26.0) / 3.0;
-    }
-    let mut renderer = Renderer::new(&scene, &seq);
-    let mut decoder = Decoder::<u8>::new(&seq, "cam0", 320, 256, 255.0).unwrap();
-    for k in 0..seq.frame_count() {
+    let seq = sequence(3, ProjectorResponse::Gamma { gamma: 2.6 });
+    let v = verdict_lit(&seq, (320, 256), 180, [26.0, 197.0, 2.7, 1.27], 3.0, |k| {
         let mut d = Disturbance::none(3);
         if (50..=53).contains(&k) {
             d.shown[0] = Some(k + 1);
         }
-        decoder
-            .push_frame(k, FrameRef::from(&renderer.frame_with(k, &d)))
-            .unwrap();
-    }
-    let v = decoder.finish().unwrap().verdict;
+        d
+    });
     eprintln!("{}", show(&v));
     assert!(!v.passed(), "{}", show(&v));
     assert!(names_lag(&v, 0, 3), "{}", show(&v));
@@ -479,32 +491,14 @@ fn a_lag_in_a_short_dim_sequence_is_named_by_the_fringes_in_its_groups_mean() {
     // that do not unwrap, and the other counts alone find too few orders to judge (6b.11).
     // Group 1's mean image holds the projector's fringes (1/3 of P_0 − P_2): that names the
     // lag and its group, and explains the rest.
-    let response = ProjectorResponse::Linearised { gamma: 2.1 };
-    let seq = sequence(1, response);
-    let setups = vec![
-        ProjectorSetup {
-            width: 1920,
-            height: 1080,
-            response,
-        };
-        1
-    ];
-    let mut scene = FringeScene::standard(400, 300, &setups, 31);
-    let im = &mut scene.imaging;
-    (im.ambient, im.white, im.read_noise, im.psf_sigma) = (30.0, 160.0, 2.5, 1.3);
-    scene.projectors[0].gain = (160.0 - 30.0) / 2.0;
-    let mut renderer = Renderer::new(&scene, &seq);
-    let mut decoder = Decoder::<u8>::new(&seq, "cam0", 400, 300, 255.0).unwrap();
-    for k in 0..seq.frame_count() {
+    let seq = sequence(1, ProjectorResponse::Linearised { gamma: 2.1 });
+    let v = verdict_lit(&seq, (400, 300), 31, [30.0, 160.0, 2.5, 1.3], 2.0, |k| {
         let mut d = Disturbance::none(1);
         if (1..=2).contains(&k) {
             d.shown[0] = Some(k - 1);
         }
-        decoder
-            .push_frame(k, FrameRef::from(&renderer.frame_with(k, &d)))
-            .unwrap();
-    }
-    let v = decoder.finish().unwrap().verdict;
+        d
+    });
     eprintln!("{}", show(&v));
     assert_eq!(seq.steps(), 3);
     assert!(
@@ -522,32 +516,13 @@ fn a_lag_the_phases_place_in_another_group_is_placed_by_the_means() {
     // last). The fusion spreads the bias over the rows, and the phases name a lag in group
     // 4 (0-based 3); the mean image of group 5 holds projector 0's fringes, which places it.
     let seq = sequence(2, ProjectorResponse::Linear);
-    let setups = vec![
-        ProjectorSetup {
-            width: 1920,
-            height: 1080,
-            response: ProjectorResponse::Linear,
-        };
-        2
-    ];
-    let mut scene = FringeScene::standard(400, 300, &setups, 116);
-    let im = &mut scene.imaging;
-    (im.ambient, im.white, im.read_noise, im.psf_sigma) = (30.0, 160.0, 2.5, 1.3);
-    for sp in &mut scene.projectors {
-        sp.gain = (160.0 - 30.0) / 2.0;
-    }
-    let mut renderer = Renderer::new(&scene, &seq);
-    let mut decoder = Decoder::<u8>::new(&seq, "cam0", 400, 300, 255.0).unwrap();
-    for k in 0..seq.frame_count() {
+    let v = verdict_lit(&seq, (400, 300), 116, [30.0, 160.0, 2.5, 1.3], 2.0, |k| {
         let mut d = Disturbance::none(2);
         if (25..30).contains(&k) {
             d.shown[0] = Some(k - 1);
         }
-        decoder
-            .push_frame(k, FrameRef::from(&renderer.frame_with(k, &d)))
-            .unwrap();
-    }
-    let v = decoder.finish().unwrap().verdict;
+        d
+    });
     eprintln!("{}", show(&v));
     assert!(!v.passed(), "{}", show(&v));
     assert!(names_lag(&v, 0, 5), "{}", show(&v));
@@ -567,27 +542,12 @@ fn a_large_light_step_inside_a_short_group_is_named_as_light() {
     // between the groups' means, next to the group whose phases disagree, with no lag in
     // any group's mean, names it.
     let seq = sequence(1, ProjectorResponse::Linear);
-    let setups = vec![ProjectorSetup {
-        width: 1920,
-        height: 1080,
-        response: ProjectorResponse::Linear,
-    }];
-    let mut scene = FringeScene::standard(480, 384, &setups, 126);
-    let im = &mut scene.imaging;
-    (im.ambient, im.white, im.read_noise, im.psf_sigma) = (79.0, 139.0, 1.0, 0.55);
-    scene.projectors[0].gain = 139.0 - 79.0;
-    let mut renderer = Renderer::new(&scene, &seq);
-    let mut decoder = Decoder::<u8>::new(&seq, "cam0", 480, 384, 255.0).unwrap();
-    for k in 0..seq.frame_count() {
-        let d = Disturbance {
+    let v = verdict_lit(&seq, (480, 384), 126, [79.0, 139.0, 1.0, 0.55], 1.0, |k| {
+        Disturbance {
             ambient: if k >= 1 { 1.23 } else { 1.0 },
             ..Disturbance::none(1)
-        };
-        decoder
-            .push_frame(k, FrameRef::from(&renderer.frame_with(k, &d)))
-            .unwrap();
-    }
-    let v = decoder.finish().unwrap().verdict;
+        }
+    });
     eprintln!("{}", show(&v));
     assert_eq!(seq.steps(), 3);
     assert!(!v.passed(), "{}", show(&v));
