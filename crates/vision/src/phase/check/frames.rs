@@ -413,14 +413,12 @@ fn name_hidden_lags(
         (faults.iter())
             .any(|f| matches!(*f, StackFault::Jolt { first_frame, .. } if first_frame / n == g))
     };
-    let mut lags: Vec<(Vec<usize>, [usize; 2], StackFault)> =
-        (stack.lags_in_means(params).into_iter())
-            .filter_map(|f| Some((lag_place(&f)?, f)))
-            .filter(|((_, [g, _]), _)| !jolted(*g))
-            .map(|((p, groups), f)| (p, groups, f))
-            .collect();
-    let means: Vec<StackFault> = lags.iter().map(|l| l.2.clone()).collect();
-    if !drop_misplaced_patterns(faults, &means) {
+    let mut lags: Vec<Placed> = (stack.lags_in_means(params).into_iter())
+        .filter_map(|f| Some((lag_place(&f)?, f)))
+        .filter(|((_, [g, _]), _)| !jolted(*g))
+        .map(|((p, groups), f)| (p, groups, f))
+        .collect();
+    if !drop_misplaced_patterns(faults, &lags) {
         return;
     }
     // A direction's lag that a group's mean places is named there (6b.11 names the
@@ -484,12 +482,12 @@ fn name_hidden_lags(
 /// (6b.12): the phases place a lag through its projector's phase and modulation change,
 /// which its leak into the other projectors' bins of the group can mimic, and through the
 /// fusion, which can spread it to another group; the mean places it directly. A wrong
-/// pattern that no lag in the means matches (its group, its projector among theirs) is
+/// pattern that no lag in the `means` matches (its group, its projector among theirs) is
 /// dropped, for those lags to be named instead. Whether the stack is left with no wrong
 /// pattern (true also when it had none).
-fn drop_misplaced_patterns(faults: &mut Vec<StackFault>, means: &[StackFault]) -> bool {
+fn drop_misplaced_patterns(faults: &mut Vec<StackFault>, means: &[Placed]) -> bool {
     let matched = |p: usize, g: usize| {
-        (means.iter()).any(|m| matches!(m, StackFault::FringesInMean { projectors, group, .. } if *group == g && projectors.contains(&p)))
+        (means.iter()).any(|(projectors, [group, _], _)| *group == g && projectors.contains(&p))
     };
     faults.retain(|f| match *f {
         StackFault::WrongPattern {
@@ -563,6 +561,9 @@ fn name_light_inside(notes: &mut Vec<StackNote>, n: usize, faults: &mut Vec<Stac
         notes.remove(i);
     }
 }
+
+/// A lag with its projectors and first and last group.
+type Placed = (Vec<usize>, [usize; 2], StackFault);
 
 /// A lag's projectors and groups.
 fn lag_place(f: &StackFault) -> Option<(Vec<usize>, [usize; 2])> {

@@ -5,11 +5,12 @@
 //! group or as motion; judged against the other counts alone, which it does not touch, its
 //! group's phases are off by the lag's δ and its modulation by a (6b.7).
 
-use super::phases::{centred, chi2_tail, MIN_SNR};
+use super::phases::{centred, MIN_SNR};
 use super::{Stack, StackFault};
 use crate::phase::check::CheckParams;
 use crate::phase::decode::phase_cycles;
 use crate::phase::Constellation;
+use crate::stats::chi2_tail;
 use hexcal_core::pattern::{Direction, Sequence, MAX_COUNTS};
 use rayon::prelude::*;
 use std::f64::consts::TAU;

@@ -9,7 +9,7 @@
 
 use super::{Stack, StackFault, SHAPES};
 use crate::phase::check::CheckParams;
-use crate::stats::median;
+use crate::stats::{chi2_tail, median};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
@@ -234,30 +234,18 @@ impl MeanNormal {
     }
 }
 
-/// χ²_k's upper quantile at the normal's one-sided tail at z, for even k (the tail is
-/// e^{−x/2}·Σ_{i<k/2} (x/2)^i/i!), by bisection.
+/// χ²_k's upper quantile at the normal's one-sided tail at z, by bisection.
 fn chi2_quantile(k: usize, z: f64) -> f64 {
     let target = 0.5 * libm::erfc(z / std::f64::consts::SQRT_2);
     let (mut lo, mut hi) = (0.0, 10.0 * (k as f64 + z * z));
     for _ in 0..100 {
         let x = 0.5 * (lo + hi);
-        match chi2_even_tail(k, x) > target {
+        match chi2_tail(k, x) > target {
             true => lo = x,
             false => hi = x,
         }
     }
     0.5 * (lo + hi)
-}
-
-/// P(χ²_k > x) for even k.
-fn chi2_even_tail(k: usize, x: f64) -> f64 {
-    let h = 0.5 * x;
-    let (mut term, mut sum) = (1.0, 1.0);
-    for i in 1..k / 2 {
-        term *= h / i as f64;
-        sum += term;
-    }
-    (-h).exp() * sum
 }
 
 #[cfg(test)]

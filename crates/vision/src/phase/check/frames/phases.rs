@@ -15,7 +15,7 @@ use crate::phase::check::repair::kept_groups;
 use crate::phase::check::CheckParams;
 use crate::phase::decode::phase_cycles;
 use crate::phase::Constellation;
-use crate::stats::median;
+use crate::stats::{chi2_tail, median};
 use hexcal_core::pattern::{Direction, Sequence};
 use rayon::prelude::*;
 use std::f64::consts::TAU;
@@ -495,16 +495,6 @@ impl Stack<'_> {
             .filter(|(_, fits, _)| *fits)
             .min_by(|x, y| x.2.total_cmp(&y.2))
             .map(|(lag, _, _)| lag)
-    }
-}
-
-/// P(χ²_k > x) for k ≤ 3 (the regularised upper incomplete gamma Q(k/2, x/2)).
-pub(super) fn chi2_tail(k: usize, x: f64) -> f64 {
-    let h = 0.5 * x;
-    match k {
-        1 => libm::erfc(h.sqrt()),
-        2 => (-h).exp(),
-        _ => libm::erfc(h.sqrt()) + (h / std::f64::consts::PI).sqrt() * 2.0 * (-h).exp(),
     }
 }
 
